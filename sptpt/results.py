@@ -1,0 +1,90 @@
+"""What the tracker returns for one frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FrameResult", "confidence_from_log_likelihood"]
+
+
+def confidence_from_log_likelihood(log_likelihood: float, *, scale: float) -> float:
+    """Map the log-likelihood ``RE- - RE+`` to a confidence in [0, 1].
+
+    A logistic squashing centred on the paper's acceptance threshold (0):
+    a frame the model would refuse to learn from gets confidence <= 0.5.
+    ``scale`` is the log-likelihood difference that moves the confidence
+    from 0.5 to about 0.73; it sets how quickly confidence saturates.
+    """
+    if not np.isfinite(log_likelihood):
+        return 0.0
+    return float(1.0 / (1.0 + np.exp(-log_likelihood / scale)))
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """The tracker's estimate for one frame.
+
+    Attributes
+    ----------
+    box_xywh : (4,) float64 ndarray
+        Estimated box, 0-based pixels, ``x, y, w, h`` (top-left corner and size).
+    log_likelihood : float
+        ``RE- - RE+`` of the winning candidate (paper eq. 8); during the first
+        frames, before both subspace models exist, the bootstrap intersection
+        score with the first-frame code tensor (see ``scoring``).
+    confidence : float
+        In [0, 1], a monotone function of ``log_likelihood``; 0.5 is the
+        acceptance threshold.
+    accepted : bool
+        Whether the frame's winning tensor joined the positive model
+        (``log_likelihood > Phi``).
+    scoring : str
+        ``"init"`` for the first frame, ``"bootstrap"`` before both subspace
+        models exist, ``"subspace"`` afterwards.
+    particles_xywh : (N, 4) float64 ndarray or None
+        Boxes of all candidates, 0-based ``xywh``; only when asked for.
+    particle_scores : (N,) float64 ndarray or None
+        Log-likelihood of each candidate; only when asked for.
+    superpixel_labels : (h, w) int32 ndarray or None
+        The winning candidate's superpixel labels mapped back to the frame,
+        covering the frame window whose top-left pixel is
+        ``superpixel_origin_xy``; -1 where the window is outside the candidate.
+        Only when asked for.
+    superpixel_origin_xy : (2,) int64 ndarray or None
+        0-based frame column and row of ``superpixel_labels[0, 0]``.
+    """
+
+    box_xywh: np.ndarray
+    log_likelihood: float
+    confidence: float
+    accepted: bool
+    scoring: str
+    particles_xywh: np.ndarray | None = None
+    particle_scores: np.ndarray | None = None
+    superpixel_labels: np.ndarray | None = None
+    superpixel_origin_xy: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        box = np.asarray(self.box_xywh, dtype=np.float64)
+        if box.shape != (4,):
+            raise ValueError(f"box_xywh must have shape (4,), got {box.shape}")
+        object.__setattr__(self, "box_xywh", box)
+        if not 0.0 <= self.confidence <= 1.0:
+            raise ValueError(f"confidence must lie in [0, 1], got {self.confidence}")
+        if self.scoring not in ("init", "bootstrap", "subspace"):
+            raise ValueError(f"scoring must be 'init', 'bootstrap' or 'subspace', got {self.scoring!r}")
+        if (self.particles_xywh is None) != (self.particle_scores is None):
+            raise ValueError("particles_xywh and particle_scores come together or not at all")
+        if self.particles_xywh is not None:
+            particles = np.asarray(self.particles_xywh, dtype=np.float64)
+            scores = np.asarray(self.particle_scores, dtype=np.float64)
+            if particles.ndim != 2 or particles.shape[1] != 4 or scores.shape != (particles.shape[0],):
+                raise ValueError(
+                    f"particles_xywh must be (N, 4) and particle_scores (N,), got {particles.shape} and {scores.shape}"
+                )
+            object.__setattr__(self, "particles_xywh", particles)
+            object.__setattr__(self, "particle_scores", scores)
+        if (self.superpixel_labels is None) != (self.superpixel_origin_xy is None):
+            raise ValueError("superpixel_labels and superpixel_origin_xy come together or not at all")
