@@ -1,0 +1,42 @@
+"""Bilinear affine warping of many candidates from one frame."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def warp_affine_batch(frame, q, offsets):  # pragma: no cover - compiled
+    """Sample ``frame`` at ``(cx + A11 x + A12 y, cy + A21 x + A22 y)`` for every template pixel.
+
+    frame: (H, W, 3) uint8. q: (N, 6) float64, 0-based centre and the 2x2
+    linear part. offsets: (T,) template offsets. Returns (N, T, T, 3) uint8.
+    Positions outside ``[0, W-1] x [0, H-1]`` give 0, as MATLAB ``interp2``
+    returns NaN there and ``warpimg`` replaces NaN by 0.
+    """
+    height, width = frame.shape[0], frame.shape[1]
+    n, size = q.shape[0], offsets.shape[0]
+    out = np.zeros((n, size, size, 3), dtype=np.uint8)
+    for i in numba.prange(n):
+        cx, cy, a11, a12, a21, a22 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5]
+        for r in range(size):
+            y = offsets[r]
+            for c in range(size):
+                x = offsets[c]
+                px = cx + a11 * x + a12 * y
+                py = cy + a21 * x + a22 * y
+                if not (px >= 0.0 and px <= width - 1 and py >= 0.0 and py <= height - 1):
+                    continue
+                x0 = int(np.floor(px))
+                y0 = int(np.floor(py))
+                fx = px - x0
+                fy = py - y0
+                x1 = min(x0 + 1, width - 1)
+                y1 = min(y0 + 1, height - 1)
+                for ch in range(3):
+                    top = frame[y0, x0, ch] * (1.0 - fx) + frame[y0, x1, ch] * fx
+                    bottom = frame[y1, x0, ch] * (1.0 - fx) + frame[y1, x1, ch] * fx
+                    value = top * (1.0 - fy) + bottom * fy
+                    out[i, r, c, ch] = np.uint8(min(max(np.rint(value), 0.0), 255.0))
+    return out
