@@ -1,0 +1,168 @@
+"""Tracker parameters: one frozen, typed dataclass and its named presets.
+
+Every value carries its unit, its effect and its source: **paper** (stated in
+the SPTPT paper), **TPT** / **IVT** / **SNIC** / **SPT** (reference code the
+spec traces it to), or **ours** (a choice of this project, with the
+measurement that justifies it in ``benchmarks/RESULTS.md``). See
+``SPTPT_SPEC.md`` section 3. YAML and other files are parsed by the tool,
+not here: :func:`params_from_mapping` takes a plain mapping.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from sptpt.subspace import RE_MODES
+
+__all__ = ["TrackerParams", "PRESETS", "get_preset", "params_from_mapping", "UnknownParameterError"]
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """All parameters of the SPTPT tracker. Build with a preset and :func:`dataclasses.replace`."""
+
+    # --- candidate templates ---------------------------------------------------------
+    template_size: int = 32
+    """Side of the square candidate template, px. Sets SNIC's and the features' resolution. [paper]"""
+
+    # --- superpixels (SNIC) ----------------------------------------------------------
+    n_superpixels: int = 30
+    """Requested superpixels K per template. With ``seeding='official'`` SNIC's grid gives 25. [paper; SNIC]"""
+    compactness: float = 20.0
+    """SNIC compactness M (colour vs. space trade-off); higher gives more regular superpixels. [paper; SNIC demo]"""
+    seeding: str = "official"
+    """SNIC seed grid: ``official`` (MATLAB snic_mex FindSeeds, 5x5 for K=30) or ``exact`` (K seeds). [SNIC; spec A1]"""
+
+    # --- midlevel cues ---------------------------------------------------------------
+    n_bins: int = 8
+    """Histogram bins per cue (H, S, I, R, G, B, x, y); feature length is 8 * n_bins. [SPT ch_bins_num]"""
+
+    # --- dictionary and sparse codes -------------------------------------------------
+    n_atoms: int = 50
+    """Dictionary atoms z (k-means++ centroids of first-frame superpixel features). [TPT ncluster]"""
+    lasso_lambda: float = 0.01
+    """L1 weight of the non-negative LASSO ``0.5||a - Dh||^2 + lambda||h||_1``; larger gives sparser codes. [TPT l1_opt]"""
+    kmeans_restarts: int = 1
+    """k-means++ restarts for the dictionary; the best inertia wins. [TPT fkmeans runs once]"""
+
+    # --- particle filter -------------------------------------------------------------
+    n_particles: int = 600
+    """Candidates drawn per frame; cost grows linearly with it. [paper; TPT nsample]"""
+    motion_sigma: tuple[float, float, float, float, float, float] = (10.0, 10.0, 0.015, 0.0, 0.0, 0.0)
+    """Random-walk std per state parameter: cx px, cy px, scale (box width / template), rotation rad,
+    aspect (h/w), skew rad. Larger follows faster motion at more risk of jumping. [TPT affsig]"""
+
+    # --- subspace models -------------------------------------------------------------
+    n_negatives: int = 200
+    """Negative samples drawn around the estimate to refit the negative model. [paper; TPT nneg]"""
+    negative_every: int = 1
+    """Refit the negative model on every n-th accepted frame (from frame ``update_every`` on). [TPT: 1]"""
+    update_every: int = 5
+    """Accepted tensors per positive-model batch u; also the frame from which negatives are drawn. [paper]"""
+    ranks: tuple[int, int, int] = (40, 5, 40)
+    """Max ranks (codeword mode, superpixel mode, sample mode); R2 <= superpixels. [TPT 40/5/5/40; spec A11]"""
+    forgetting: float = 0.9
+    """Forgetting factor of the incremental SVD, (0, 1]; lower adapts faster to appearance change. [TPT]"""
+    gamma: float = 0.5
+    """Weight of the modes-1-2 reconstruction error against the sample-mode error. [paper]"""
+    re_mode: str = "paper"
+    """Reconstruction-error form: ``paper``, ``paper_literal`` or ``tpt_code`` (spec A8). [spec]"""
+    accept_threshold: float = 0.0
+    """Phi: a frame joins the positive model only when ``RE- - RE+ > Phi``. [paper; TPT]"""
+
+    # --- reporting -------------------------------------------------------------------
+    confidence_scale: float = 0.05
+    """Log-likelihood that lifts the confidence from 0.5 to 0.73 (logistic scale); reporting only. [ours]"""
+
+    def __post_init__(self) -> None:
+        _check(self.template_size >= 8, "template_size", self.template_size, "an integer >= 8")
+        _check(self.n_superpixels >= 1, "n_superpixels", self.n_superpixels, "an integer >= 1")
+        _check(self.compactness > 0, "compactness", self.compactness, "a number > 0")
+        _check(self.seeding in ("official", "exact"), "seeding", self.seeding, "'official' or 'exact'")
+        _check(self.n_bins >= 1, "n_bins", self.n_bins, "an integer >= 1")
+        _check(self.n_atoms >= 2, "n_atoms", self.n_atoms, "an integer >= 2")
+        _check(self.lasso_lambda >= 0, "lasso_lambda", self.lasso_lambda, "a number >= 0")
+        _check(self.kmeans_restarts >= 1, "kmeans_restarts", self.kmeans_restarts, "an integer >= 1")
+        _check(self.n_particles >= 1, "n_particles", self.n_particles, "an integer >= 1")
+        _check(
+            len(self.motion_sigma) == 6 and all(math.isfinite(v) and v >= 0 for v in self.motion_sigma),
+            "motion_sigma", self.motion_sigma, "six finite numbers >= 0 (cx, cy, scale, rotation, aspect, skew)",
+        )
+        _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")
+        _check(self.negative_every >= 1, "negative_every", self.negative_every, "an integer >= 1")
+        _check(self.update_every >= 2, "update_every", self.update_every, "an integer >= 2")
+        _check(len(self.ranks) == 3 and all(r >= 1 for r in self.ranks), "ranks", self.ranks, "three integers >= 1")
+        _check(0 < self.forgetting <= 1, "forgetting", self.forgetting, "a number in (0, 1]")
+        _check(0 <= self.gamma <= 1, "gamma", self.gamma, "a number in [0, 1]")
+        _check(self.re_mode in RE_MODES, "re_mode", self.re_mode, f"one of {', '.join(RE_MODES)}")
+        _check(math.isfinite(self.accept_threshold), "accept_threshold", self.accept_threshold, "a finite number")
+        _check(self.confidence_scale > 0, "confidence_scale", self.confidence_scale, "a number > 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain mapping of every field (tuples as lists), for provenance files."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+
+def _check(ok: bool, name: str, value: Any, expected: str) -> None:
+    if not ok:
+        raise ValueError(f"parameter {name}={value!r} is invalid: expected {expected}")
+
+
+PRESETS: dict[str, TrackerParams] = {
+    # Exactly SPTPT_SPEC.md, for comparison with the paper.
+    "paper": TrackerParams(),
+}
+
+
+def get_preset(name: str) -> TrackerParams:
+    """The named preset; an unknown name is an error that lists the valid ones."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown preset {name!r}: expected one of {', '.join(sorted(PRESETS))}") from None
+
+
+class UnknownParameterError(ValueError):
+    """A mapping named a parameter that does not exist."""
+
+
+def params_from_mapping(mapping: Mapping[str, Any], base: TrackerParams | None = None) -> TrackerParams:
+    """Override ``base`` (default: the ``paper`` preset) with the values of a plain mapping.
+
+    Unknown keys are rejected with the closest valid name; sequences are
+    converted to tuples; types are checked against the field's default.
+    """
+    base = PRESETS["paper"] if base is None else base
+    fields = {f.name: f for f in dataclasses.fields(TrackerParams)}
+    changes: dict[str, Any] = {}
+    for key, value in mapping.items():
+        if key not in fields:
+            close = difflib.get_close_matches(str(key), list(fields), n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"valid keys: {', '.join(fields)}"
+            raise UnknownParameterError(f"unknown tracker parameter {key!r}: {hint}")
+        changes[key] = _coerce(key, value, getattr(base, key))
+    return dataclasses.replace(base, **changes)
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+            raise ValueError(f"parameter {name}={value!r} is invalid: expected a list of {len(default)} numbers")
+        return tuple(_coerce(name, v, d) for v, d in zip(value, default))
+    if isinstance(default, bool) or isinstance(default, str):
+        if type(value) is not type(default):
+            raise ValueError(f"parameter {name}={value!r} is invalid: expected a {type(default).__name__}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            raise ValueError(f"parameter {name}={value!r} is invalid: expected an integer")
+        return int(value)
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"parameter {name}={value!r} is invalid: expected a number")
+        return float(value)
+    return value
