@@ -1,0 +1,356 @@
+"""Finding and loading OTB ground truth and result files for evaluation.
+
+Ground truth
+    An OTB-layout root holds one folder per sequence with a
+    ``groundtruth*.txt`` file (``groundtruth_rect.txt``). A folder with
+    several non-empty files (``groundtruth_rect.1.txt``, ``.2.txt``: Jogging,
+    Skating2) gives one sequence per file, named ``Jogging.1``,
+    ``Jogging.2`` in sorted file order; empty files are skipped (Human4's
+    ``groundtruth_rect.1.txt``). This is got10k's ``datasets.OTB`` naming.
+    Folders already split that way (``../shared/otb/Jogging.1/``) keep
+    their own name. Frame sub-ranges (David 300-770, ...) are not applied:
+    the ground-truth file defines the frames, and results must have one row
+    per ground-truth row.
+Results
+    One OTB result file per sequence, 1-based ``x,y,w,h`` rows. Where to
+    find it is decided by a *locator*, a function ``(folder, name) ->
+    candidate paths`` tried in order; :func:`default_result_candidates`
+    accepts ``<folder>/<Name>.txt`` (got10k and pysot layout, and what
+    :func:`annotator.exports.write_otb_results` writes) or a per-sequence
+    output folder ``<folder>/<Name>/`` holding one of
+    :data:`OUTPUT_FOLDER_RESULT_NAMES`. Pass another locator to adapt.
+
+Every error names the file (and line, via :class:`~annotator.otb.OTBFormatError`)
+or the missing path, and says how to fix it.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from annotator.evaluation.metrics import (
+    DEFAULT_INVALID_PRED,
+    DatasetScore,
+    EvaluationError,
+    InvalidPredRule,
+    SequenceScore,
+    evaluate_sequence,
+)
+from annotator.otb import read_otb_boxes
+
+__all__ = [
+    "OUTPUT_FOLDER_RESULT_NAMES",
+    "ResultLocator",
+    "SequencePair",
+    "default_result_candidates",
+    "discover_otb_sequences",
+    "find_result_file",
+    "load_sequence_pair",
+    "load_dataset_pairs",
+    "evaluate_result_file",
+    "evaluate_results_dir",
+]
+
+#: File names tried inside a per-sequence output folder, in order; ``{name}`` is the sequence name.
+OUTPUT_FOLDER_RESULT_NAMES: tuple[str, ...] = ("{name}.txt",)
+
+#: ``(folder, sequence name) -> candidate result paths``, most preferred first.
+ResultLocator = Callable[[Path, str], Sequence[Path]]
+
+
+def default_result_candidates(folder: Path, name: str) -> list[Path]:
+    """Candidate result files for sequence ``name`` under a results ``folder``.
+
+    ``<folder>/<name>.txt`` first, then the per-sequence output folder
+    ``<folder>/<name>/`` with each of :data:`OUTPUT_FOLDER_RESULT_NAMES`.
+    """
+    folder = Path(folder)
+    inside = [folder / name / pattern.format(name=name) for pattern in OUTPUT_FOLDER_RESULT_NAMES]
+    return [folder / f"{name}.txt", *inside]
+
+
+def _output_folder_candidates(folder: Path, name: str | None) -> list[Path]:
+    names = [pattern.format(name=n) for n in (name, folder.name) if n for pattern in OUTPUT_FOLDER_RESULT_NAMES]
+    return [folder / n for n in dict.fromkeys(names)]
+
+
+def find_result_file(path: str | os.PathLike, *, name: str | None = None) -> Path:
+    """Resolve a single-sequence result argument: a file, or an output folder holding one.
+
+    Parameters
+    ----------
+    path : path-like
+        An OTB result file, or a per-sequence output folder. In a folder,
+        :data:`OUTPUT_FOLDER_RESULT_NAMES` are tried with ``name`` and with
+        the folder's own name; failing those, the folder's only ``*.txt``
+        file is taken (several are ambiguous and refused).
+    name : str, optional
+        Sequence name, used to look for ``<name>.txt`` inside a folder.
+
+    Returns
+    -------
+    Path
+        The result file.
+
+    Raises
+    ------
+    EvaluationError
+        The path does not exist, or the folder holds none of the expected files.
+    """
+    path = Path(path)
+    if path.is_file():
+        return path
+    if not path.exists():
+        raise EvaluationError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h per row")
+    candidates = _output_folder_candidates(path, name)
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    texts = sorted(p for p in path.glob("*.txt") if p.is_file() and not p.name.startswith("."))
+    if len(texts) == 1:
+        return texts[0]
+    tried = ", ".join(c.name for c in candidates)
+    listing = ", ".join(p.name for p in texts)
+    found = f"it holds {len(texts)} .txt files ({listing})" if texts else "it holds no .txt file"
+    raise EvaluationError(
+        f"{path}: cannot tell which file is the OTB result (looked for {tried}; {found}); pass the file itself"
+    )
+
+
+def _sequence_gt_files(folder: Path) -> list[Path]:
+    files = sorted(f for f in folder.glob("groundtruth*.txt") if f.is_file())
+    kept = []
+    for f in files:
+        if f.read_text(encoding="utf-8-sig").strip():
+            kept.append(f)
+        else:
+            warnings.warn(f"{f}: empty ground-truth file skipped (as got10k does)", stacklevel=3)
+    return kept
+
+
+def _sequence_name(gt_path: Path) -> str:
+    """The name :func:`discover_otb_sequences` would give this ground-truth file."""
+    folder = gt_path.resolve().parent
+    siblings = [f.resolve() for f in _sequence_gt_files(folder)] if gt_path.is_file() else []
+    if len(siblings) > 1 and gt_path.resolve() in siblings:
+        return f"{folder.name}.{siblings.index(gt_path.resolve()) + 1}"
+    return folder.name
+
+
+def discover_otb_sequences(root: str | os.PathLike) -> dict[str, Path]:
+    """Sequences of an OTB-layout root and their ground-truth files.
+
+    Parameters
+    ----------
+    root : path-like
+        Folder holding ``<Name>/groundtruth*.txt``.
+
+    Returns
+    -------
+    dict[str, Path]
+        Sequence name -> ground-truth file, sorted by name; multi-target
+        folders give ``Name.1``, ``Name.2`` (see the module notes).
+
+    Raises
+    ------
+    EvaluationError
+        ``root`` is not a folder or holds no sequence.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise EvaluationError(f"{root}: not a folder; pass an OTB-layout root holding <Name>/groundtruth_rect.txt")
+    sequences: dict[str, Path] = {}
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        files = _sequence_gt_files(folder)
+        if len(files) == 1:
+            sequences[folder.name] = files[0]
+        else:
+            for index, f in enumerate(files, start=1):
+                sequences[f"{folder.name}.{index}"] = f
+    if not sequences:
+        raise EvaluationError(
+            f"{root}: no sequence found; expected folders <Name>/ holding groundtruth_rect.txt (OTB layout)"
+        )
+    return dict(sorted(sequences.items()))
+
+
+@dataclass(frozen=True)
+class SequencePair:
+    """Result and ground-truth boxes of one sequence, 0-based ``xywh``, with their files."""
+
+    name: str
+    pred: np.ndarray
+    gt: np.ndarray
+    pred_path: Path
+    gt_path: Path
+
+
+def load_sequence_pair(
+    pred_path: str | os.PathLike,
+    gt_path: str | os.PathLike,
+    *,
+    name: str,
+    pred_origin: int = 1,
+    gt_origin: int = 1,
+) -> SequencePair:
+    """Read a result file and a ground-truth file and check they have one row per frame each.
+
+    Raises
+    ------
+    annotator.otb.OTBFormatError
+        An unparsable row (the message names the file and line).
+    EvaluationError
+        The row counts differ (the message names both files).
+    """
+    pred_path, gt_path = Path(pred_path), Path(gt_path)
+    for role, path in (("result", pred_path), ("ground-truth", gt_path)):
+        if not path.is_file():
+            raise EvaluationError(f"sequence {name!r}: {role} file {path} does not exist")
+    gt = read_otb_boxes(gt_path, origin=gt_origin)
+    pred = read_otb_boxes(pred_path, origin=pred_origin)
+    if len(pred) != len(gt):
+        raise EvaluationError(
+            f"sequence {name!r}: {pred_path} has {len(pred)} rows but the ground truth {gt_path} has {len(gt)}; "
+            "an OTB result file needs exactly one x,y,w,h row per ground-truth frame, the first frame included"
+        )
+    return SequencePair(name=name, pred=pred, gt=gt, pred_path=pred_path, gt_path=gt_path)
+
+
+def _select(available: Mapping[str, Path], sequences: Iterable[str] | None, root: Path) -> dict[str, Path]:
+    if sequences is None:
+        return dict(available)
+    wanted = list(dict.fromkeys(sequences))
+    unknown = [s for s in wanted if s not in available]
+    if unknown:
+        raise EvaluationError(
+            f"{root}: no ground truth for sequence(s) {', '.join(unknown)}; "
+            f"available: {', '.join(available) or 'none'}"
+        )
+    return {s: available[s] for s in wanted}
+
+
+def load_dataset_pairs(
+    gt_root: str | os.PathLike,
+    results_dir: str | os.PathLike,
+    *,
+    sequences: Iterable[str] | None = None,
+    locate: ResultLocator = default_result_candidates,
+) -> dict[str, SequencePair]:
+    """Load every sequence's ground truth and result file.
+
+    Parameters
+    ----------
+    gt_root : path-like
+        OTB-layout root (see :func:`discover_otb_sequences`).
+    results_dir : path-like
+        Folder with one result per sequence, found by ``locate``.
+    sequences : iterable of str, optional
+        Evaluate only these sequences (default: all of ``gt_root``).
+    locate : ResultLocator
+        ``(results_dir, name) -> candidate paths``; the first existing file wins.
+
+    Returns
+    -------
+    dict[str, SequencePair]
+        In sequence-name order.
+
+    Raises
+    ------
+    EvaluationError
+        A missing results folder, sequences with no result file (all listed
+        at once, each with the path expected), or a row-count mismatch.
+    annotator.otb.OTBFormatError
+        An unparsable row, naming the file and line.
+    """
+    gt_root, results_dir = Path(gt_root), Path(results_dir)
+    selected = _select(discover_otb_sequences(gt_root), sequences, gt_root)
+    if not results_dir.is_dir():
+        raise EvaluationError(f"{results_dir}: results folder does not exist; pass the folder holding <Name>.txt files")
+    found: dict[str, Path] = {}
+    missing: list[str] = []
+    for name in selected:
+        candidates = list(locate(results_dir, name))
+        hit = next((c for c in candidates if Path(c).is_file()), None)
+        if hit is None:
+            missing.append(f"{name} (expected {candidates[0] if candidates else results_dir / (name + '.txt')})")
+        else:
+            found[name] = Path(hit)
+    if missing:
+        raise EvaluationError(
+            f"{results_dir}: no result for {len(missing)} of {len(selected)} sequence(s): {'; '.join(missing)}; "
+            "add the files or restrict the evaluation to the sequences that have results"
+        )
+    return {name: load_sequence_pair(found[name], selected[name], name=name) for name in selected}
+
+
+def evaluate_result_file(
+    result: str | os.PathLike,
+    ground_truth: str | os.PathLike,
+    *,
+    name: str | None = None,
+    replace_first: bool = True,
+    invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
+) -> SequenceScore:
+    """Score one result file (or output folder) against one ground-truth file.
+
+    Parameters
+    ----------
+    result : path-like
+        OTB result file, or a per-sequence output folder holding one (see
+        :func:`find_result_file`).
+    ground_truth : path-like
+        OTB ground-truth file (1-based), e.g. ``<root>/David/groundtruth_rect.txt``.
+    name : str, optional
+        Sequence name; defaults to the ground-truth file's folder name.
+    replace_first, invalid_pred
+        As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
+    """
+    ground_truth = Path(ground_truth)
+    name = name or _sequence_name(ground_truth)
+    result_path = find_result_file(result, name=name)
+    pair = load_sequence_pair(result_path, ground_truth, name=name)
+    return evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+
+
+def evaluate_results_dir(
+    gt_root: str | os.PathLike,
+    results_dir: str | os.PathLike,
+    *,
+    tracker: str | None = None,
+    sequences: Iterable[str] | None = None,
+    locate: ResultLocator = default_result_candidates,
+    replace_first: bool = True,
+    invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
+) -> DatasetScore:
+    """Score a folder of results against an OTB-layout root (one tracker).
+
+    Parameters
+    ----------
+    gt_root : path-like
+        OTB-layout root, e.g. ``../shared/otb``.
+    results_dir : path-like
+        One result per sequence (see :func:`load_dataset_pairs`).
+    tracker : str, optional
+        Name for plots and tables; defaults to the results folder's name.
+    sequences, locate
+        As in :func:`load_dataset_pairs`.
+    replace_first, invalid_pred
+        As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
+
+    Returns
+    -------
+    DatasetScore
+    """
+    results_dir = Path(results_dir)
+    pairs = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
+    scores = {
+        name: evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+        for name, pair in pairs.items()
+    }
+    return DatasetScore.from_sequences(tracker or results_dir.resolve().name, scores)
