@@ -1,0 +1,528 @@
+"""The overlay video: tracker output drawn on the frames, streamed to an H.264 MP4.
+
+Two parts with one job each (the supervision annotator pattern):
+
+* :class:`OverlayRenderer` is stateless and configured once: ``annotate(frame,
+  items)`` returns a new frame with the layers drawn (particle cloud,
+  superpixel boundaries, boxes with labels, the review mark).
+* :class:`OverlayWriter` streams frames to ``ffmpeg`` as they come, so memory
+  does not grow with the video, and publishes the file only when it is
+  complete (atomic rename).
+
+Frames are RGB ``uint8``; OpenCV's drawing functions do not care about
+channel order as long as colours are given as RGB tuples, which they are here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+
+from annotator.atomic import atomic_path
+from annotator.tracks import TrackResult
+
+__all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks"]
+
+RGB = tuple[int, int, int]
+
+#: Box colours by track id (tab10 without its red and green, which mark flags and corrections).
+DEFAULT_PALETTE: tuple[RGB, ...] = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (148, 103, 189),
+    (23, 190, 207),
+    (227, 119, 194),
+    (188, 189, 34),
+    (140, 86, 75),
+    (127, 127, 127),
+)
+
+
+@dataclass(frozen=True)
+class OverlayItem:
+    """What to draw for one track on one frame.
+
+    Attributes
+    ----------
+    box_xywh : (4,) float64 ndarray
+        0-based ``x, y, w, h``; a NaN box draws nothing but its review mark.
+    track_id : int
+    confidence : float
+        In [0, 1]; shown in the label.
+    flagged : bool
+        The frame needs review: draws the red border and ``REVIEW`` tag.
+    corrected : bool
+        The box is a human keyframe (first frame or a correction): drawn in
+        the corrected colour, thicker, labelled ``corrected``.
+    particles_xywh : (N, 4) ndarray or None
+        Candidate boxes; their centres are drawn as dots.
+    particle_scores : (N,) ndarray or None
+        Candidate scores; dots are shaded by score normalised over this
+        item's particles on this frame (dark = worst, bright = best), since
+        only the ranking within one frame and track is meaningful.
+    superpixel_labels : (h, w) int ndarray or None
+        Labels of the winning candidate's superpixels, -1 outside it.
+    superpixel_origin_xy : (2,) int ndarray or None
+        Frame column and row of ``superpixel_labels[0, 0]``.
+    """
+
+    box_xywh: np.ndarray
+    track_id: int
+    confidence: float
+    flagged: bool = False
+    corrected: bool = False
+    particles_xywh: np.ndarray | None = None
+    particle_scores: np.ndarray | None = None
+    superpixel_labels: np.ndarray | None = None
+    superpixel_origin_xy: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        box = np.asarray(self.box_xywh, dtype=np.float64)
+        if box.shape != (4,):
+            raise ValueError(f"OverlayItem.box_xywh must have shape (4,), got {box.shape}")
+        object.__setattr__(self, "box_xywh", box)
+        if (self.particles_xywh is None) != (self.particle_scores is None):
+            raise ValueError("OverlayItem: particles_xywh and particle_scores come together or not at all")
+        if self.particles_xywh is not None:
+            particles = np.asarray(self.particles_xywh, dtype=np.float64)
+            scores = np.asarray(self.particle_scores, dtype=np.float64)
+            if particles.ndim != 2 or particles.shape[1] != 4 or scores.shape != (particles.shape[0],):
+                raise ValueError(
+                    f"OverlayItem: particles_xywh must be (N, 4) and particle_scores (N,), "
+                    f"got {particles.shape} and {scores.shape}"
+                )
+            object.__setattr__(self, "particles_xywh", particles)
+            object.__setattr__(self, "particle_scores", scores)
+        if (self.superpixel_labels is None) != (self.superpixel_origin_xy is None):
+            raise ValueError("OverlayItem: superpixel_labels and superpixel_origin_xy come together or not at all")
+        if self.superpixel_labels is not None:
+            labels = np.asarray(self.superpixel_labels)
+            origin = np.asarray(self.superpixel_origin_xy)
+            if labels.ndim != 2 or not np.issubdtype(labels.dtype, np.integer) or origin.shape != (2,):
+                raise ValueError(
+                    f"OverlayItem: superpixel_labels must be an (h, w) integer array and superpixel_origin_xy (2,), "
+                    f"got {labels.dtype} {labels.shape} and {origin.shape}"
+                )
+            object.__setattr__(self, "superpixel_labels", labels)
+            object.__setattr__(self, "superpixel_origin_xy", origin.astype(np.int64))
+
+    @classmethod
+    def from_frame_result(cls, result, *, track_id: int, flagged: bool = False, corrected: bool = False) -> OverlayItem:
+        """Item from a :class:`sptpt.results.FrameResult` (particles and superpixels when it has them)."""
+        return cls(
+            box_xywh=result.box_xywh,
+            track_id=track_id,
+            confidence=result.confidence,
+            flagged=flagged,
+            corrected=corrected,
+            particles_xywh=result.particles_xywh,
+            particle_scores=result.particle_scores,
+            superpixel_labels=result.superpixel_labels,
+            superpixel_origin_xy=result.superpixel_origin_xy,
+        )
+
+
+def items_from_tracks(tracks: Sequence[TrackResult], frame_index: int) -> list[OverlayItem]:
+    """Items of every track that has a row for source frame ``frame_index`` (boxes only).
+
+    For re-rendering an overlay from saved tracks, e.g. after review.
+    Frames where the object is ``outside`` keep their review mark but no box.
+    """
+    items = []
+    for track in tracks:
+        row = int(np.searchsorted(track.frame_indices, frame_index))
+        if row < len(track) and track.frame_indices[row] == frame_index:
+            box = np.full(4, np.nan) if track.outside[row] else track.boxes_xywh[row]
+            items.append(
+                OverlayItem(
+                    box_xywh=box,
+                    track_id=track.track_id,
+                    confidence=float(track.confidence[row]),
+                    flagged=bool(track.flagged[row]),
+                    corrected=bool(track.keyframe[row]),
+                )
+            )
+    return items
+
+
+def _text_colour(background: RGB) -> RGB:
+    # Rec. 601 luma: dark text on light labels, white on dark ones.
+    luma = 0.299 * background[0] + 0.587 * background[1] + 0.114 * background[2]
+    return (0, 0, 0) if luma > 150 else (255, 255, 255)
+
+
+class OverlayRenderer:
+    """Draws tracker output on RGB frames; stateless, configured in the constructor.
+
+    Parameters
+    ----------
+    palette : sequence of RGB tuples
+        Box colours, chosen by ``track_id`` (cycled).
+    corrected_color : RGB tuple
+        Colour of human-corrected (keyframe) boxes.
+    flag_color : RGB tuple
+        Colour of the review border and tag.
+    superpixel_color : RGB tuple
+        Colour of superpixel boundaries.
+    superpixel_alpha : float
+        Opacity of superpixel boundaries in [0, 1].
+    particle_colormap : int
+        OpenCV colormap for particle dots (``cv2.COLORMAP_*``), dark = low score.
+    particle_radius : int
+        Dot radius in pixels (0 = single pixel).
+    thickness : int or None
+        Box line width; None scales with the frame (``min(H, W) / 320``, at least 1).
+    font_scale : float or None
+        Label text scale; None scales with the frame.
+    draw_particles, draw_superpixels, draw_boxes, draw_labels, draw_flags : bool
+        Which layers to draw.
+    """
+
+    def __init__(
+        self,
+        *,
+        palette: Sequence[RGB] = DEFAULT_PALETTE,
+        corrected_color: RGB = (0, 220, 0),
+        flag_color: RGB = (230, 25, 25),
+        superpixel_color: RGB = (255, 255, 255),
+        superpixel_alpha: float = 0.5,
+        particle_colormap: int = cv2.COLORMAP_VIRIDIS,
+        particle_radius: int = 1,
+        thickness: int | None = None,
+        font_scale: float | None = None,
+        draw_particles: bool = True,
+        draw_superpixels: bool = True,
+        draw_boxes: bool = True,
+        draw_labels: bool = True,
+        draw_flags: bool = True,
+    ) -> None:
+        if not palette:
+            raise ValueError("palette must hold at least one RGB colour")
+        if not 0.0 <= superpixel_alpha <= 1.0:
+            raise ValueError(f"superpixel_alpha must lie in [0, 1], got {superpixel_alpha}")
+        if particle_radius < 0:
+            raise ValueError(f"particle_radius must be >= 0 pixels, got {particle_radius}")
+        if thickness is not None and thickness < 1:
+            raise ValueError(f"thickness must be >= 1 pixel or None for automatic, got {thickness}")
+        self.palette = tuple(tuple(int(c) for c in colour) for colour in palette)
+        self.corrected_color = tuple(int(c) for c in corrected_color)
+        self.flag_color = tuple(int(c) for c in flag_color)
+        self.superpixel_color = np.asarray(superpixel_color, dtype=np.float32)
+        self.superpixel_alpha = float(superpixel_alpha)
+        self.particle_radius = int(particle_radius)
+        self.thickness = thickness
+        self.font_scale = font_scale
+        self.draw_particles = draw_particles
+        self.draw_superpixels = draw_superpixels
+        self.draw_boxes = draw_boxes
+        self.draw_labels = draw_labels
+        self.draw_flags = draw_flags
+        # 256-entry RGB lookup table; applyColorMap returns BGR.
+        ramp = np.arange(256, dtype=np.uint8).reshape(-1, 1)
+        self._lut = cv2.applyColorMap(ramp, particle_colormap)[:, 0, ::-1].copy()
+        r = self.particle_radius
+        dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+        disc = dx**2 + dy**2 <= r * r
+        self._dot_dx, self._dot_dy = dx[disc], dy[disc]
+
+    def color_for(self, track_id: int) -> RGB:
+        """Box colour of a track."""
+        return self.palette[(int(track_id) - 1) % len(self.palette)]
+
+    def annotate(self, frame_rgb: np.ndarray, items: Sequence[OverlayItem]) -> np.ndarray:
+        """Draw ``items`` on a copy of ``frame_rgb``.
+
+        Parameters
+        ----------
+        frame_rgb : (H, W, 3) uint8 ndarray
+            The frame; not modified.
+        items : sequence of OverlayItem
+            One per track present on this frame.
+
+        Returns
+        -------
+        (H, W, 3) uint8 ndarray
+            A new C-contiguous frame.
+        """
+        frame = np.asarray(frame_rgb)
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise ValueError(f"frame_rgb must be an (H, W, 3) uint8 RGB array, got {frame.dtype} {frame.shape}")
+        out = np.array(frame, dtype=np.uint8, order="C", copy=True)
+        height, width = out.shape[:2]
+        thickness = self.thickness or max(1, round(min(height, width) / 320))
+        font_scale = self.font_scale or max(0.4, min(height, width) / 900)
+
+        # Layers from the back: particles, superpixels, boxes, labels, review mark.
+        if self.draw_particles:
+            for item in items:
+                if item.particles_xywh is not None and len(item.particles_xywh):
+                    self._particles(out, item.particles_xywh, item.particle_scores)
+        if self.draw_superpixels:
+            for item in items:
+                if item.superpixel_labels is not None:
+                    self._superpixels(out, item.superpixel_labels, item.superpixel_origin_xy)
+        boxes = [(item, self._box_corners(item.box_xywh)) for item in items]
+        if self.draw_boxes:
+            for item, corners in boxes:
+                if corners is not None:
+                    colour = self.corrected_color if item.corrected else self.color_for(item.track_id)
+                    line = thickness + 1 if item.corrected else thickness
+                    # LINE_8: axis-aligned edges gain nothing from anti-aliasing, and crisp pixels show the box extent.
+                    cv2.rectangle(out, corners[0], corners[1], colour, line, cv2.LINE_8)
+        if self.draw_labels:
+            for item, corners in boxes:
+                if corners is not None:
+                    self._label(out, item, corners, font_scale)
+        if self.draw_flags:
+            flagged = [item.track_id for item in items if item.flagged]
+            if flagged:
+                self._review_mark(out, flagged, font_scale)
+        return out
+
+    # ------------------------------------------------------------------ layers
+
+    @staticmethod
+    def _box_corners(box: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]] | None:
+        if not np.all(np.isfinite(box)):
+            return None
+        x, y, w, h = box
+        # The box covers pixels x .. x+w-1; cv2 limits coordinates, so clamp far-away ones ourselves.
+        x0, y0 = round(x), round(y)
+        x1, y1 = round(x + w) - 1, round(y + h) - 1
+        clamp = lambda v: int(min(max(v, -(1 << 15)), 1 << 15))  # noqa: E731
+        return (clamp(x0), clamp(y0)), (clamp(max(x1, x0)), clamp(max(y1, y0)))
+
+    def _particles(self, out: np.ndarray, particles: np.ndarray, scores: np.ndarray) -> None:
+        height, width = out.shape[:2]
+        finite = np.isfinite(scores)
+        shade = np.zeros(len(scores))
+        if finite.any():
+            lo, hi = scores[finite].min(), scores[finite].max()
+            # One score for all particles (e.g. the first frame) says nothing about rank: mid shade.
+            shade[finite] = (scores[finite] - lo) / (hi - lo) if hi > lo else 0.5
+        centres = particles[:, :2] + particles[:, 2:] / 2.0
+        keep = np.all(np.isfinite(centres), axis=1)
+        order = np.argsort(shade[keep], kind="stable")  # best last, so it is drawn on top
+        cx = np.round(centres[keep, 0][order]).astype(np.int64)
+        cy = np.round(centres[keep, 1][order]).astype(np.int64)
+        colours = self._lut[np.round(shade[keep][order] * 255).astype(np.int64)]
+        xs = (cx[:, None] + self._dot_dx[None, :]).ravel()
+        ys = (cy[:, None] + self._dot_dy[None, :]).ravel()
+        colours = np.repeat(colours, len(self._dot_dx), axis=0)
+        inside = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)
+        out[ys[inside], xs[inside]] = colours[inside]
+
+    def _superpixels(self, out: np.ndarray, labels: np.ndarray, origin_xy: np.ndarray) -> None:
+        height, width = out.shape[:2]
+        labelled = labels >= 0
+        # A boundary pixel differs from its right or lower neighbour, both inside the labelled
+        # area; the outer edge of the window is left to the box.
+        edge = np.zeros(labels.shape, dtype=bool)
+        edge[:, :-1] |= (labels[:, :-1] != labels[:, 1:]) & labelled[:, :-1] & labelled[:, 1:]
+        edge[:-1, :] |= (labels[:-1, :] != labels[1:, :]) & labelled[:-1, :] & labelled[1:, :]
+        ox, oy = int(origin_xy[0]), int(origin_xy[1])
+        fx0, fy0 = max(ox, 0), max(oy, 0)
+        fx1, fy1 = min(ox + labels.shape[1], width), min(oy + labels.shape[0], height)
+        if fx1 <= fx0 or fy1 <= fy0:
+            return
+        mask = edge[fy0 - oy : fy1 - oy, fx0 - ox : fx1 - ox]
+        region = out[fy0:fy1, fx0:fx1]
+        pixels = region[mask].astype(np.float32)
+        blended = pixels * (1.0 - self.superpixel_alpha) + self.superpixel_color * self.superpixel_alpha
+        region[mask] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
+
+    def _label(self, out: np.ndarray, item: OverlayItem, corners, font_scale: float) -> None:
+        text = f"id {item.track_id}  {item.confidence:.2f}"
+        if item.corrected:
+            text += "  corrected"
+        colour = self.corrected_color if item.corrected else self.color_for(item.track_id)
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        weight = max(1, round(font_scale * 1.5))
+        (tw, th), baseline = cv2.getTextSize(text, font, font_scale, weight)
+        pad = max(2, th // 4)
+        (x0, y0), _ = corners
+        height, width = out.shape[:2]
+        box_w, box_h = tw + 2 * pad, th + baseline + 2 * pad
+        x0 = min(max(x0, 0), max(width - box_w, 0))
+        # Above the box when there is room, else just inside its top edge.
+        top = y0 - box_h
+        if top < 0:
+            top = max(y0, 0)
+        top = min(top, max(height - box_h, 0))
+        cv2.rectangle(out, (x0, top), (x0 + box_w - 1, top + box_h - 1), colour, cv2.FILLED)
+        cv2.putText(out, text, (x0 + pad, top + pad + th), font, font_scale, _text_colour(colour), weight, cv2.LINE_AA)
+
+    def _review_mark(self, out: np.ndarray, track_ids: list[int], font_scale: float) -> None:
+        height, width = out.shape[:2]
+        border = max(3, math.ceil(min(height, width) / 100))
+        c = self.flag_color
+        out[:border], out[-border:], out[:, :border], out[:, -border:] = c, c, c, c
+        text = "REVIEW" + (f" id {', '.join(str(t) for t in track_ids)}" if len(track_ids) > 1 else "")
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        scale = font_scale * 1.2
+        weight = max(1, round(font_scale * 2))
+        (tw, th), baseline = cv2.getTextSize(text, font, scale, weight)
+        if tw > width / 3:  # small frames: keep the tag from hiding the scene
+            scale *= width / 3 / tw
+            (tw, th), baseline = cv2.getTextSize(text, font, scale, weight)
+        pad = max(3, th // 3)
+        # Top right, so it does not sit on the labels, which hang from the boxes' top left.
+        x1 = width - border
+        x0 = max(x1 - tw - 2 * pad, 0)
+        y0 = border
+        cv2.rectangle(out, (x0, y0), (x1, y0 + th + baseline + 2 * pad), c, cv2.FILLED)
+        cv2.putText(out, text, (x0 + pad, y0 + pad + th), font, scale, (255, 255, 255), weight, cv2.LINE_AA)
+
+
+class _Abort(BaseException):
+    """Thrown into imageio-ffmpeg's writer to make it kill ffmpeg instead of finishing the file."""
+
+
+class OverlayWriter:
+    """Stream RGB frames to an H.264 MP4 that browsers play and seek; the file appears only when complete.
+
+    Use as a context manager::
+
+        with OverlayWriter("overlay.mp4", fps=src.fps, width=src.width, height=src.height) as out:
+            for index, frame in src:
+                out.write(renderer.annotate(frame, items))
+
+    Encoding: libx264, ``yuv420p`` (the only 4:2:0 format every browser
+    decodes), ``-movflags +faststart`` (index first, so the HTML report can
+    seek before the download ends), constant frame rate ``fps``. Frame ``k``
+    of the file is the ``k``-th frame written. ``yuv420p`` needs even width
+    and height: an odd frame is padded by repeating its last column and/or
+    row, so pixel coordinates are unchanged (``padded_size`` says the size on
+    disk). ``macro_block_size=1`` keeps imageio-ffmpeg from rescaling to a
+    multiple of 16.
+
+    The video is encoded to a temporary file beside ``path`` and renamed onto
+    it on a clean exit; an exception inside the block, or no frame written,
+    kills ffmpeg and removes the temporary file, leaving ``path`` as it was.
+
+    Parameters
+    ----------
+    path : path-like
+        Target ``.mp4``.
+    fps : float
+        Frame rate of the output (the source's, for a playback in real time).
+    width, height : int
+        Size of the frames that will be written.
+    crf : int
+        x264 constant rate factor (0-51, lower is better; 23 is x264's default).
+    preset : str
+        x264 speed preset; ``veryfast`` keeps encoding well ahead of tracking.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        fps: float,
+        width: int,
+        height: int,
+        crf: int = 23,
+        preset: str = "veryfast",
+    ) -> None:
+        if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
+        if int(width) < 1 or int(height) < 1:
+            raise ValueError(f"width and height must be >= 1 pixel, got {width}x{height}")
+        if not 0 <= crf <= 51:
+            raise ValueError(f"crf must lie in 0..51 (x264 quality, lower is better), got {crf}")
+        self.path = Path(path)
+        self.fps = float(fps)
+        self.width, self.height = int(width), int(height)
+        self.padded_size = (self.width + self.width % 2, self.height + self.height % 2)
+        self.crf, self.preset = int(crf), preset
+        self.frames_written = 0
+        self._stack: contextlib.ExitStack | None = None
+        self._encoder = None
+        self._tmp: Path | None = None
+
+    def __enter__(self) -> OverlayWriter:
+        if self._stack is not None:
+            raise RuntimeError(f"OverlayWriter for {self.path} is already open; use it in one with-block")
+        stack = contextlib.ExitStack()
+        tmp = stack.enter_context(atomic_path(self.path))
+        try:
+            encoder = imageio_ffmpeg.write_frames(
+                str(tmp),
+                self.padded_size,
+                pix_fmt_in="rgb24",
+                pix_fmt_out="yuv420p",
+                fps=self.fps,
+                codec="libx264",
+                quality=None,  # rate control is set below
+                macro_block_size=1,
+                ffmpeg_log_level="error",
+                output_params=["-crf", str(self.crf), "-preset", self.preset, "-movflags", "+faststart"],
+            )
+            encoder.send(None)  # starts ffmpeg
+        except BaseException:
+            if not stack.__exit__(*sys.exc_info()):
+                raise
+        self._stack, self._encoder, self._tmp = stack, encoder, tmp
+        self.frames_written = 0
+        return self
+
+    def write(self, frame_rgb: np.ndarray) -> None:
+        """Append one ``(height, width, 3) uint8`` RGB frame."""
+        if self._encoder is None:
+            raise RuntimeError(f"OverlayWriter for {self.path} is not open; use `with OverlayWriter(...) as w:`")
+        frame = np.asarray(frame_rgb)
+        if frame.shape != (self.height, self.width, 3) or frame.dtype != np.uint8:
+            raise ValueError(
+                f"frame must be ({self.height}, {self.width}, 3) uint8 RGB like the writer's size, "
+                f"got {frame.dtype} {frame.shape}"
+            )
+        if self.padded_size != (self.width, self.height):
+            pad = ((0, self.padded_size[1] - self.height), (0, self.padded_size[0] - self.width), (0, 0))
+            frame = np.pad(frame, pad, mode="edge")
+        self._encoder.send(np.ascontiguousarray(frame))
+        self.frames_written += 1
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        stack, encoder, tmp = self._stack, self._encoder, self._tmp
+        self._stack = self._encoder = self._tmp = None
+        if stack is None:
+            return False
+        if exc_type is not None:
+            _abort(encoder)
+            return bool(stack.__exit__(exc_type, exc, tb))  # removes the temporary file
+        try:
+            if self.frames_written == 0:
+                raise ValueError(f"{self.path}: no frame was written; an overlay video needs at least one frame")
+            encoder.close()  # ffmpeg flushes the encoder, then rewrites the file for faststart
+            # imageio-ffmpeg does not report ffmpeg's exit status; an empty file is how a failure shows.
+            if not tmp.is_file() or tmp.stat().st_size == 0:
+                raise OSError(
+                    f"{self.path}: ffmpeg wrote no video (see its messages above); expected an MP4 - check disk space"
+                )
+        except BaseException:
+            _abort(encoder)
+            if not stack.__exit__(*sys.exc_info()):
+                raise
+            return False
+        stack.__exit__(None, None, None)  # renames the temporary file onto the target
+        return False
+
+    def close(self) -> None:
+        """Finish the file (same as leaving the with-block without error)."""
+        self.__exit__(None, None, None)
+
+
+def _abort(encoder) -> None:
+    if encoder is None:
+        return
+    with contextlib.suppress(_Abort, StopIteration, OSError, ValueError):
+        encoder.throw(_Abort())

@@ -1,0 +1,295 @@
+"""Track records: what the exporters, the renderer and the report read.
+
+One :class:`TrackResult` per tracked object holds one row per processed frame
+as a struct of arrays (the supervision ``Detections`` layout), validated once
+in ``__post_init__`` so that no exporter has to re-check shapes. Boxes are
+0-based ``xywh`` floats; only the OTB writer shifts them to 1-based.
+
+The tracking loop builds a record frame by frame with :class:`TrackRecorder`
+and calls :meth:`TrackRecorder.to_result` at the end, or after a
+:class:`~annotator.frames.DecodeError` to keep what was computed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["VideoInfo", "TrackResult", "TrackRecorder"]
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """The source a set of tracks was computed on.
+
+    Attributes
+    ----------
+    path : str
+        The video file or image folder as given.
+    name : str
+        Sequence name: file stem, folder name, or OTB sequence name.
+    width, height : int
+        Frame size in pixels.
+    fps : float
+        Frames per second (nominal for videos, 30 by default for image folders).
+    frame_count : int
+        Frames of the whole source as decoded, not only the processed ones.
+    """
+
+    path: str
+    name: str
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", str(self.path))
+        for key in ("width", "height", "frame_count"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"VideoInfo.{key} must be a positive integer, got {value!r}")
+            object.__setattr__(self, key, int(value))
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"VideoInfo.fps must be a positive number of frames per second, got {self.fps!r}")
+        object.__setattr__(self, "fps", float(self.fps))
+        if not self.name or any(c in self.name for c in "/\\\0"):
+            raise ValueError(f"VideoInfo.name must be a non-empty file-name-safe string, got {self.name!r}")
+
+
+def _frozen(values: np.ndarray) -> np.ndarray:
+    """A read-only copy: a TrackResult is shared by exporters and must not change under them."""
+    values = np.array(values, copy=True)
+    values.setflags(write=False)
+    return values
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """All processed frames of one tracked object, as a struct of arrays.
+
+    Row ``i`` of every array describes source frame ``frame_indices[i]``.
+
+    Attributes
+    ----------
+    track_id : int
+        Identity of the object, >= 1, unique within a video.
+    label : str
+        Category name, e.g. ``"object"``, ``"car"``.
+    frame_indices : (F,) int64 ndarray
+        Source indices of the processed frames, strictly increasing, >= 0.
+    boxes_xywh : (F, 4) float64 ndarray
+        0-based ``x, y, w, h`` in pixels; NaN rows are allowed for frames
+        without an estimate (exporters write or skip them as their format demands).
+    confidence : (F,) float64 ndarray
+        In [0, 1]; 0.5 is the tracker's acceptance threshold.
+    log_likelihood : (F,) float64 ndarray
+        The tracker's ``RE- - RE+`` score (may be +-inf or NaN on the first frame).
+    accepted : (F,) bool ndarray
+        Whether the frame updated the appearance model.
+    flagged : (F,) bool ndarray
+        Whether a human should review the frame.
+    reasons : tuple of str, length F
+        Why a frame is flagged; ``""`` exactly when it is not flagged.
+    keyframe : (F,) bool ndarray
+        First frame and human corrections: boxes a person gave, not the tracker.
+    outside : (F,) bool ndarray
+        The object is judged absent; such frames must be flagged (FORMATS.md
+        asks for absences to be recorded in the flags file).
+    seconds : (F,) float64 ndarray
+        Tracking time per frame, >= 0 (got10k ``times/`` file).
+    occluded : (F,) bool ndarray, optional
+        Occlusion judgement, exported as a COCO/CVAT attribute; all False by
+        default (the tracker does not estimate it).
+    """
+
+    track_id: int
+    label: str
+    frame_indices: np.ndarray
+    boxes_xywh: np.ndarray
+    confidence: np.ndarray
+    log_likelihood: np.ndarray
+    accepted: np.ndarray
+    flagged: np.ndarray
+    reasons: tuple[str, ...]
+    keyframe: np.ndarray
+    outside: np.ndarray
+    seconds: np.ndarray
+    occluded: np.ndarray | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        name = f"TrackResult(track_id={self.track_id!r})"
+        if isinstance(self.track_id, bool) or not isinstance(self.track_id, (int, np.integer)) or self.track_id < 1:
+            raise ValueError(f"{name}: track_id must be an integer >= 1, got {self.track_id!r}")
+        object.__setattr__(self, "track_id", int(self.track_id))
+        if not isinstance(self.label, str) or not self.label.strip():
+            raise ValueError(f"{name}: label must be a non-empty category name such as 'object', got {self.label!r}")
+
+        indices = np.asarray(self.frame_indices)
+        if indices.ndim != 1 or (indices.size and not np.issubdtype(indices.dtype, np.integer)):
+            raise ValueError(f"{name}: frame_indices must be a (F,) integer array, got {indices.dtype} {indices.shape}")
+        indices = indices.astype(np.int64)
+        n = indices.shape[0]
+        if n and (indices[0] < 0 or np.any(np.diff(indices) <= 0)):
+            raise ValueError(
+                f"{name}: frame_indices must be >= 0 and strictly increasing (one row per processed frame), "
+                f"got {indices[:8].tolist()}{'...' if n > 8 else ''}"
+            )
+        object.__setattr__(self, "frame_indices", _frozen(indices))
+
+        boxes = np.asarray(self.boxes_xywh, dtype=np.float64)
+        if boxes.shape != (n, 4):
+            raise ValueError(f"{name}: boxes_xywh must have shape ({n}, 4) to match frame_indices, got {boxes.shape}")
+        finite = np.isfinite(boxes).all(axis=1)
+        if np.any(boxes[finite, 2:] < 0):
+            raise ValueError(f"{name}: boxes_xywh widths and heights must be >= 0 (layout x, y, w, h)")
+        object.__setattr__(self, "boxes_xywh", _frozen(boxes))
+
+        for key, dtype in (("confidence", np.float64), ("log_likelihood", np.float64), ("seconds", np.float64)):
+            values = np.asarray(getattr(self, key), dtype=dtype)
+            if values.shape != (n,):
+                raise ValueError(f"{name}: {key} must have shape ({n},) to match frame_indices, got {values.shape}")
+            object.__setattr__(self, key, _frozen(values))
+        if np.any(~((self.confidence >= 0.0) & (self.confidence <= 1.0))):
+            bad = self.confidence[~((self.confidence >= 0.0) & (self.confidence <= 1.0))][0]
+            raise ValueError(f"{name}: confidence must lie in [0, 1] (no NaN), got {bad:g}")
+        if np.any(~(self.seconds >= 0.0)):
+            raise ValueError(f"{name}: seconds must be >= 0 (time spent on each frame)")
+
+        if self.occluded is None:
+            object.__setattr__(self, "occluded", np.zeros(n, dtype=bool))
+        for key in ("accepted", "flagged", "keyframe", "outside", "occluded"):
+            values = np.asarray(getattr(self, key))
+            if values.shape != (n,) or not (values.dtype == bool or n == 0):
+                raise ValueError(f"{name}: {key} must be a ({n},) bool array, got {values.dtype} {values.shape}")
+            object.__setattr__(self, key, _frozen(values.astype(bool)))
+
+        reasons = tuple(self.reasons)
+        if len(reasons) != n or not all(isinstance(r, str) for r in reasons):
+            raise ValueError(f"{name}: reasons must be {n} strings (one per frame), got {len(reasons)}")
+        for i, (flag, reason) in enumerate(zip(self.flagged, reasons)):
+            if bool(flag) != bool(reason):
+                raise ValueError(
+                    f"{name}: frame {indices[i]} has flagged={bool(flag)} and reason {reason!r}; "
+                    f"a flagged frame needs a reason and an unflagged one the empty string"
+                )
+            if "\n" in reason or "\r" in reason:
+                raise ValueError(f"{name}: frame {indices[i]} reason {reason!r} must be one line")
+        object.__setattr__(self, "reasons", reasons)
+        absent = np.flatnonzero(self.outside & ~self.flagged)
+        if absent.size:
+            raise ValueError(
+                f"{name}: frame {indices[absent[0]]} is outside (object absent) but not flagged; "
+                f"flag it with a reason such as 'object absent' so the flags file records the absence"
+            )
+
+    def __len__(self) -> int:
+        return int(self.frame_indices.shape[0])
+
+    @property
+    def needs_review(self) -> np.ndarray:
+        """(F,) bool: the ``needs_review`` attribute of the exports (same as ``flagged``)."""
+        return self.flagged
+
+    def up_to(self, last_frame_index: int) -> TrackResult:
+        """The rows whose source index is <= ``last_frame_index`` (e.g. a DecodeError's last good frame)."""
+        keep = self.frame_indices <= last_frame_index
+        return self.select(keep)
+
+    def select(self, mask: np.ndarray) -> TrackResult:
+        """The rows where ``mask`` (an (F,) bool array) is True."""
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (len(self),):
+            raise ValueError(f"mask must have shape ({len(self)},), got {mask.shape}")
+        picked = np.flatnonzero(mask)
+        return TrackResult(
+            track_id=self.track_id,
+            label=self.label,
+            frame_indices=self.frame_indices[picked],
+            boxes_xywh=self.boxes_xywh[picked],
+            confidence=self.confidence[picked],
+            log_likelihood=self.log_likelihood[picked],
+            accepted=self.accepted[picked],
+            flagged=self.flagged[picked],
+            reasons=tuple(self.reasons[i] for i in picked),
+            keyframe=self.keyframe[picked],
+            outside=self.outside[picked],
+            seconds=self.seconds[picked],
+            occluded=self.occluded[picked],
+        )
+
+
+class TrackRecorder:
+    """Collects one track frame by frame; :meth:`to_result` freezes it into a :class:`TrackResult`.
+
+    Example
+    -------
+    >>> rec = TrackRecorder(track_id=1, label="object")            # doctest: +SKIP
+    >>> for index, frame in source:                                 # doctest: +SKIP
+    ...     result = tracker.update(frame)
+    ...     rec.append(index, result.box_xywh, confidence=result.confidence,
+    ...                log_likelihood=result.log_likelihood, accepted=result.accepted,
+    ...                seconds=elapsed)
+    >>> track = rec.to_result()                                     # doctest: +SKIP
+    """
+
+    def __init__(self, track_id: int = 1, label: str = "object") -> None:
+        self.track_id = track_id
+        self.label = label
+        self._rows: list[tuple] = []
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def append(
+        self,
+        frame_index: int,
+        box_xywh: Sequence[float] | np.ndarray,
+        *,
+        confidence: float,
+        log_likelihood: float,
+        accepted: bool,
+        seconds: float,
+        flagged: bool = False,
+        reason: str = "",
+        keyframe: bool = False,
+        outside: bool = False,
+        occluded: bool = False,
+    ) -> None:
+        """Add one processed frame. Validation happens in :meth:`to_result`."""
+        box = np.asarray(box_xywh, dtype=np.float64).reshape(4)
+        self._rows.append(
+            (int(frame_index), box, float(confidence), float(log_likelihood), bool(accepted), bool(flagged),
+             str(reason), bool(keyframe), bool(outside), float(seconds), bool(occluded))
+        )  # fmt: skip
+
+    def set_flag(self, position: int, flagged: bool, reason: str) -> None:
+        """Set the flag of the row at ``position`` (0-based in append order) once it is final.
+
+        :class:`annotator.flagging.OnlineFlagger` decides a frame's flag a few
+        frames after it was tracked, and reports it by that position.
+        """
+        row = list(self._rows[position])
+        row[5], row[6] = bool(flagged), str(reason)
+        self._rows[position] = tuple(row)
+
+    def to_result(self) -> TrackResult:
+        rows = self._rows
+        col = list(zip(*rows)) if rows else [()] * 11
+        return TrackResult(
+            track_id=self.track_id,
+            label=self.label,
+            frame_indices=np.asarray(col[0], dtype=np.int64),
+            boxes_xywh=np.asarray(col[1], dtype=np.float64).reshape(-1, 4),
+            confidence=np.asarray(col[2], dtype=np.float64),
+            log_likelihood=np.asarray(col[3], dtype=np.float64),
+            accepted=np.asarray(col[4], dtype=bool),
+            flagged=np.asarray(col[5], dtype=bool),
+            reasons=tuple(col[6]),
+            keyframe=np.asarray(col[7], dtype=bool),
+            outside=np.asarray(col[8], dtype=bool),
+            seconds=np.asarray(col[9], dtype=np.float64),
+            occluded=np.asarray(col[10], dtype=bool),
+        )

@@ -1,0 +1,318 @@
+"""Frame sources: decoded frame k is frame k, for videos and image folders, and every error says what to do.
+
+Synthetic sources carry their frame index as 8 black/white 16x16 blocks (one
+bit each), large enough to survive H.264, so a test can read back which frame
+it got.
+"""
+
+from __future__ import annotations
+
+import subprocess
+
+import cv2
+import imageio_ffmpeg
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from annotator.frames import (
+    DEFAULT_FOLDER_FPS,
+    DecodeError,
+    FrameRangeError,
+    FrameSizeMismatchError,
+    FrameSourceError,
+    NoImagesError,
+    SourceNotFoundError,
+    UnreadableSourceError,
+    natural_sort_key,
+    open_frames,
+)
+
+WIDTH, HEIGHT, BLOCK, BITS = 128, 48, 16, 8
+N_FRAMES = 30
+FPS = 25.0
+
+
+def index_frame(k: int, width: int = WIDTH, height: int = HEIGHT) -> np.ndarray:
+    """An RGB frame whose top row of blocks spells ``k`` in binary; the rest a k-dependent colour."""
+    frame = np.empty((height, width, 3), dtype=np.uint8)
+    frame[:] = (40 + 5 * (k % 20), 90, 160)
+    for bit in range(BITS):
+        frame[:BLOCK, bit * BLOCK : (bit + 1) * BLOCK] = 255 if (k >> bit) & 1 else 0
+    return frame
+
+
+def read_index(frame: np.ndarray) -> int:
+    """The index spelled by :func:`index_frame`, tolerant to compression."""
+    value = 0
+    for bit in range(BITS):
+        block = frame[2 : BLOCK - 2, bit * BLOCK + 2 : (bit + 1) * BLOCK - 2]
+        if block.mean() > 128:
+            value |= 1 << bit
+    return value
+
+
+def write_video(path, n: int = N_FRAMES, *, faststart: bool = False, fps: float = FPS) -> None:
+    extra = ["-movflags", "+faststart"] if faststart else []
+    writer = imageio_ffmpeg.write_frames(
+        str(path), (WIDTH, HEIGHT), fps=fps, codec="libx264", macro_block_size=1,
+        ffmpeg_log_level="error", output_params=["-g", "10", *extra],
+    )  # fmt: skip
+    writer.send(None)
+    for k in range(n):
+        writer.send(index_frame(k))
+    writer.close()
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    path = tmp_path_factory.mktemp("video") / "clip.mp4"
+    write_video(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """``frame1.png .. frame12.png``: lexical order would put frame10 before frame2."""
+    root = tmp_path_factory.mktemp("folder") / "seq"
+    root.mkdir()
+    for k in range(12):
+        cv2.imwrite(str(root / f"frame{k + 1}.png"), cv2.cvtColor(index_frame(k), cv2.COLOR_RGB2BGR))
+    (root / "groundtruth_rect.txt").write_text("1,2,3,4\n")  # not an image: ignored
+    (root / ".frame0.png").write_bytes(b"macOS resource fork")  # hidden: ignored
+    return root
+
+
+# --------------------------------------------------------------------------- videos
+
+
+def test_video_frame_k_is_decoded_frame_k(video):
+    source = open_frames(video)
+    assert (source.name, source.width, source.height, source.fps, source.frame_count) == (
+        "clip", WIDTH, HEIGHT, FPS, N_FRAMES,
+    )  # fmt: skip
+    assert source.kind == "video" and source.damage is None and len(source) == N_FRAMES
+    seen = []
+    for index, frame in source:
+        assert frame.shape == (HEIGHT, WIDTH, 3) and frame.dtype == np.uint8
+        assert frame.flags.c_contiguous and frame.flags.writeable
+        assert read_index(frame) == index
+        seen.append(index)
+    assert seen == list(range(N_FRAMES))
+    info = source.info
+    assert (info.name, info.width, info.height, info.fps, info.frame_count) == ("clip", WIDTH, HEIGHT, FPS, N_FRAMES)
+
+
+def test_variable_frame_rate_video_is_not_resampled(video, tmp_path):
+    """A timestamp jump must not make ffmpeg insert duplicates: frame k stays frame k."""
+    vfr = tmp_path / "vfr.mp4"
+    subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video),
+         "-vf", "setpts='N/(25*TB)+if(gte(N,10),1.0/TB,0)'", "-fps_mode", "passthrough",
+         "-c:v", "libx264", "-g", "10", str(vfr)],
+        check=True,
+    )  # fmt: skip
+    source = open_frames(vfr)
+    assert source.frame_count == N_FRAMES
+    assert [read_index(frame) for _, frame in source] == list(range(N_FRAMES))
+
+
+RANGES = [
+    # start, stop, step, expected source indices (N_FRAMES = 30)
+    (0, None, 1, list(range(30))),
+    (5, 12, 1, list(range(5, 12))),
+    (3, None, 7, [3, 10, 17, 24]),
+    (0, 100, 10, [0, 10, 20]),  # stop past the end is clipped, like a slice
+    (29, None, 1, [29]),
+]
+
+
+@pytest.mark.parametrize("start, stop, step, expected", RANGES)
+def test_video_range_selection(video, start, stop, step, expected):
+    source = open_frames(video, start=start, stop=stop, step=step)
+    assert source.indices.tolist() == expected and source.indices.dtype == np.int64
+    assert len(source) == len(expected)
+    got = [(index, read_index(frame)) for index, frame in source]
+    assert got == [(k, k) for k in expected]
+
+
+def test_breaking_out_early_then_iterating_again(video):
+    source = open_frames(video)
+    for index, _ in source:
+        if index == 3:
+            break
+    assert [index for index, _ in source][:5] == [0, 1, 2, 3, 4]
+
+
+def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_path):
+    """An MP4 with its index first, cut in half: ffmpeg decodes the head, then reports a partial file."""
+    full = tmp_path / "full.mp4"
+    write_video(full, n=60, faststart=True)
+    data = full.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) // 2])
+
+    source = open_frames(cut)
+    assert 0 < source.frame_count < 60 and source.damage
+    assert source.declared_frame_count == 60
+    delivered = []
+    with pytest.raises(DecodeError) as caught:
+        for index, frame in source:
+            assert read_index(frame) == index  # every frame delivered is at its true index
+            delivered.append(index)
+    error = caught.value
+    assert delivered == list(range(source.frame_count))
+    assert error.last_good_index == delivered[-1]
+    assert isinstance(error, FrameSourceError) and error.path == cut
+    message = str(error)
+    assert "\n" not in message and str(cut) in message and f"frame {delivered[-1]}" in message
+    assert "re-copy" in message  # says how to fix it
+
+    # A range that ends before the damage decodes cleanly.
+    head = open_frames(cut, stop=5)
+    assert [index for index, _ in head] == [0, 1, 2, 3, 4]
+
+
+def test_truncated_plain_mp4_is_unreadable_at_open(tmp_path):
+    """Without faststart the index (moov) is at the end; half a file has none and nothing can be decoded."""
+    full = tmp_path / "full.mp4"
+    write_video(full, n=60)
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(full.read_bytes()[: full.stat().st_size // 2])
+    with pytest.raises(UnreadableSourceError, match="moov atom not found") as caught:
+        open_frames(cut)
+    assert str(cut) in str(caught.value) and "faststart" in str(caught.value)
+
+
+# --------------------------------------------------------------------------- image folders
+
+
+def test_folder_natural_order_and_default_fps(folder):
+    source = open_frames(folder)
+    assert source.kind == "images" and source.name == "seq"
+    assert (source.width, source.height, source.frame_count, source.fps) == (WIDTH, HEIGHT, 12, DEFAULT_FOLDER_FPS)
+    assert [f.name for f in source.files][:3] == ["frame1.png", "frame2.png", "frame3.png"]
+    frames = list(source)
+    assert [index for index, _ in frames] == list(range(12))
+    for index, frame in frames:
+        assert np.array_equal(frame, index_frame(index))  # PNG is lossless: exact RGB, not BGR
+        assert frame.flags.c_contiguous and frame.flags.writeable
+
+
+@pytest.mark.parametrize(
+    "start, stop, step, expected", [(2, 9, 3, [2, 5, 8]), (10, None, 1, [10, 11]), (0, 50, 5, [0, 5, 10])]
+)
+def test_folder_range_selection(folder, start, stop, step, expected):
+    source = open_frames(folder, start=start, stop=stop, step=step, fps=12.5)
+    assert source.fps == 12.5
+    assert [(index, read_index(frame)) for index, frame in source] == [(k, k) for k in expected]
+
+
+def test_otb_sequence_folder_and_grayscale_images(tmp_path):
+    img = tmp_path / "Basketball" / "img"
+    img.mkdir(parents=True)
+    for k in range(3):
+        gray = cv2.cvtColor(index_frame(k), cv2.COLOR_RGB2GRAY)
+        cv2.imwrite(str(img / f"{k + 1:04d}.jpg"), gray, [cv2.IMWRITE_JPEG_QUALITY, 98])
+    (tmp_path / "Basketball" / "groundtruth_rect.txt").write_text("1,1,2,2\n" * 3)
+    for path in (tmp_path / "Basketball", img):
+        source = open_frames(path)
+        assert source.name == "Basketball" and source.frame_count == 3
+        for index, frame in source:
+            assert frame.shape == (HEIGHT, WIDTH, 3)
+            assert np.array_equal(frame[..., 0], frame[..., 1]) and np.array_equal(frame[..., 1], frame[..., 2])
+            assert read_index(frame) == index
+
+
+@given(st.lists(st.integers(min_value=0, max_value=10**6), min_size=1, max_size=30, unique=True))
+def test_natural_sort_orders_numbers_by_value(numbers):
+    names = [f"frame{n}.jpg" for n in numbers]
+    assert sorted(names, key=natural_sort_key) == [f"frame{n}.jpg" for n in sorted(numbers)]
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def one_line(error: BaseException, *needles: str) -> str:
+    message = str(error)
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message
+    return message
+
+
+def test_missing_path(tmp_path):
+    path = tmp_path / "nope.mp4"
+    with pytest.raises(SourceNotFoundError) as caught:
+        open_frames(path)
+    assert isinstance(caught.value, FrameSourceError) and isinstance(caught.value, FileNotFoundError)
+    one_line(caught.value, str(path), "check the path")
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [(b"this is not a video\n" * 20, "not a readable video"), (b"", "empty")],
+    ids=["text-renamed-mp4", "empty-file"],
+)
+def test_not_a_video(tmp_path, content, needle):
+    path = tmp_path / "fake.mp4"
+    path.write_bytes(content)
+    with pytest.raises(UnreadableSourceError) as caught:
+        open_frames(path)
+    one_line(caught.value, str(path), needle, "expected")
+
+
+def test_folder_without_images(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(NoImagesError) as caught:
+        open_frames(tmp_path)
+    one_line(caught.value, str(tmp_path), "no images", "jpg")
+
+
+def test_images_of_different_sizes_name_the_first_odd_file(tmp_path):
+    for k in range(4):
+        size = (WIDTH, HEIGHT) if k != 2 else (WIDTH // 2, HEIGHT)
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.zeros((size[1], size[0], 3), np.uint8))
+    with pytest.raises(FrameSizeMismatchError) as caught:
+        open_frames(tmp_path)
+    one_line(caught.value, "f2.png", f"{WIDTH // 2}x{HEIGHT}", f"expected {WIDTH}x{HEIGHT}", "f0.png")
+
+
+def test_corrupt_image_in_folder_raises_decode_error_during_iteration(tmp_path):
+    for k in range(4):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), cv2.cvtColor(index_frame(k), cv2.COLOR_RGB2BGR))
+    data = (tmp_path / "f2.png").read_bytes()
+    (tmp_path / "f2.png").write_bytes(data[:100])  # header intact (size readable), pixels gone
+    source = open_frames(tmp_path)
+    seen = []
+    with pytest.raises(DecodeError) as caught:
+        for index, _ in source:
+            seen.append(index)
+    assert seen == [0, 1] and caught.value.last_good_index == 1
+    one_line(caught.value, "f2.png")
+
+
+@pytest.mark.parametrize(
+    "kwargs, needle",
+    [
+        ({"start": N_FRAMES}, "past the last frame"),
+        ({"start": 100}, f"0 <= start < {N_FRAMES}"),
+        ({"start": 5, "stop": 5}, "stop=5 <= start=5"),
+        ({"start": 5, "stop": 2}, "stop > start"),
+        ({"step": 0}, "step >= 1"),
+        ({"step": -2}, "step >= 1"),
+        ({"start": -1}, "negative"),
+        ({"start": 1.5}, "integers"),
+    ],
+)
+def test_bad_ranges(video, kwargs, needle):
+    with pytest.raises(FrameRangeError) as caught:
+        open_frames(video, **kwargs)
+    assert isinstance(caught.value, ValueError)
+    one_line(caught.value, str(video), needle)
+
+
+def test_bad_range_on_folder(folder):
+    with pytest.raises(FrameRangeError, match="0 <= start < 12"):
+        open_frames(folder, start=12)

@@ -1,0 +1,226 @@
+"""Overlay renderer (exact pixels on synthetic frames) and the streaming MP4 writer (decoded back)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+
+from annotator.render import DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
+from annotator.tracks import TrackResult
+from sptpt.results import FrameResult
+
+H, W = 60, 80
+GRAY = 100
+
+
+def gray_frame(height: int = H, width: int = W) -> np.ndarray:
+    return np.full((height, width, 3), GRAY, dtype=np.uint8)
+
+
+def plain(**kwargs) -> OverlayRenderer:
+    """A renderer with every layer off except those asked for."""
+    layers = dict(draw_particles=False, draw_superpixels=False, draw_boxes=False, draw_labels=False, draw_flags=False)
+    layers.update(kwargs)
+    return OverlayRenderer(**layers)
+
+
+def test_annotate_returns_a_new_frame_and_leaves_the_input():
+    frame = gray_frame()
+    before = frame.copy()
+    item = OverlayItem(box_xywh=[10, 10, 30, 20], track_id=1, confidence=0.87, flagged=True)
+    out = OverlayRenderer().annotate(frame, [item])
+    assert out is not frame and out.shape == frame.shape and out.dtype == np.uint8 and out.flags.c_contiguous
+    assert np.array_equal(frame, before)
+    assert not np.array_equal(out, frame)
+
+
+def test_all_layers_off_draws_nothing():
+    frame = gray_frame()
+    item = OverlayItem(box_xywh=[10, 10, 30, 20], track_id=1, confidence=0.5, flagged=True, corrected=True)
+    assert np.array_equal(plain().annotate(frame, [item]), frame)
+    assert np.array_equal(OverlayRenderer().annotate(frame, []), frame)
+
+
+def test_box_is_drawn_on_its_edges_in_the_track_colour():
+    out = plain(draw_boxes=True, thickness=1).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 1, 0.9)])
+    colour = DEFAULT_PALETTE[0]
+    # Box covers columns 20..49 and rows 15..39.
+    assert tuple(out[15, 35]) == colour and tuple(out[39, 35]) == colour
+    assert tuple(out[27, 20]) == colour and tuple(out[27, 49]) == colour
+    assert tuple(out[27, 35]) == (GRAY,) * 3 and tuple(out[5, 5]) == (GRAY,) * 3
+    second = plain(draw_boxes=True, thickness=1).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 2, 0.9)])
+    assert tuple(second[15, 35]) == DEFAULT_PALETTE[1]
+
+
+def test_corrected_box_has_its_own_colour_and_label():
+    renderer = plain(draw_boxes=True, draw_labels=True, thickness=1, corrected_color=(0, 220, 0))
+    out = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 0.9, corrected=True)])
+    assert tuple(out[49, 35]) == (0, 220, 0)  # bottom edge, away from the label
+    tracker = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 0.9)])
+    assert not np.array_equal(out, tracker)
+
+
+def test_label_sits_above_the_box():
+    out = plain(draw_labels=True).annotate(gray_frame(), [OverlayItem([20, 30, 30, 20], 1, 0.87)])
+    above = out[:30, 20:]
+    assert np.any(np.all(above == DEFAULT_PALETTE[0], axis=-1))  # the label's background
+    assert np.array_equal(out[30:], gray_frame()[30:])
+
+
+def test_flagged_frame_gets_a_red_border_and_review_tag():
+    out = plain(draw_flags=True, flag_color=(230, 25, 25)).annotate(
+        gray_frame(), [OverlayItem([20, 20, 10, 10], 1, 0.2, flagged=True)]
+    )
+    for y, x in [(0, 0), (H - 1, W - 1), (H // 2, 0), (0, W // 2), (H - 1, W // 2)]:
+        assert tuple(out[y, x]) == (230, 25, 25)
+    assert tuple(out[H // 2, W // 2]) == (GRAY,) * 3
+    unflagged = plain(draw_flags=True).annotate(gray_frame(), [OverlayItem([20, 20, 10, 10], 1, 0.9)])
+    assert np.array_equal(unflagged, gray_frame())
+
+
+def test_nan_box_draws_nothing_but_keeps_the_review_mark():
+    out = OverlayRenderer().annotate(gray_frame(), [OverlayItem([np.nan] * 4, 1, 0.1, flagged=True)])
+    assert tuple(out[0, 0]) != (GRAY,) * 3 and tuple(out[H // 2, W // 2]) == (GRAY,) * 3
+
+
+def test_particles_are_shaded_by_score_within_the_frame():
+    renderer = plain(draw_particles=True, particle_radius=0)
+    particles = np.array([[10, 10, 4, 4], [30, 20, 6, 2], [50, 40, 2, 2]], dtype=float)
+    scores = np.array([-3.0, 7.0, 2.0])
+    item = OverlayItem([0, 0, 1, 1], 1, 0.5, particles_xywh=particles, particle_scores=scores)
+    out = renderer.annotate(gray_frame(), [item])
+    lut = renderer._lut
+    assert tuple(out[12, 12]) == tuple(lut[0])  # worst: dark end of the colormap
+    assert tuple(out[21, 33]) == tuple(lut[255])  # best: bright end
+    assert tuple(out[41, 51]) == tuple(lut[round(5 / 10 * 255)])
+    assert np.count_nonzero(np.any(out != GRAY, axis=-1)) == 3
+    # Shading is relative to the frame: scaling all scores changes nothing.
+    scaled = OverlayItem([0, 0, 1, 1], 1, 0.5, particles_xywh=particles, particle_scores=scores * 10)
+    again = renderer.annotate(gray_frame(), [scaled])
+    assert np.array_equal(out, again)
+
+
+def test_superpixel_boundaries_inside_the_labelled_area():
+    renderer = plain(draw_superpixels=True, superpixel_color=(255, 255, 255), superpixel_alpha=0.5)
+    labels = np.full((10, 12), -1, dtype=np.int32)
+    labels[1:9, 1:11] = 0
+    labels[1:9, 6:11] = 1  # two superpixels side by side, split between window columns 5 and 6
+    item = OverlayItem([0, 0, 1, 1], 1, 0.5, superpixel_labels=labels, superpixel_origin_xy=[30, 20])
+    out = renderer.annotate(gray_frame(), [item])
+    blended = round(GRAY * 0.5 + 255 * 0.5)
+    changed = np.argwhere(np.any(out != GRAY, axis=-1))
+    # Exactly the left pixel of each differing pair, rows 1..8 of the window: frame column 35, rows 21..28.
+    assert changed.tolist() == [[20 + r, 35] for r in range(1, 9)]
+    assert tuple(out[21, 35]) == (blended,) * 3
+
+
+def test_superpixel_window_partly_outside_the_frame():
+    labels = np.arange(20 * 20, dtype=np.int32).reshape(20, 20) // 7
+    item = OverlayItem([0, 0, 1, 1], 1, 0.5, superpixel_labels=labels, superpixel_origin_xy=[-10, H - 5])
+    out = plain(draw_superpixels=True).annotate(gray_frame(), [item])
+    assert out.shape == (H, W, 3) and np.any(out != GRAY)
+
+
+def test_items_from_frame_result_and_tracks():
+    result = FrameResult(
+        box_xywh=np.array([5.0, 6.0, 7.0, 8.0]), log_likelihood=1.0, confidence=0.7, accepted=True, scoring="subspace",
+        particles_xywh=np.zeros((3, 4)), particle_scores=np.zeros(3),
+    )  # fmt: skip
+    item = OverlayItem.from_frame_result(result, track_id=3, flagged=True)
+    assert item.track_id == 3 and item.flagged and item.particles_xywh.shape == (3, 4)
+    track = TrackResult(
+        track_id=2, label="object", frame_indices=np.array([0, 5]), boxes_xywh=np.array([[1, 2, 3, 4], [5, 6, 7, 8.0]]),
+        confidence=np.array([1.0, 0.2]), log_likelihood=np.array([0.0, -1.0]), accepted=np.array([True, False]),
+        flagged=np.array([False, True]), reasons=("", "absent"), keyframe=np.array([True, False]),
+        outside=np.array([False, True]), seconds=np.zeros(2),
+    )  # fmt: skip
+    assert items_from_tracks([track], 3) == []
+    (first,) = items_from_tracks([track], 0)
+    assert first.corrected and first.box_xywh.tolist() == [1, 2, 3, 4]
+    (absent,) = items_from_tracks([track], 5)
+    assert absent.flagged and np.isnan(absent.box_xywh).all()
+
+
+@pytest.mark.parametrize(
+    "bad", [np.zeros((H, W), np.uint8), np.zeros((H, W, 3), np.float32), np.zeros((H, W, 4), np.uint8)]
+)
+def test_annotate_rejects_non_rgb_uint8(bad):
+    with pytest.raises(ValueError, match=r"\(H, W, 3\) uint8"):
+        OverlayRenderer().annotate(bad, [])
+
+
+# --------------------------------------------------------------------------- writer
+
+
+def decode(path: Path) -> tuple[dict, list[np.ndarray]]:
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    width, height = meta["size"]
+    frames = [np.frombuffer(b, np.uint8).reshape(height, width, 3) for b in reader]
+    return meta, frames
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def test_overlay_video_decodes_to_the_same_frames_with_marks_visible(tmp_path):
+    height, width, n = 73, 97, 12  # odd on purpose: yuv420p needs even sizes
+    renderer = OverlayRenderer(thickness=3, draw_labels=False)
+    path = tmp_path / "overlay.mp4"
+    with OverlayWriter(path, fps=25, width=width, height=height) as writer:
+        assert writer.padded_size == (98, 74)
+        for k in range(n):
+            item = OverlayItem([10 + k, 30, 30, 24], 1, 0.9, flagged=(k == 5))
+            writer.write(renderer.annotate(gray_frame(height, width), [item]))
+    assert writer.frames_written == n and leftovers(tmp_path) == []
+    data = path.read_bytes()
+    assert data.find(b"moov") < data.find(b"mdat")  # faststart: the index comes first
+
+    meta, frames = decode(path)
+    assert len(frames) == n and meta["size"] == (98, 74) and meta["codec"] == "h264"
+    assert meta["pix_fmt"].startswith("yuv420p")
+    blue = np.array(DEFAULT_PALETTE[0], float)
+    for k, frame in enumerate(frames):
+        frame = frame[:height, :width].astype(float)
+        # Middle of the box's top and bottom edges (3 rows centred on rows 30 and 30 + 24 - 1).
+        assert np.abs(frame[30, 25 + k] - blue).max() < 40, k
+        assert np.abs(frame[53, 25 + k] - blue).max() < 40, k
+        assert np.abs(frame[42, 25 + k] - GRAY).max() < 12, k  # inside the box: untouched background
+        red_border = frame[1, width // 2][0] > 180 and frame[1, width // 2][1] < 80
+        assert red_border == (k == 5), k
+
+
+def test_writer_error_inside_block_leaves_no_file(tmp_path):
+    path = tmp_path / "overlay.mp4"
+    with pytest.raises(RuntimeError, match="tracking failed"):
+        with OverlayWriter(path, fps=10, width=32, height=32) as writer:
+            for _ in range(3):
+                writer.write(gray_frame(32, 32))
+            raise RuntimeError("tracking failed")
+    assert not path.exists() and leftovers(tmp_path) == []
+
+    path.write_bytes(b"previous overlay")
+    with pytest.raises(ValueError, match=r"\(32, 32, 3\) uint8"):
+        with OverlayWriter(path, fps=10, width=32, height=32) as writer:
+            writer.write(gray_frame(32, 32))
+            writer.write(gray_frame(30, 32))  # wrong size
+    assert path.read_bytes() == b"previous overlay" and leftovers(tmp_path) == []
+
+
+def test_writer_with_no_frames_is_an_error_and_leaves_no_file(tmp_path):
+    path = tmp_path / "overlay.mp4"
+    with pytest.raises(ValueError, match="no frame was written"):
+        with OverlayWriter(path, fps=10, width=32, height=32):
+            pass
+    assert not path.exists() and leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("kwargs, needle", [({"fps": 0}, "fps"), ({"width": 0}, "width"), ({"crf": 60}, "crf")])
+def test_writer_argument_errors(tmp_path, kwargs, needle):
+    args = {"fps": 25.0, "width": 32, "height": 32, **kwargs}
+    with pytest.raises(ValueError, match=needle):
+        OverlayWriter(tmp_path / "x.mp4", **args)
