@@ -51,7 +51,7 @@ class IncrementalSVD:
         max_rank : int
         """
         mean = columns.mean(axis=1)
-        u, sigma, _ = np.linalg.svd(columns - mean[:, None], full_matrices=False)
+        u, sigma = _left_singular(columns - mean[:, None])
         u, sigma = _truncate(u, sigma, max_rank)
         return cls(u, sigma, mean, float(columns.shape[1]))
 
@@ -88,6 +88,28 @@ class IncrementalSVD:
         ut, st, _ = np.linalg.svd(r, full_matrices=False)
         u, sigma = _truncate(np.concatenate([u0, qbasis], axis=1) @ ut, st, max_rank)
         return IncrementalSVD(u, sigma, mean, q + forgetting * n0)
+
+
+def _left_singular(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left singular vectors and values of ``x`` through the eigen-decomposition of its smaller Gram matrix.
+
+    The negative model refits unfoldings such as 50 x 5000 and 1250 x 200 on
+    every accepted frame; the Gram route is several times faster than a thin
+    SVD there. Squaring the spectrum costs accuracy only for singular values
+    far below the ``_ENERGY_CUTOFF`` that truncation drops anyway.
+    """
+    d, q = x.shape
+    if d <= q:
+        energy, u = np.linalg.eigh(x @ x.T)
+        order = np.argsort(energy)[::-1]
+        return u[:, order], np.sqrt(np.maximum(energy[order], 0.0))
+    energy, v = np.linalg.eigh(x.T @ x)
+    order = np.argsort(energy)[::-1]
+    energy, v = np.maximum(energy[order], 0.0), v[:, order]
+    # Columns for (numerically) zero singular values cannot be recovered as X v / sigma; drop them.
+    keep = energy > energy[0] * 1e-14 if energy.size and energy[0] > 0 else np.zeros(energy.shape, bool)
+    sigma = np.sqrt(energy[keep])
+    return (x @ v[:, keep]) / sigma, sigma
 
 
 def _truncate(u: np.ndarray, sigma: np.ndarray, max_rank: int) -> tuple[np.ndarray, np.ndarray]:

@@ -86,3 +86,16 @@ def test_training_samples_reconstruct_better_than_others():
     outside = np.abs(rng.standard_normal((5, 8, 5))) * stack.std()
     err = lambda c: reconstruction_error(model, c, gamma=0.5, mode="paper")
     assert err(inside).max() < err(outside).min()
+
+
+@pytest.mark.parametrize("shape", [(50, 300), (300, 40), (20, 20)])
+def test_batch_fit_matches_a_thin_svd(shape):
+    rng = np.random.default_rng(5)
+    data = np.abs(rng.standard_normal(shape)) * (rng.random(shape) < 0.2)
+    model = IncrementalSVD.fit(data, max_rank=15)
+    centred = data - data.mean(axis=1, keepdims=True)
+    u, sigma, _ = np.linalg.svd(centred, full_matrices=False)
+    k = model.singular_values.shape[0]
+    np.testing.assert_allclose(model.singular_values, sigma[:k], rtol=1e-9)
+    # Same subspace: the projectors agree (singular vectors are defined up to sign).
+    np.testing.assert_allclose(model.basis @ model.basis.T, u[:, :k] @ u[:, :k].T, atol=1e-8)

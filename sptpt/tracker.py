@@ -1,0 +1,283 @@
+"""The Superpixel Tensor Pooling Tracker: ``init(frame, box)`` then ``update(frame)``.
+
+One frame (``SPTPT_SPEC.md`` 1.2): draw candidates around the last estimate,
+warp each into a 32x32 template, cut it into SNIC superpixels, describe each
+superpixel by its midlevel cue histograms, sparse-code those against the
+first-frame dictionary, pool the codes into a ``z x s`` tensor per candidate,
+and score each tensor by how much better the positive subspace model
+reconstructs it than the negative one. The best candidate is the estimate;
+if it scores above Phi it joins the positive model, and the negative model
+is refitted from samples drawn around it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Callable, ContextManager
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
+from sptpt.coding import encode_nonnegative, learn_dictionary
+from sptpt.features import superpixel_features
+from sptpt.params import TrackerParams, get_preset
+from sptpt.results import FrameResult, confidence_from_log_likelihood
+from sptpt.sampling import draw_candidates, draw_negatives
+from sptpt.subspace import TensorSubspace, reconstruction_error
+from sptpt.superpixels import seed_grid, snic
+
+__all__ = ["Tracker"]
+
+StageTimer = Callable[[str], ContextManager]
+
+# The nine one-pixel shifts of the first-frame state that train the dictionary (TPT).
+_INIT_SHIFTS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64)
+
+
+def _no_timer(stage: str) -> ContextManager:
+    return contextlib.nullcontext()
+
+
+class Tracker:
+    """SPTPT, with got10k's tracker contract.
+
+    Parameters
+    ----------
+    params : TrackerParams, optional
+        Defaults to the ``paper`` preset.
+    seed : int or numpy.random.Generator, optional
+        Seeds every random choice (dictionary, candidates, negatives): the same
+        seed and frames give bit-identical results.
+    stage_timer : callable, optional
+        ``stage_timer(name)`` returns a context manager wrapped around each
+        stage (``warp``, ``snic``, ``features``, ``coding``, ``scoring``,
+        ``positive_update``, ``negative_update``); benchmarks use it to time
+        stages without the tracker measuring anything itself.
+
+    Examples
+    --------
+    >>> tracker = Tracker(seed=0)                      # doctest: +SKIP
+    >>> tracker.init(first_frame, (10, 20, 40, 30))    # doctest: +SKIP
+    >>> result = tracker.update(next_frame)            # doctest: +SKIP
+    >>> result.box_xywh, result.confidence             # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        params: TrackerParams | None = None,
+        *,
+        seed: int | np.random.Generator | None = None,
+        stage_timer: StageTimer | None = None,
+    ) -> None:
+        self.params = get_preset("paper") if params is None else params
+        if not isinstance(self.params, TrackerParams):
+            raise TypeError(f"params must be a TrackerParams, got {type(self.params).__name__}")
+        self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self._time = stage_timer or _no_timer
+        p = self.params
+        self.n_superpixels = seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
+        if p.ranks[1] > self.n_superpixels:
+            raise ValueError(
+                f"parameter ranks={p.ranks!r} is invalid: the superpixel rank {p.ranks[1]} exceeds the "
+                f"{self.n_superpixels} superpixels per template; lower it"
+            )
+        self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
+        self._frame_shape: tuple[int, int] | None = None
+
+    # ------------------------------------------------------------------ public API
+    def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
+        """Start tracking the object in ``box_xywh`` of ``frame``.
+
+        Parameters
+        ----------
+        frame : (H, W, 3) or (H, W) uint8 ndarray
+            RGB or grayscale frame.
+        box_xywh : sequence of 4 numbers
+            0-based ``x, y, w, h`` of the object; must have positive size and
+            overlap the frame.
+
+        Returns
+        -------
+        FrameResult
+            The given box, with confidence 1 and ``scoring='init'``.
+        """
+        # The matrices here are small: BLAS threads only fight numba's for the two cores.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._init(frame, box_xywh)
+
+    def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
+        """Track the object into the next frame.
+
+        Parameters
+        ----------
+        frame : (H, W, 3) or (H, W) uint8 ndarray
+            Same size as the first frame.
+        details : bool
+            Also return the particles with their scores and the winning
+            candidate's superpixels mapped to the frame (for overlays).
+
+        Returns
+        -------
+        FrameResult
+        """
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._update(frame, details=details)
+
+    def _init(self, frame: np.ndarray, box_xywh) -> FrameResult:
+        rgb = _as_rgb(frame)
+        box = _validate_box(box_xywh, rgb.shape[:2])
+        p = self.params
+        self._frame_shape = rgb.shape[:2]
+        self._state = state_from_box_xywh(box, p.template_size)
+        shifted = np.repeat(self._state[None], len(_INIT_SHIFTS), axis=0)
+        shifted[:, :2] += _INIT_SHIFTS
+        features, _ = self._features(rgb, shifted)
+        self._dictionary = learn_dictionary(
+            features.reshape(-1, features.shape[-1]), p.n_atoms, rng=self._rng, n_init=p.kmeans_restarts
+        )
+        unshifted = int(np.flatnonzero((_INIT_SHIFTS == 0).all(axis=1))[0])
+        self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
+        self._first_mass = float(self._first_codes.sum())
+        self._buffer: list[np.ndarray] = [self._first_codes]
+        self._positive: TensorSubspace | None = None
+        self._negative: TensorSubspace | None = None
+        self._frame_number = 1
+        self._accepted_count = 0
+        return FrameResult(
+            box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
+        )
+
+    def _update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
+        if self._frame_shape is None:
+            raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
+        rgb = _as_rgb(frame)
+        if rgb.shape[:2] != self._frame_shape:
+            raise ValueError(
+                f"frame has size {rgb.shape[1]}x{rgb.shape[0]} but the first frame was "
+                f"{self._frame_shape[1]}x{self._frame_shape[0]}: every frame of a sequence must have the same size"
+            )
+        p = self.params
+        self._frame_number += 1
+        states = draw_candidates(self._state, p.n_particles, self._sigma, self._rng, min_scale=1.0 / p.template_size)
+        # Keep centres on the frame: a box whose centre left the image cannot be followed anyway.
+        height, width = self._frame_shape
+        np.clip(states[:, 0], 1.0, width, out=states[:, 0])
+        np.clip(states[:, 1], 1.0, height, out=states[:, 1])
+        features, labels = self._features(rgb, states)
+        codes = self._code(features)
+        with self._time("scoring"):
+            if self._positive is not None and self._negative is not None:
+                scoring = "subspace"
+                scores = self._log_likelihood(codes)
+            else:
+                scoring = "bootstrap"
+                scores = np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2))
+        best = int(np.argmax(scores))
+        self._state = states[best]
+        log_likelihood = float(scores[best])
+        accepted = bool(log_likelihood > p.accept_threshold)
+        if accepted:
+            self._learn(rgb, codes[best])
+        if scoring == "subspace":
+            confidence = confidence_from_log_likelihood(log_likelihood, scale=p.confidence_scale)
+        else:
+            # The intersection with the first-frame codes, as a share of their mass.
+            confidence = float(np.clip(log_likelihood / self._first_mass, 0.0, 1.0)) if self._first_mass > 0 else 0.0
+        extra = {}
+        if details:
+            frame_labels, origin = template_labels_to_frame(labels[best], self._state, self._frame_shape)
+            extra = dict(
+                particles_xywh=box_xywh_from_states(states, p.template_size),
+                particle_scores=scores,
+                superpixel_labels=frame_labels,
+                superpixel_origin_xy=origin,
+            )
+        return FrameResult(
+            box_xywh=box_xywh_from_states(self._state, p.template_size),
+            log_likelihood=log_likelihood,
+            confidence=confidence,
+            accepted=accepted,
+            scoring=scoring,
+            **extra,
+        )
+
+    # ------------------------------------------------------------------ stages
+    def _features(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = self.params
+        with self._time("warp"):
+            templates = warp_candidates(rgb, states, p.template_size)
+        with self._time("snic"):
+            labels = snic(templates, n_segments=p.n_superpixels, compactness=p.compactness, seeding=p.seeding)
+        with self._time("features"):
+            features = superpixel_features(templates, labels, self.n_superpixels, n_bins=p.n_bins)
+        return features, labels
+
+    def _code(self, features: np.ndarray) -> np.ndarray:
+        """(N, s, B) features -> (N, z, s) code tensors (tensor pooling is arrangement)."""
+        n, s, b = features.shape
+        with self._time("coding"):
+            codes = encode_nonnegative(features.reshape(n * s, b), self._dictionary, lam=self.params.lasso_lambda)
+        return np.ascontiguousarray(codes.reshape(n, s, -1).transpose(0, 2, 1))
+
+    def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
+        p = self.params
+        positive = reconstruction_error(self._positive, codes, gamma=p.gamma, mode=p.re_mode)
+        negative = reconstruction_error(self._negative, codes, gamma=p.gamma, mode=p.re_mode)
+        return negative - positive
+
+    def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
+        """Step 9 then step 10 of the per-frame schedule (TPT order)."""
+        p = self.params
+        self._accepted_count += 1
+        self._buffer.append(best_codes)
+        if len(self._buffer) == p.update_every:
+            with self._time("positive_update"):
+                batch = np.stack(self._buffer)
+                if self._positive is None:
+                    self._positive = TensorSubspace.fit(batch, p.ranks)
+                else:
+                    self._positive = self._positive.update(batch, p.ranks, p.forgetting)
+            self._buffer = []
+        refresh = self._negative is None or self._accepted_count % p.negative_every == 0
+        if self._frame_number >= p.update_every and refresh:
+            negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
+            features, _ = self._features(rgb, negatives)
+            codes = self._code(features)
+            with self._time("negative_update"):
+                self._negative = TensorSubspace.fit(codes, p.ranks)
+
+
+def _as_rgb(frame: np.ndarray) -> np.ndarray:
+    if not isinstance(frame, np.ndarray):
+        raise TypeError(f"frame must be a numpy array of uint8, got {type(frame).__name__}")
+    if frame.dtype != np.uint8:
+        raise TypeError(f"frame must have dtype uint8 (RGB 0-255), got {frame.dtype}; convert with frame.astype(np.uint8)")
+    if frame.ndim == 2:
+        frame = np.repeat(frame[:, :, None], 3, axis=2)
+    elif frame.ndim != 3 or frame.shape[2] != 3:
+        raise ValueError(f"frame must have shape (H, W, 3) RGB or (H, W) grayscale, got {frame.shape}")
+    if frame.shape[0] < 2 or frame.shape[1] < 2:
+        raise ValueError(f"frame must be at least 2x2 pixels, got {frame.shape[1]}x{frame.shape[0]}")
+    return np.ascontiguousarray(frame)
+
+
+def _validate_box(box_xywh, frame_shape: tuple[int, int]) -> np.ndarray:
+    try:
+        box = np.asarray(box_xywh, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"box_xywh must be 4 numbers x, y, w, h, got {box_xywh!r}") from None
+    if box.shape != (4,):
+        raise ValueError(f"box_xywh must be 4 numbers x, y, w, h, got {box.size} values: {box_xywh!r}")
+    if not np.isfinite(box).all():
+        raise ValueError(f"box_xywh must be finite, got {box.tolist()}")
+    x, y, w, h = box
+    if w <= 0 or h <= 0:
+        raise ValueError(f"box_xywh must have positive width and height, got w={w:g}, h={h:g}")
+    height, width = frame_shape
+    if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+        raise ValueError(
+            f"box_xywh {box.tolist()} lies outside the {width}x{height} frame: "
+            "give 0-based pixel coordinates of a box that overlaps the frame"
+        )
+    return box

@@ -1,0 +1,124 @@
+"""The tracker end to end on synthetic video, its determinism and its input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from annotator.synthetic import make_clip
+from sptpt.params import get_preset
+from sptpt.results import FrameResult
+from sptpt.tracker import Tracker
+
+
+def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x1 = np.maximum(a[:, 0], b[:, 0]); y1 = np.maximum(a[:, 1], b[:, 1])
+    x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]); y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
+    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    return inter / (a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter)
+
+
+def run(clip, seed, params=None, n=None) -> list[FrameResult]:
+    tracker = Tracker(params, seed=seed)
+    frames = clip.frames[:n]
+    results = [tracker.init(frames[0], clip.boxes_xywh[0])]
+    results += [tracker.update(f, details=k % 7 == 0) for k, f in enumerate(frames[1:], start=1)]
+    return results
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return make_clip(48, seed=3)
+
+
+@pytest.fixture(scope="module")
+def paper_run(clip):
+    return run(clip, seed=11)
+
+
+def test_follows_a_moving_scaling_partly_occluded_object(clip, paper_run):
+    boxes = np.array([r.box_xywh for r in paper_run])
+    overlap = iou_xywh(boxes, clip.boxes_xywh)
+    assert overlap.mean() >= 0.7, overlap.round(2)
+    assert clip.occluded.any()
+    assert overlap[clip.occluded].mean() >= 0.5
+
+
+def test_schedule_scores_with_subspaces_after_the_first_batch(paper_run):
+    scoring = [r.scoring for r in paper_run]
+    assert scoring[0] == "init"
+    assert set(scoring[1:5]) == {"bootstrap"}
+    # All of frames 2..5 accepted: both models exist after frame 5 (spec 1.2), so frame 6 is subspace-scored.
+    assert all(r.accepted for r in paper_run[1:5])
+    assert scoring[5] == "subspace"
+    for r in paper_run:
+        assert 0.0 <= r.confidence <= 1.0 and np.isfinite(r.log_likelihood)
+
+
+def test_same_seed_same_boxes_and_different_seed_different_particles(clip, paper_run):
+    again = run(clip, seed=11, n=12)
+    for a, b in zip(paper_run[:12], again):
+        np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
+        assert a.log_likelihood == b.log_likelihood
+    other = run(clip, seed=12, n=3)
+    assert not np.array_equal(other[1].box_xywh, paper_run[1].box_xywh)
+
+
+def test_details_carry_particles_and_superpixels(clip, paper_run):
+    detailed = paper_run[7]
+    n = get_preset("paper").n_particles
+    assert detailed.particles_xywh.shape == (n, 4) and detailed.particle_scores.shape == (n,)
+    assert detailed.particle_scores.max() == detailed.log_likelihood
+    labels = detailed.superpixel_labels
+    assert labels.ndim == 2 and labels.max() == 24 and labels.min() == -1
+    assert paper_run[8].particles_xywh is None
+
+
+def test_grayscale_frames_are_accepted(clip):
+    gray = clip.frames[:4].mean(axis=3).astype(np.uint8)
+    tracker = Tracker(seed=0)
+    tracker.init(gray[0], clip.boxes_xywh[0])
+    result = tracker.update(gray[1])
+    assert result.box_xywh.shape == (4,)
+
+
+def test_target_leaving_the_frame_does_not_crash():
+    clip = make_clip(12, seed=1)
+    tracker = Tracker(seed=0)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    black = np.zeros_like(clip.frames[0])
+    results = [tracker.update(black) for _ in range(8)]
+    assert all(np.isfinite(r.box_xywh).all() for r in results)
+    # Nothing of the target is left: the model must not be confident.
+    assert results[-1].confidence < 0.5
+
+
+@pytest.mark.parametrize(
+    "box, message",
+    [
+        ((1, 2, 3), "4 numbers"),
+        ((1, 2, 0, 5), "positive width"),
+        ((1, 2, np.nan, 5), "finite"),
+        ((500, 10, 20, 20), "outside"),
+        ("a,b,c,d", "4 numbers"),
+    ],
+)
+def test_bad_boxes_are_rejected(box, message):
+    frame = np.zeros((50, 60, 3), np.uint8)
+    with pytest.raises(ValueError, match=message):
+        Tracker(seed=0).init(frame, box)
+
+
+def test_bad_frames_and_call_order_are_rejected():
+    tracker = Tracker(seed=0)
+    with pytest.raises(RuntimeError, match="before init"):
+        tracker.update(np.zeros((50, 60, 3), np.uint8))
+    with pytest.raises(TypeError, match="uint8"):
+        tracker.init(np.zeros((50, 60, 3), np.float32), (1, 1, 10, 10))
+    with pytest.raises(ValueError, match="shape"):
+        tracker.init(np.zeros((50, 60, 4), np.uint8), (1, 1, 10, 10))
+    tracker.init(np.zeros((50, 60, 3), np.uint8), (1, 1, 10, 10))
+    with pytest.raises(ValueError, match="same size"):
+        tracker.update(np.zeros((40, 60, 3), np.uint8))
+    with pytest.raises(TypeError, match="TrackerParams"):
+        Tracker({"n_particles": 3})
