@@ -14,6 +14,11 @@ from typing import IO, Iterator
 
 __all__ = ["atomic_path", "atomic_open", "write_text_atomic", "write_bytes_atomic"]
 
+# mkstemp creates files readable by the owner only; outputs get the usual umask permissions.
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+_FILE_MODE = 0o666 & ~_UMASK
+
 
 @contextlib.contextmanager
 def atomic_path(target: str | os.PathLike, *, suffix: str | None = None) -> Iterator[Path]:
@@ -30,6 +35,7 @@ def atomic_path(target: str | os.PathLike, *, suffix: str | None = None) -> Iter
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".tmp{suffix}", dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
+    os.chmod(tmp, _FILE_MODE)
     try:
         yield tmp
         os.replace(tmp, target)

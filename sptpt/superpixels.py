@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from sptpt._kernels.snic import snic_batch
-from sptpt.color import rgb_to_lab
+from sptpt.color import rgb_to_lab, rgb_to_lab_templates
 
 __all__ = ["SEEDINGS", "seed_grid", "snic", "snic_lab"]
 
@@ -323,5 +323,5 @@ def snic(
     compactness = _check_compactness(compactness)
     # Lab of uint8 input is always finite and seed_grid's seeds are valid:
     # skip snic_lab's checks.
-    labels = _grow(rgb_to_lab(images.reshape((-1, height, width, 3))), seeds, compactness)
+    labels = _grow(rgb_to_lab_templates(images.reshape((-1, height, width, 3))), seeds, compactness)
     return labels[0] if images.ndim == 3 else labels
