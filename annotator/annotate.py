@@ -1,0 +1,237 @@
+"""The main job: one video (or image folder) and first-frame boxes in, every output written.
+
+Shared by the ``sptpt-annotate VIDEO`` command and each item of a batch run.
+Validation happens before any tracking; outputs are written atomically; a
+decode error or an interruption part-way still writes everything computed
+up to it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import platform
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from annotator import __version__
+from annotator.atomic import write_text_atomic
+from annotator.config import RunConfig
+from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, ToolError
+from annotator.exports import write_coco, write_flags_csv, write_otb_results
+from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
+from annotator.pipeline import Target, TrackingRun, track_source
+from annotator.progress import Progress
+from annotator.report import render_report, track_summary
+
+__all__ = ["ALL_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
+
+ALL_FORMATS = ("otb", "coco", "flags", "overlay", "report")
+OVERLAY_NAME = "overlay.mp4"
+# Files whose presence means a folder already holds a run's results.
+RESULT_FILES = ("run.json", "annotations.json", "flags.csv", OVERLAY_NAME, "report.html")
+
+
+@dataclass
+class AnnotateResult:
+    """What a run wrote, and how it ended."""
+
+    out_dir: Path
+    run: TrackingRun
+    outputs: dict[str, list[Path]] = field(default_factory=dict)
+    exit_code: int = 0
+    message: str = ""
+
+
+def parse_box(text: str, *, origin: int = 0, name: str = "--box") -> tuple[float, float, float, float]:
+    """Parse ``"x,y,w,h"`` into a 0-based box; ``origin=1`` takes OTB-style 1-based coordinates."""
+    parts = [p.strip() for p in str(text).replace(";", ",").split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not all(np.isfinite(values)):
+        raise ToolError(f"{name} {text!r} is not four numbers x,y,w,h: give e.g. {name} 120,80,40,60", EXIT_VALUE)
+    x, y, w, h = values
+    if w <= 0 or h <= 0:
+        raise ToolError(f"{name} {text!r} has zero or negative size (w={w:g}, h={h:g}): width and height must be > 0",
+                        EXIT_VALUE)
+    return (x - origin, y - origin, w, h)
+
+
+def default_output_dir(input_path: Path) -> Path:
+    """``<input>_sptpt/`` beside the input (``clip.mp4`` -> ``clip_sptpt/``)."""
+    input_path = Path(input_path)
+    stem = input_path.name if input_path.is_dir() else input_path.stem
+    return input_path.resolve().parent / f"{stem}_sptpt"
+
+
+def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ToolError(f"output folder {out_dir} is a file: give --out a folder path", EXIT_OUTPUT)
+    if out_dir.is_dir() and not force:
+        existing = [name for name in RESULT_FILES if (out_dir / name).exists()]
+        if existing:
+            raise ToolError(f"output folder {out_dir} already holds results ({', '.join(existing)}): "
+                            "pass --force to overwrite them or choose another --out", EXIT_OUTPUT)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out_dir):
+            pass
+    except OSError as exc:
+        raise ToolError(f"output folder {out_dir} cannot be written ({exc.strerror}): "
+                        "choose a writable --out folder", EXIT_OUTPUT) from None
+
+
+def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
+    for target in targets:
+        x, y, w, h = target.box_xywh
+        if x >= source.width or y >= source.height or x + w <= 0 or y + h <= 0:
+            raise ToolError(
+                f"--box {x:g},{y:g},{w:g},{h:g} (0-based) lies outside the {source.width}x{source.height} first frame "
+                f"of {source.path}: give pixel coordinates of the object in frame {source.start}"
+                " (use --box-origin 1 for OTB-style 1-based boxes)", EXIT_VALUE)
+
+
+def content_hash(path: Path) -> str:
+    """SHA-256 of a file, or of an image folder's names and bytes in order."""
+    digest = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    for file in files:
+        if path.is_dir():
+            digest.update(str(file.relative_to(path)).encode())
+        with open(file, "rb") as handle:
+            for chunk in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(chunk)
+    return "sha256:" + digest.hexdigest()
+
+
+def annotate(
+    input_path: str | os.PathLike,
+    targets: Sequence[Target],
+    config: RunConfig,
+    *,
+    out_dir: str | os.PathLike | None = None,
+    start: int = 0,
+    stop: int | None = None,
+    step: int = 1,
+    formats: Sequence[str] = ALL_FORMATS,
+    force: bool = False,
+    show_progress: bool = True,
+) -> AnnotateResult:
+    """Track ``targets`` through a video or image folder and write every requested output.
+
+    Raises
+    ------
+    ToolError
+        With the exit code of the problem (see :mod:`annotator.errors`); a
+        decode error part-way is not raised but reported in the result's
+        ``exit_code`` and ``message``, after the outputs are written.
+    """
+    input_path = Path(input_path)
+    unknown = sorted(set(formats) - set(ALL_FORMATS))
+    if unknown:
+        raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
+    if not targets:
+        raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
+    try:
+        source = open_frames(input_path, start=start, stop=stop, step=step)
+    except FrameRangeError as exc:
+        raise ToolError(str(exc), EXIT_VALUE) from None
+    except FrameSourceError as exc:
+        raise ToolError(str(exc), EXIT_INPUT) from None
+    _check_boxes(targets, source)
+    out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
+    _prepare_output_dir(out_dir, force=force)
+    render = "overlay" in formats
+    progress = Progress(len(source), enabled=show_progress)
+    run = track_source(source, targets, config, overlay_path=out_dir / OVERLAY_NAME if render else None,
+                       progress=progress)
+    result = AnnotateResult(out_dir=out_dir, run=run)
+    if run.decode_error is not None:
+        err = run.decode_error
+        result.exit_code = EXIT_PARTIAL
+        result.message = (f"{source.path}: decoding stopped after frame {err.last_good_index} ({err.reason}); "
+                          f"results for the {run.frames_processed} frames before it were written to {out_dir}")
+    _write_outputs(result, source, targets, config, formats, input_path)
+    return result
+
+
+def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
+                   formats: Sequence[str], input_path: Path) -> None:
+    run, out_dir = result.run, result.out_dir
+    outputs = result.outputs
+    if run.frames_processed == 0:
+        raise ToolError(f"{source.path}: no frame could be decoded in the selected range; nothing was written", EXIT_INPUT)
+    if "otb" in formats:
+        outputs["otb"] = write_otb_results(out_dir, run.video.name, run.tracks)
+    if "coco" in formats:
+        write_coco(out_dir / "annotations.json", run.video, run.tracks)
+        outputs["coco"] = [out_dir / "annotations.json"]
+    if "flags" in formats:
+        write_flags_csv(out_dir / "flags.csv", run.tracks)
+        outputs["flags"] = [out_dir / "flags.csv"]
+    if run.overlay_path is not None:
+        outputs["overlay"] = [run.overlay_path]
+    run_info = {
+        "tool": "sptpt-annotate",
+        "tool_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "input": {
+            "path": str(input_path.resolve()),
+            "content_hash": content_hash(input_path),
+            "frame_count": source.frame_count,
+            "fps": source.fps,
+            "width": source.width,
+            "height": source.height,
+        },
+        "range": {"start": source.start, "stop": source.stop, "step": source.step},
+        "frames_processed": run.frames_processed,
+        "targets": [{"track_id": t.track_id, "label": t.label, "box_xywh": list(t.box_xywh), "box_origin": 0}
+                    for t in targets],
+        "config": config.to_dict(),
+        "timings": {
+            "seconds_total": run.seconds_total,
+            "seconds_tracking": run.seconds_tracking,
+            "seconds_outside_tracker": run.seconds_total - run.seconds_tracking,
+            "frames_per_second": run.frames_processed / run.seconds_total if run.seconds_total > 0 else None,
+        },
+        "tracks": [track_summary(t) for t in run.tracks],
+        "decode_error": result.message or None,
+        "complete": run.decode_error is None,
+        "formats": list(formats),
+    }
+    if "report" in formats:
+        render_report(
+            out_dir / "report.html", video=run.video, tracks=run.tracks, thumbnails=run.thumbnails,
+            settings=config.to_dict(),
+            run_info={**run_info, "frames_processed": run.frames_processed, "seconds_total": run.seconds_total,
+                      "seconds_tracking": run.seconds_tracking,
+                      "seconds_outside": run.seconds_total - run.seconds_tracking},
+            overlay_name=OVERLAY_NAME if run.overlay_path is not None else None,
+        )
+        outputs["report"] = [out_dir / "report.html"]
+    run_info["outputs"] = {k: [str(p.relative_to(out_dir)) for p in v] for k, v in outputs.items()}
+    # run.json last: its presence marks a finished run (batch resumption relies on it).
+    write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=_json_default) + "\n")
+    outputs["provenance"] = [out_dir / "run.json"]
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -1,0 +1,70 @@
+"""Command line: ``sptpt-annotate VIDEO --box x,y,w,h`` and its subcommands.
+
+Commands parse and delegate; every domain error becomes one line on stderr
+and an exit code documented in :mod:`annotator.errors` (no traceback unless
+``--debug``).
+"""
+
+from __future__ import annotations
+
+import sys
+import typer
+
+from annotator import __version__
+from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    rich_markup_mode=None,
+    pretty_exceptions_enable=False,
+    help=(
+        "Label an object in a video with boxes, headless, using the SPTPT tracker.\n\n"
+        "Main use:  sptpt-annotate VIDEO --box x,y,w,h   (the 'track' command is the default).\n\n"
+        "Exit codes: 0 ok, 1 internal error, 2 usage, 3 unreadable input, 4 invalid value, "
+        "5 output folder problem, 6 partial results (decode error), 7 some batch items failed, 130 interrupted."
+    ),
+)
+
+from annotator.commands.eval import eval_command  # noqa: E402
+from annotator.commands.track import track_command  # noqa: E402
+
+app.command("track")(track_command)
+app.command("eval")(eval_command)
+
+SUBCOMMANDS = ("track", "eval")
+
+def _with_default_command(argv: list[str]) -> list[str]:
+    """``sptpt-annotate VIDEO ...`` means ``sptpt-annotate track VIDEO ...``."""
+    if not argv:
+        return argv
+    first = argv[0]
+    if first in SUBCOMMANDS or first in ("--help", "-h", "--version"):
+        return argv
+    return ["track", *argv]
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--version"]:
+        print(f"sptpt-annotate {__version__}")
+        raise SystemExit(EXIT_OK)
+    debug = "--debug" in argv
+    try:
+        app(args=_with_default_command(argv), prog_name="sptpt-annotate", standalone_mode=True)
+    except KeyboardInterrupt:
+        print("sptpt-annotate: interrupted", file=sys.stderr)
+        raise SystemExit(EXIT_INTERRUPTED)
+    except SystemExit:
+        raise
+    except Exception as exc:  # a bug: one line unless --debug
+        if debug:
+            raise
+        print(f"sptpt-annotate: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
+              file=sys.stderr)
+        raise SystemExit(EXIT_INTERNAL)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,1 @@
+"""One module per subcommand; ``annotator.cli`` registers them."""

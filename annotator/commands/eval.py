@@ -1,0 +1,41 @@
+"""``sptpt-annotate eval``: OTB one-pass scores of results against ground truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from annotator.commands.common import fail
+from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+
+def eval_command(
+    results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
+    ground_truth: Path = typer.Argument(..., help="A ground-truth file (one sequence) or an OTB-layout root (dataset)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for plots and tables (default: print the table only)."),
+    tracker_name: str = typer.Option("sptpt", "--name", help="Tracker name in tables and plots."),
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
+) -> None:
+    """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
+    from annotator.evaluation import EvaluationError, evaluate_dataset, evaluate_result_file, evaluate_results_dir
+    from annotator.evaluation import results_markdown, write_report
+    from annotator.otb import OTBFormatError
+
+    try:
+        try:
+            if ground_truth.is_dir():
+                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name)
+            else:
+                sequence = evaluate_result_file(results, ground_truth)
+                score = evaluate_dataset({sequence.name: sequence}, tracker=tracker_name)
+        except FileNotFoundError as exc:
+            raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
+        except (EvaluationError, OTBFormatError) as exc:
+            raise ToolError(str(exc), EXIT_VALUE) from None
+        typer.echo(results_markdown([score]))
+        if out is not None:
+            written = write_report(out, [score])
+            typer.echo(f"plots and tables written to {out}: {', '.join(p.name for p in written.values())}", err=True)
+    except ToolError as error:
+        fail(error, debug)

@@ -1,0 +1,64 @@
+"""``sptpt-annotate track``: the main job, also run as plain ``sptpt-annotate VIDEO --box ...``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from annotator.commands.common import fail
+from annotator.errors import EXIT_OK, EXIT_VALUE, ToolError
+
+def track_command(
+    video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),
+    box: List[str] = typer.Option(..., "--box", help="First-frame box x,y,w,h in pixels (0-based). Repeat for several objects."),
+    label: List[str] = typer.Option([], "--label", help="Label of each --box (one per box, or one for all). Default 'object'."),
+    box_origin: int = typer.Option(0, "--box-origin", help="1 to read --box as OTB-style 1-based coordinates."),
+    start: int = typer.Option(0, "--start", help="First frame to process (0-based source index)."),
+    stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this source frame (default: the end)."),
+    step: int = typer.Option(1, "--step", help="Process every n-th frame."),
+    preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset: 'paper' (the spec) or 'fast'."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0): same seed, same boxes."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <input>_sptpt beside the input)."),
+    formats: str = typer.Option("otb,coco,flags,overlay,report", "--formats", help="Comma-separated outputs: otb,coco,flags,overlay,report."),
+    no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
+) -> None:
+    """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
+    from annotator.annotate import annotate, parse_box
+    from annotator.config import ConfigError, load_config_file, resolve_config
+    from annotator.pipeline import Target
+
+    try:
+        if box_origin not in (0, 1):
+            raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
+        boxes = [parse_box(b, origin=box_origin) for b in box]
+        if label and len(label) not in (1, len(boxes)):
+            raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
+                            EXIT_VALUE)
+        labels = (label * len(boxes) if len(label) == 1 else label) or ["object"] * len(boxes)
+        targets = [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
+        try:
+            file_values = load_config_file(config_file) if config_file is not None else {}
+            config = resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed)
+        except ConfigError as exc:
+            raise ToolError(str(exc), EXIT_VALUE) from None
+        chosen = [f.strip() for f in formats.split(",") if f.strip()]
+        if no_render:
+            chosen = [f for f in chosen if f != "overlay"]
+        result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step, formats=chosen,
+                          force=force, show_progress=not quiet)
+    except ToolError as error:
+        fail(error, debug)
+    if result.exit_code != EXIT_OK:
+        typer.echo(f"sptpt-annotate: warning: {result.message}", err=True)
+        raise typer.Exit(result.exit_code)
+    if not quiet:
+        flagged = sum(int(t.flagged.sum()) for t in result.run.tracks)
+        total = sum(len(t.frame_indices) for t in result.run.tracks)
+        typer.echo(f"{result.run.frames_processed} frames tracked in {result.run.seconds_total:.1f} s; "
+                   f"{flagged} of {total} frame boxes flagged for review; results in {result.out_dir}", err=True)

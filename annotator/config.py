@@ -1,0 +1,138 @@
+"""Run configuration: tracker preset and overrides, flag thresholds, seed.
+
+Precedence is defaults < config file < command-line flags. The YAML file has
+up to four top-level keys::
+
+    preset: fast          # a tracker preset name
+    seed: 0
+    tracker:              # any TrackerParams field
+      n_particles: 400
+    flags:                # any FlagParams field
+      drop: 0.4
+
+An unknown key anywhere is an error naming the closest valid key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from annotator.flagging import FlagParams
+from sptpt.params import TrackerParams, get_preset, params_from_mapping
+
+__all__ = ["RunConfig", "ConfigError", "load_config_file", "resolve_config"]
+
+_TOP_LEVEL = ("preset", "seed", "tracker", "flags")
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used; the message names the source."""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that decides a run's numbers."""
+
+    preset: str
+    tracker: TrackerParams
+    flags: FlagParams
+    seed: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "preset": self.preset,
+            "seed": self.seed,
+            "tracker": self.tracker.to_dict(),
+            "flags": dataclasses.asdict(self.flags),
+        }
+
+
+def load_config_file(path: str | Path) -> dict[str, Any]:
+    """Read a YAML config file into a mapping, with errors naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist: give the path of a YAML file") from None
+    except OSError as exc:
+        raise ConfigError(f"config file {path} cannot be read: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"config file {path}{where} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got {type(data).__name__}")
+    return data
+
+
+def _unknown(kind: str, key: str, valid: list[str], source: str) -> ConfigError:
+    close = difflib.get_close_matches(str(key), valid, n=1)
+    hint = f"did you mean {close[0]!r}?" if close else f"valid keys: {', '.join(valid)}"
+    return ConfigError(f"{source}: unknown {kind} {key!r}: {hint}")
+
+
+def resolve_config(
+    file_values: Mapping[str, Any] | None = None,
+    *,
+    source: str = "config",
+    preset: str | None = None,
+    seed: int | None = None,
+    tracker_overrides: Mapping[str, Any] | None = None,
+    flag_overrides: Mapping[str, Any] | None = None,
+) -> RunConfig:
+    """Combine defaults, a config file's values and command-line values (highest precedence)."""
+    file_values = dict(file_values or {})
+    for key in file_values:
+        if key not in _TOP_LEVEL:
+            raise _unknown("top-level key", key, list(_TOP_LEVEL), source)
+    preset_name = preset or file_values.get("preset") or "paper"
+    seed_value = seed if seed is not None else file_values.get("seed", 0)
+    if isinstance(seed_value, bool) or not isinstance(seed_value, int) or seed_value < 0:
+        raise ConfigError(f"{source}: seed must be a non-negative integer, got {seed_value!r}")
+    try:
+        base = get_preset(str(preset_name))
+        tracker = params_from_mapping(_mapping(file_values.get("tracker"), "tracker", source), base)
+        tracker = params_from_mapping(dict(tracker_overrides or {}), tracker)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    flag_values = {**_mapping(file_values.get("flags"), "flags", source), **dict(flag_overrides or {})}
+    valid = [f.name for f in dataclasses.fields(FlagParams)]
+    for key in flag_values:
+        if key not in valid:
+            raise _unknown("flag parameter", key, valid, source)
+    defaults = FlagParams(accept_threshold=tracker.accept_threshold)
+    try:
+        flags = dataclasses.replace(defaults, **{k: _like(getattr(defaults, k), v, k, source) for k, v in flag_values.items()})
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return RunConfig(preset=str(preset_name), tracker=tracker, flags=flags, seed=int(seed_value))
+
+
+def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got {type(value).__name__}")
+    return value
+
+
+def _like(default: Any, value: Any, name: str, source: str) -> Any:
+    if isinstance(default, bool) or isinstance(value, bool):
+        raise ConfigError(f"{source}: flag parameter {name}={value!r} is invalid: expected a number")
+    if isinstance(default, int):
+        if not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            raise ConfigError(f"{source}: flag parameter {name}={value!r} is invalid: expected an integer")
+        return int(value)
+    if not isinstance(value, (int, float)):
+        raise ConfigError(f"{source}: flag parameter {name}={value!r} is invalid: expected a number")
+    return float(value)

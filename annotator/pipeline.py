@@ -1,0 +1,207 @@
+"""One video in, annotations out: the tracking loop behind ``sptpt-annotate VIDEO --box ...``.
+
+Frames are decoded once and streamed: each frame is tracked for every
+target, its flags are decided by an :class:`~annotator.flagging.OnlineFlagger`
+a few frames later, and the overlay frame is drawn and encoded as soon as its
+flags are final. Memory therefore depends on the frame size and the flag
+look-ahead, never on the video's length. If decoding fails part-way, every
+frame tracked so far is still written, validly.
+"""
+
+from __future__ import annotations
+
+import base64
+import collections
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from annotator.config import RunConfig
+from annotator.flagging import OnlineFlagger
+from annotator.frames import DecodeError, FrameSource
+from annotator.progress import Progress
+from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter
+from annotator.tracks import TrackRecorder, TrackResult, VideoInfo
+from sptpt.results import FrameResult
+from sptpt.tracker import Tracker
+
+__all__ = ["Target", "TrackingRun", "SpanThumbnail", "track_source", "seed_for_track"]
+
+THUMBNAIL_WIDTH = 200
+
+
+@dataclass(frozen=True)
+class Target:
+    """One object to label: its first-frame box (0-based ``xywh``), track id and label."""
+
+    box_xywh: tuple[float, float, float, float]
+    track_id: int
+    label: str = "object"
+
+
+@dataclass(frozen=True)
+class SpanThumbnail:
+    """A small JPEG of an overlay frame, for the review report."""
+
+    track_id: int
+    position: int
+    frame_index: int
+    jpeg_base64: str
+
+
+@dataclass
+class TrackingRun:
+    """What one pass over a source produced."""
+
+    video: VideoInfo
+    tracks: list[TrackResult]
+    frames_processed: int
+    seconds_tracking: float
+    seconds_total: float
+    decode_error: DecodeError | None = None
+    thumbnails: list[SpanThumbnail] = field(default_factory=list)
+    overlay_path: Path | None = None
+
+
+def seed_for_track(seed: int, track_id: int) -> np.random.Generator:
+    """Each track's generator derives from the run seed and its id, so tracks are independent."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(track_id)]))
+
+
+def _thumbnail(frame_rgb: np.ndarray) -> str:
+    height, width = frame_rgb.shape[:2]
+    scale = THUMBNAIL_WIDTH / width
+    small = cv2.resize(frame_rgb, (THUMBNAIL_WIDTH, max(1, int(round(height * scale)))), interpolation=cv2.INTER_AREA)
+    ok, data = cv2.imencode(".jpg", cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return base64.b64encode(data.tobytes()).decode("ascii") if ok else ""
+
+
+def track_source(
+    source: FrameSource,
+    targets: Sequence[Target],
+    config: RunConfig,
+    *,
+    overlay_path: Path | None = None,
+    progress: Progress | None = None,
+) -> TrackingRun:
+    """Track every target through the source's selected frames.
+
+    Parameters
+    ----------
+    source : FrameSource
+        The decoded frames; its first selected frame holds the targets' boxes.
+    targets : sequence of Target
+    config : RunConfig
+    overlay_path : Path, optional
+        Where to stream the overlay video; ``None`` renders nothing.
+    progress : Progress, optional
+
+    Returns
+    -------
+    TrackingRun
+        On a decode error part-way, the frames before it, with the error in
+        ``decode_error``; the overlay then also ends there.
+    """
+    started = time.perf_counter()
+    render = overlay_path is not None
+    trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
+    recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
+    flaggers = {t.track_id: OnlineFlagger(config.flags) for t in targets}
+    flags: dict[int, dict[int, tuple[bool, str]]] = {t.track_id: {} for t in targets}
+    pending: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
+    renderer = OverlayRenderer() if render else None
+    thumbnails: list[SpanThumbnail] = []
+    in_span: dict[int, bool] = {t.track_id: False for t in targets}
+    tracking_seconds = 0.0
+    decode_error: DecodeError | None = None
+    info = VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
+                     fps=source.fps, frame_count=source.frame_count)
+
+    def drain(writer: OverlayWriter | None, *, final: bool = False) -> None:
+        while pending:
+            position = pending[0][0]
+            if not all(position in flags[tid] for tid in flags):
+                if not final:
+                    return
+            _, frame_index, frame, results = pending.popleft()
+            items = []
+            for tid, result in results.items():
+                flagged, _ = flags[tid].get(position, (False, ""))
+                items.append(OverlayItem.from_frame_result(
+                    result, track_id=tid, flagged=flagged, corrected=result.scoring == "init"))
+            drawn = renderer.annotate(frame, items)
+            writer.write(drawn)
+            for tid in results:
+                flagged = flags[tid].get(position, (False, ""))[0]
+                if flagged and not in_span[tid]:
+                    thumbnails.append(SpanThumbnail(tid, position, frame_index, _thumbnail(drawn)))
+                in_span[tid] = flagged
+
+    def record(position: int, frame_index: int, tid: int, result: FrameResult, seconds: float) -> None:
+        recorders[tid].append(
+            frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
+            accepted=result.accepted, seconds=seconds, keyframe=result.scoring == "init")
+        for pos, flagged, reason in flaggers[tid].push(
+                result.log_likelihood, result.confidence, result.scoring, keyframe=result.scoring == "init"):
+            recorders[tid].set_flag(pos, flagged, reason)
+            flags[tid][pos] = (flagged, reason)
+
+    def run(writer: OverlayWriter | None) -> int:
+        nonlocal tracking_seconds, decode_error
+        position = -1
+        frames = iter(source)
+        while True:
+            try:
+                frame_index, frame = next(frames)
+            except StopIteration:
+                break
+            except DecodeError as exc:
+                decode_error = exc
+                break
+            position += 1
+            results: dict[int, FrameResult] = {}
+            for target in targets:
+                tid = target.track_id
+                tic = time.perf_counter()
+                if position == 0:
+                    result = trackers[tid].init(frame, target.box_xywh)
+                else:
+                    result = trackers[tid].update(frame, details=render)
+                seconds = time.perf_counter() - tic
+                tracking_seconds += seconds
+                results[tid] = result
+                record(position, frame_index, tid, result, seconds)
+            if writer is not None:
+                pending.append((position, frame_index, frame, results))
+                drain(writer)
+            if progress is not None:
+                progress.advance()
+        for tid, flagger in flaggers.items():
+            for pos, flagged, reason in flagger.finish():
+                recorders[tid].set_flag(pos, flagged, reason)
+                flags[tid][pos] = (flagged, reason)
+        if writer is not None:
+            drain(writer, final=True)
+        return position + 1
+
+    if render:
+        with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
+            processed = run(writer)
+    else:
+        processed = run(None)
+    if progress is not None:
+        progress.close()
+    return TrackingRun(
+        video=info,
+        tracks=[recorders[t.track_id].to_result() for t in targets],
+        frames_processed=processed,
+        seconds_tracking=tracking_seconds,
+        seconds_total=time.perf_counter() - started,
+        decode_error=decode_error,
+        thumbnails=thumbnails,
+        overlay_path=overlay_path if render else None,
+    )
