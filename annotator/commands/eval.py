@@ -18,7 +18,7 @@ def eval_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
-    from annotator.evaluation import EvaluationError, evaluate_dataset, evaluate_result_file, evaluate_results_dir
+    from annotator.evaluation import DatasetScore, EvaluationError, evaluate_result_file, evaluate_results_dir
     from annotator.evaluation import results_markdown, write_report
     from annotator.otb import OTBFormatError
 
@@ -28,7 +28,7 @@ def eval_command(
                 score = evaluate_results_dir(ground_truth, results, tracker=tracker_name)
             else:
                 sequence = evaluate_result_file(results, ground_truth)
-                score = evaluate_dataset({sequence.name: sequence}, tracker=tracker_name)
+                score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
         except (EvaluationError, OTBFormatError) as exc:

@@ -1,0 +1,208 @@
+"""SPTPT presets and OpenCV peers on every sequence of an OTB-layout root, in one invocation.
+
+    python benchmarks/otb_benchmark.py                       # all trackers, ../shared/otb, records RESULTS.md
+    python benchmarks/otb_benchmark.py --trackers paper,csrt --stop 100 --no-record
+
+For each tracker it runs one-pass evaluation on the same frames (the
+sequence's ``img/`` files, in order), then reports mean success AUC,
+precision at 20 px and frames per second; for SPTPT also the per-stage
+timing, peak resident memory and the quality of its review flags. The peers
+(CSRT, KCF, MIL from opencv-contrib-python-headless) run in an environment of
+their own, ``benchmarks/_env``, created on first use, because that package
+clashes with the project's opencv-python-headless.
+
+Frames per second are measured over frames 2..N (the first frame's
+initialisation excluded) with one sequence at a time unless ``--workers`` is
+raised, which makes the figures per-process under load and is meant for
+tuning only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import subprocess
+import sys
+import time
+import venv
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _results import machine_line, update_section  # noqa: E402
+
+from annotator.evaluation import evaluate_dataset, flag_quality_dataset, write_report  # noqa: E402
+from annotator.evaluation.metrics import iou_xywh  # noqa: E402
+from annotator.flagging import FlagParams, flag_frames  # noqa: E402
+from annotator.otb import read_otb_boxes  # noqa: E402
+from sptpt.params import PRESETS  # noqa: E402
+
+PEERS = ("csrt", "kcf", "mil")
+PEER_ENV = HERE / "_env"
+PEER_REQUIREMENTS = ["opencv-contrib-python-headless", "numpy"]
+STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update")
+
+
+def ensure_peer_env() -> Path:
+    """Create ``benchmarks/_env`` with OpenCV contrib once; return its python."""
+    python = PEER_ENV / "bin" / "python"
+    if not python.exists():
+        print(f"creating {PEER_ENV} with {' '.join(PEER_REQUIREMENTS)} ...", file=sys.stderr)
+        venv.EnvBuilder(with_pip=True, clear=True).create(PEER_ENV)
+        subprocess.run([str(python), "-m", "pip", "install", "--quiet", *PEER_REQUIREMENTS], check=True)
+    return python
+
+
+def _sptpt_job(args: dict) -> dict:
+    import numba
+
+    if args.pop("threads", None):
+        numba.set_num_threads(args["threads_n"])
+    args.pop("threads_n", None)
+    from _sptpt_runner import run_sequence
+
+    return run_sequence(**args)
+
+
+def _peer_job(args: dict) -> dict:
+    python = args.pop("python")
+    out = subprocess.run([python, str(HERE / "_peer_runner.py"), json.dumps(args)], check=True, capture_output=True,
+                         text=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_tracker(name: str, sequences: list[Path], out_root: Path, *, workers: int, seed: int, stop: int | None,
+                peer_python: Path | None) -> list[dict]:
+    out_dir = out_root / name
+    if name in PEERS:
+        jobs = [dict(python=str(peer_python), tracker=name, seq_dir=str(s), out_dir=str(out_dir), name=s.name, stop=stop)
+                for s in sequences]
+        fn = _peer_job
+    else:
+        params = PRESETS[name].to_dict()
+        jobs = [dict(seq_dir=str(s), out_dir=str(out_dir), params=params, seed=seed, name=s.name, stop=stop,
+                     threads=workers > 1, threads_n=1) for s in sequences]
+        fn = _sptpt_job
+    if workers == 1:
+        return [fn(job) for job in jobs]
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        return list(pool.map(fn, jobs))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
+    parser.add_argument("--trackers", default="paper,fast,csrt,kcf,mil")
+    parser.add_argument("--sequences", default="", help="comma-separated names (default: every sequence)")
+    parser.add_argument("--stop", type=int, default=None, help="only the first N frames of each sequence")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=HERE / "_runs" / "otb")
+    parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
+    args = parser.parse_args()
+
+    sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
+    if args.sequences:
+        wanted = set(args.sequences.split(","))
+        sequences = [s for s in sequences if s.name in wanted]
+    trackers = [t for t in args.trackers.split(",") if t]
+    unknown = [t for t in trackers if t not in PEERS and t not in PRESETS]
+    if unknown:
+        parser.error(f"unknown trackers {unknown}: choose from {sorted(PRESETS)} and {list(PEERS)}")
+    peer_python = ensure_peer_env() if any(t in PEERS for t in trackers) else None
+
+    records: dict[str, list[dict]] = {}
+    started = time.time()
+    for tracker in trackers:
+        tic = time.time()
+        records[tracker] = run_tracker(tracker, sequences, args.out, workers=args.workers, seed=args.seed,
+                                       stop=args.stop, peer_python=peer_python)
+        print(f"{tracker}: {sum(r['frames'] for r in records[tracker])} frames in {time.time() - tic:.0f} s",
+              file=sys.stderr)
+
+    gts = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in sequences}
+    scores, flag_reports, rows = [], {}, []
+    for tracker in trackers:
+        pairs = {}
+        for s in sequences:
+            pred = read_otb_boxes(args.out / tracker / f"{s.name}.txt")
+            pairs[s.name] = (pred, gts[s.name][: len(pred)])
+        score = evaluate_dataset(pairs, tracker=f"SPTPT-{tracker}" if tracker in PRESETS else tracker.upper())
+        scores.append(score)
+        recs = records[tracker]
+        fps = sum(r["frames"] - 1 for r in recs) / sum(r["seconds_after_first"] for r in recs)
+        row = {"tracker": score.tracker, "auc": score.auc, "precision_20": score.precision_20, "fps": fps}
+        if tracker in PRESETS:
+            flags = {}
+            for s in sequences:
+                frames = np.load(args.out / tracker / f"{s.name}.frames.npz")
+                result = flag_frames(frames["log_likelihood"], frames["confidence"], frames["scoring"], FlagParams(),
+                                     keyframe=frames["scoring"] == "init")
+                flags[s.name] = (result.flagged, score.sequences[s.name].ious)
+            report = flag_quality_dataset(flags)
+            flag_reports[score.tracker] = report
+            row["flags"] = report.pooled
+            row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs) / sum(r["frames"] - 1 for r in recs)
+                                for st in STAGES}
+            row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in recs)
+        rows.append(row)
+
+    write_report(HERE / "otb_plots", scores, flag_quality=flag_reports)
+    markdown = render_markdown(args, trackers, sequences, rows, scores, time.time() - started)
+    print(markdown)
+    if not args.no_record:
+        update_section("otb", markdown)
+
+
+def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
+    command = "python benchmarks/otb_benchmark.py " + " ".join(sys.argv[1:])
+    frames = sum(len(read_otb_boxes(args.out / trackers[0] / f"{s.name}.txt")) for s in sequences)
+    lines = [
+        "## OTB accuracy and speed: SPTPT presets and OpenCV peers",
+        "",
+        f"Command: `{command.strip()}`  ",
+        f"Machine: {machine_line()}; workers: {args.workers}; seed {args.seed}; wall time {wall / 60:.1f} min.  ",
+        f"Data: {len(sequences)} sequences of `../shared/otb`, {frames} frames"
+        + (f" (first {args.stop} of each)" if args.stop else "") + ". One-pass evaluation, IoU > t at 21 thresholds "
+        "(continuous areas), precision at 20 px, unweighted mean over sequences; frames/s over frames 2..N.",
+        "",
+        "| Tracker | Success AUC | Precision@20px | Frames/s |",
+        "|---|---:|---:|---:|",
+    ]
+    for row in sorted(rows, key=lambda r: -r["auc"]):
+        lines.append(f"| {row['tracker']} | {row['auc']:.3f} | {row['precision_20']:.3f} | {row['fps']:.1f} |")
+    sptpt_rows = [r for r in rows if "flags" in r]
+    if sptpt_rows:
+        lines += ["", "### SPTPT per stage (ms per frame, frames 2..N) and memory", "",
+                  "| Preset | " + " | ".join(STAGES) + " | peak RSS (MiB) |",
+                  "|---|" + "---:|" * (len(STAGES) + 1)]
+        for r in sptpt_rows:
+            lines.append(f"| {r['tracker']} | " + " | ".join(f"{r['stages_ms'][s]:.1f}" for s in STAGES)
+                         + f" | {r['peak_rss_mib']:.0f} |")
+        lines += ["", "### SPTPT review flags against failures (IoU < 0.5), pooled over frames and spans", "",
+                  "| Preset | Flag precision | Flag recall | Flagged share | Onset recall (spans >= 5 frames, flag within 10) |",
+                  "|---|---:|---:|---:|---:|"]
+        for r in sptpt_rows:
+            q = r["flags"]
+            lines.append(f"| {r['tracker']} | {_fmt(q.precision)} | {_fmt(q.recall)} | {_fmt(q.flagged_share)} | "
+                         f"{_fmt(q.onset_recall)} |")
+    lines += ["", "### Per sequence (success AUC)", "",
+              "| Sequence | " + " | ".join(s.tracker for s in scores) + " |",
+              "|---|" + "---:|" * len(scores)]
+    for seq in sequences:
+        lines.append(f"| {seq.name} | " + " | ".join(f"{s.sequences[seq.name].auc:.3f}" for s in scores) + " |")
+    lines += ["", "Plots: `benchmarks/otb_plots/success_plots.png`, `benchmarks/otb_plots/precision_plots.png`."]
+    return "\n".join(lines)
+
+
+def _fmt(value: float) -> str:
+    return "n/a" if value is None or not np.isfinite(value) else f"{value:.3f}"
+
+
+if __name__ == "__main__":
+    main()
