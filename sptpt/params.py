@@ -56,6 +56,11 @@ class TrackerParams:
     """Random-walk std per state parameter: cx px, cy px, scale (box width / template), rotation rad,
     aspect (h/w), skew rad. Larger follows faster motion at more risk of jumping. [TPT affsig]"""
 
+    refine_particles: int = 0
+    """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
+    refine_sigma_scale: float = 0.35
+    """Motion std of the second round as a share of ``motion_sigma``. [ours]"""
+
     # --- subspace models -------------------------------------------------------------
     n_negatives: int = 200
     """Negative samples drawn around the estimate to refit the negative model. [paper; TPT nneg]"""
@@ -94,6 +99,8 @@ class TrackerParams:
             len(self.motion_sigma) == 6 and all(math.isfinite(v) and v >= 0 for v in self.motion_sigma),
             "motion_sigma", self.motion_sigma, "six finite numbers >= 0 (cx, cy, scale, rotation, aspect, skew)",
         )
+        _check(self.refine_particles >= 0, "refine_particles", self.refine_particles, "an integer >= 0")
+        _check(0 < self.refine_sigma_scale <= 1, "refine_sigma_scale", self.refine_sigma_scale, "a number in (0, 1]")
         _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")
         _check(self.negative_every >= 1, "negative_every", self.negative_every, "an integer >= 1")
         _check(self.update_every >= 2, "update_every", self.update_every, "an integer >= 2")

@@ -159,20 +159,18 @@ class Tracker:
             )
         p = self.params
         self._frame_number += 1
-        states = draw_candidates(self._state, p.n_particles, self._sigma, self._rng, min_scale=1.0 / p.template_size)
-        # Keep centres on the frame: a box whose centre left the image cannot be followed anyway.
-        height, width = self._frame_shape
-        np.clip(states[:, 0], 1.0, width, out=states[:, 0])
-        np.clip(states[:, 1], 1.0, height, out=states[:, 1])
-        features, labels = self._features(rgb, states)
-        codes = self._code(features)
-        with self._time("scoring"):
-            if self._positive is not None and self._negative is not None:
-                scoring = "subspace"
-                scores = self._log_likelihood(codes)
-            else:
-                scoring = "bootstrap"
-                scores = np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2))
+        states = self._draw(self._state, p.n_particles, self._sigma)
+        codes, labels, scores, scoring = self._evaluate(rgb, states)
+        if p.refine_particles > 0:
+            # Second, narrower round around the first round's winner: most of the
+            # accuracy of many particles for a fraction of the templates (fast preset).
+            seed_state = states[int(np.argmax(scores))]
+            refined = self._draw(seed_state, p.refine_particles, self._sigma * p.refine_sigma_scale)
+            codes2, labels2, scores2, _ = self._evaluate(rgb, refined)
+            states = np.concatenate([states, refined])
+            codes = np.concatenate([codes, codes2])
+            labels = np.concatenate([labels, labels2])
+            scores = np.concatenate([scores, scores2])
         best = int(np.argmax(scores))
         self._state = states[best]
         log_likelihood = float(scores[best])
@@ -203,6 +201,25 @@ class Tracker:
         )
 
     # ------------------------------------------------------------------ stages
+    def _draw(self, state: np.ndarray, n: int, sigma: np.ndarray) -> np.ndarray:
+        p = self.params
+        states = draw_candidates(state, n, sigma, self._rng, min_scale=1.0 / p.template_size)
+        # Keep centres on the frame: a box whose centre left the image cannot be followed anyway.
+        height, width = self._frame_shape
+        np.clip(states[:, 0], 1.0, width, out=states[:, 0])
+        np.clip(states[:, 1], 1.0, height, out=states[:, 1])
+        return states
+
+    def _evaluate(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        """Code tensors, superpixel labels and log-likelihood of candidate states."""
+        features, labels = self._features(rgb, states)
+        codes = self._code(features)
+        with self._time("scoring"):
+            if self._positive is not None and self._negative is not None:
+                return codes, labels, self._log_likelihood(codes), "subspace"
+            # Bootstrap: histogram intersection with the first-frame code tensor (TPT).
+            return codes, labels, np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2)), "bootstrap"
+
     def _features(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
         with self._time("warp"):

@@ -122,3 +122,16 @@ def test_bad_frames_and_call_order_are_rejected():
         tracker.update(np.zeros((40, 60, 3), np.uint8))
     with pytest.raises(TypeError, match="TrackerParams"):
         Tracker({"n_particles": 3})
+
+
+def test_refinement_round_adds_candidates_around_the_first_winner(clip):
+    from sptpt.params import params_from_mapping
+
+    params = params_from_mapping({"n_particles": 40, "refine_particles": 20, "n_negatives": 20})
+    results = run(clip, seed=5, params=params, n=8)
+    detailed = results[7]
+    assert detailed.particles_xywh.shape == (60, 4)
+    assert detailed.particle_scores.max() == detailed.log_likelihood
+    # The refined candidates sit closer together than the first round's.
+    spread = lambda boxes: boxes[:, :2].std(axis=0).mean()  # noqa: E731
+    assert spread(detailed.particles_xywh[40:]) < spread(detailed.particles_xywh[:40])
