@@ -124,6 +124,10 @@ def _check(ok: bool, name: str, value: Any, expected: str) -> None:
 PRESETS: dict[str, TrackerParams] = {
     # Exactly SPTPT_SPEC.md, for comparison with the paper.
     "paper": TrackerParams(),
+    # Our speed trade-off: a third of the candidates, in two rounds (150 wide, then 75 narrow around
+    # the first winner), and the negative model refitted from 100 negatives on every 4th accepted
+    # frame: about 250 templates a frame instead of 800. Measured in benchmarks/RESULTS.md.
+    "fast": TrackerParams(n_particles=150, refine_particles=75, n_negatives=100, negative_every=4),
 }
 
 

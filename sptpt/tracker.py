@@ -16,7 +16,7 @@ import contextlib
 from typing import Callable, ContextManager
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.coding import encode_nonnegative, learn_dictionary
@@ -37,6 +37,20 @@ _INIT_SHIFTS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dt
 
 def _no_timer(stage: str) -> ContextManager:
     return contextlib.nullcontext()
+
+
+_THREADPOOLS: ThreadpoolController | None = None
+
+
+def _single_threaded_blas() -> ContextManager:
+    """Limit BLAS to one thread: its matrices here are small, and its threads only fight numba's.
+
+    The controller scans the loaded libraries once (about 5 ms); each limit after that is cheap.
+    """
+    global _THREADPOOLS
+    if _THREADPOOLS is None:
+        _THREADPOOLS = ThreadpoolController()
+    return _THREADPOOLS.limit(limits=1, user_api="blas")
 
 
 class Tracker:
@@ -102,8 +116,7 @@ class Tracker:
         FrameResult
             The given box, with confidence 1 and ``scoring='init'``.
         """
-        # The matrices here are small: BLAS threads only fight numba's for the two cores.
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _single_threaded_blas():
             return self._init(frame, box_xywh)
 
     def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
@@ -121,7 +134,7 @@ class Tracker:
         -------
         FrameResult
         """
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _single_threaded_blas():
             return self._update(frame, details=details)
 
     def _init(self, frame: np.ndarray, box_xywh) -> FrameResult:

@@ -62,3 +62,10 @@ def test_unknown_preset_lists_the_valid_ones():
 def test_presets_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         PRESETS["paper"].n_particles = 1
+
+
+def test_fast_preset_differs_from_paper_only_in_cost_parameters():
+    paper, fast = get_preset("paper"), get_preset("fast")
+    changed = {f.name for f in dataclasses.fields(TrackerParams) if getattr(paper, f.name) != getattr(fast, f.name)}
+    assert changed <= {"n_particles", "refine_particles", "n_negatives", "negative_every"}
+    assert fast.n_particles + fast.refine_particles < paper.n_particles

@@ -22,11 +22,13 @@ def rgb_to_lab_batch(images, linear, rgb_to_xyz, white):  # pragma: no cover - c
                 lr = linear[images[i, r, c, 0]]
                 lg = linear[images[i, r, c, 1]]
                 lb = linear[images[i, r, c, 2]]
-                f = np.empty(3)
-                for k in range(3):
-                    t = (rgb_to_xyz[k, 0] * lr + rgb_to_xyz[k, 1] * lg + rgb_to_xyz[k, 2] * lb) / white[k]
-                    f[k] = np.cbrt(t) if t > 0.008856 else (903.3 * t + 16.0) / 116.0
-                out[i, r, c, 0] = 116.0 * f[1] - 16.0
-                out[i, r, c, 1] = 500.0 * (f[0] - f[1])
-                out[i, r, c, 2] = 200.0 * (f[1] - f[2])
+                tx = (rgb_to_xyz[0, 0] * lr + rgb_to_xyz[0, 1] * lg + rgb_to_xyz[0, 2] * lb) / white[0]
+                ty = (rgb_to_xyz[1, 0] * lr + rgb_to_xyz[1, 1] * lg + rgb_to_xyz[1, 2] * lb) / white[1]
+                tz = (rgb_to_xyz[2, 0] * lr + rgb_to_xyz[2, 1] * lg + rgb_to_xyz[2, 2] * lb) / white[2]
+                fx = np.cbrt(tx) if tx > 0.008856 else (903.3 * tx + 16.0) / 116.0
+                fy = np.cbrt(ty) if ty > 0.008856 else (903.3 * ty + 16.0) / 116.0
+                fz = np.cbrt(tz) if tz > 0.008856 else (903.3 * tz + 16.0) / 116.0
+                out[i, r, c, 0] = 116.0 * fy - 16.0
+                out[i, r, c, 1] = 500.0 * (fx - fy)
+                out[i, r, c, 2] = 200.0 * (fy - fz)
     return out
