@@ -8,6 +8,7 @@ up to it.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -23,7 +24,7 @@ import numpy as np
 from annotator import __version__
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
-from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, ToolError
 from annotator.exports import write_coco, write_flags_csv, write_otb_results
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
@@ -140,6 +141,10 @@ def annotate(
         raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
     if not targets:
         raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
+    for target in targets:
+        if not isinstance(target.label, str) or not target.label.strip():
+            raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
+                            "such as 'car'", EXIT_VALUE)
     try:
         source = open_frames(input_path, start=start, stop=stop, step=step)
     except FrameRangeError as exc:
@@ -159,6 +164,10 @@ def annotate(
         result.exit_code = EXIT_PARTIAL
         result.message = (f"{source.path}: decoding stopped after frame {err.last_good_index} ({err.reason}); "
                           f"results for the {run.frames_processed} frames before it were written to {out_dir}")
+    elif run.interrupted:
+        result.exit_code = EXIT_INTERRUPTED
+        result.message = (f"interrupted after {run.frames_processed} frames of {source.path}; "
+                          f"their results were written to {out_dir}")
     _write_outputs(result, source, targets, config, formats, input_path)
     return result
 
@@ -167,8 +176,11 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
                    formats: Sequence[str], input_path: Path) -> None:
     run, out_dir = result.run, result.out_dir
     outputs = result.outputs
+    previous = _previous_outputs(out_dir)
     if run.frames_processed == 0:
-        raise ToolError(f"{source.path}: no frame could be decoded in the selected range; nothing was written", EXIT_INPUT)
+        why = f" ({run.decode_error.reason})" if run.decode_error is not None else ""
+        raise ToolError(f"{source.path}: no frame could be decoded in the selected range{why}; nothing was written",
+                        EXIT_INPUT)
     if "otb" in formats:
         outputs["otb"] = write_otb_results(out_dir, run.video.name, run.tracks)
     if "coco" in formats:
@@ -206,7 +218,8 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         },
         "tracks": [track_summary(t) for t in run.tracks],
         "decode_error": result.message or None,
-        "complete": run.decode_error is None,
+        "complete": run.decode_error is None and not run.interrupted,
+        "interrupted": run.interrupted,
         "formats": list(formats),
     }
     if "report" in formats:
@@ -220,9 +233,25 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         )
         outputs["report"] = [out_dir / "report.html"]
     run_info["outputs"] = {k: [str(p.relative_to(out_dir)) for p in v] for k, v in outputs.items()}
+    # With --force, files of the earlier run that this run did not rewrite would disagree with the new run.json.
+    for name in sorted(previous - {p for v in run_info["outputs"].values() for p in v}):
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+            (out_dir / name).unlink()
     # run.json last: its presence marks a finished run (batch resumption relies on it).
     write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=_json_default) + "\n")
     outputs["provenance"] = [out_dir / "run.json"]
+
+
+def _previous_outputs(out_dir: Path) -> set[str]:
+    """Result files of an earlier run in ``out_dir``: the fixed names, and the files its run.json lists."""
+    names = set(RESULT_FILES) - {"run.json"}
+    try:
+        listed = json.loads((out_dir / "run.json").read_text(encoding="utf-8"))["outputs"]
+        names |= {str(name) for files in listed.values() for name in files}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass  # no earlier run, or a run.json this tool did not write
+    # Only plain relative names inside the folder: never follow a hand-edited run.json elsewhere.
+    return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts}
 
 
 def _json_default(value):

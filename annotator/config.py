@@ -103,6 +103,7 @@ def resolve_config(
         base = get_preset(str(preset_name))
         tracker = params_from_mapping(_mapping(file_values.get("tracker"), "tracker", source), base)
         tracker = params_from_mapping(dict(tracker_overrides or {}), tracker)
+        _check_tracker_accepts(tracker)
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     flag_values = {**_mapping(file_values.get("flags"), "flags", source), **dict(flag_overrides or {})}
@@ -116,6 +117,14 @@ def resolve_config(
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     return RunConfig(preset=str(preset_name), tracker=tracker, flags=flags, seed=int(seed_value))
+
+
+def _check_tracker_accepts(params: TrackerParams) -> None:
+    """Raise the tracker's own ValueError for combinations only it checks (e.g. a superpixel rank above the
+    superpixel count), so that they are configuration errors now rather than failures once a run has started."""
+    from sptpt.tracker import Tracker  # the tracker's modules are heavy; only a resolved config needs them
+
+    Tracker(params, seed=0)
 
 
 def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:

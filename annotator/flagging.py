@@ -128,7 +128,8 @@ class OnlineFlagger:
                 if reasons:
                     self._holding = True
                 elif self._holding:
-                    if np.isfinite(level) and log_likelihood >= level * p.recover:
+                    # With no running level yet there is nothing to climb back to: a good frame clears.
+                    if not np.isfinite(level) or log_likelihood >= level * p.recover:
                         self._holding = False
                     else:
                         reasons.append("held")

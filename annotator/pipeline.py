@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import base64
 import collections
+import contextlib
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,8 +66,42 @@ class TrackingRun:
     seconds_tracking: float
     seconds_total: float
     decode_error: DecodeError | None = None
+    interrupted: bool = False
     thumbnails: list[SpanThumbnail] = field(default_factory=list)
     overlay_path: Path | None = None
+
+
+class _NothingTracked(Exception):
+    """No frame of the range could be decoded; aborts the overlay writer, which then leaves no file."""
+
+
+@contextlib.contextmanager
+def _deferred_interrupt():
+    """Turn the first Ctrl-C into a request to stop after the current frame; a second one stops at once.
+
+    A KeyboardInterrupt raised at an arbitrary point (half-way through
+    recording a frame for several tracks, or while encoding) would leave the
+    run's records inconsistent; the flag is checked between frames instead.
+    Signal handlers can only be set in the main thread; elsewhere Ctrl-C
+    keeps its default behaviour.
+    """
+    state = {"requested": False}
+    if threading.current_thread() is not threading.main_thread():
+        yield state
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def request_stop(signum, frame):
+        if state["requested"]:
+            signal.signal(signal.SIGINT, previous)
+            raise KeyboardInterrupt
+        state["requested"] = True
+
+    signal.signal(signal.SIGINT, request_stop)
+    try:
+        yield state
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def seed_for_track(seed: int, track_id: int) -> np.random.Generator:
@@ -118,6 +155,7 @@ def track_source(
     in_span: dict[int, bool] = {t.track_id: False for t in targets}
     tracking_seconds = 0.0
     decode_error: DecodeError | None = None
+    interrupted = False
     info = VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
                      fps=source.fps, frame_count=source.frame_count)
 
@@ -151,30 +189,38 @@ def track_source(
             flags[tid][pos] = (flagged, reason)
 
     def run(writer: OverlayWriter | None) -> int:
-        nonlocal tracking_seconds, decode_error
+        nonlocal tracking_seconds, decode_error, interrupted
         position = -1
         frames = iter(source)
         while True:
+            if stop_request["requested"]:
+                interrupted = True
+                break
             try:
                 frame_index, frame = next(frames)
+                results: dict[int, FrameResult] = {}
+                times: dict[int, float] = {}
+                for target in targets:
+                    tid = target.track_id
+                    tic = time.perf_counter()
+                    if position == -1:
+                        results[tid] = trackers[tid].init(frame, target.box_xywh)
+                    else:
+                        results[tid] = trackers[tid].update(frame, details=render)
+                    times[tid] = time.perf_counter() - tic
             except StopIteration:
                 break
             except DecodeError as exc:
                 decode_error = exc
                 break
+            except KeyboardInterrupt:
+                # Ctrl-C outside the main thread: keep every frame finished so far (a half-tracked frame is dropped).
+                interrupted = True
+                break
             position += 1
-            results: dict[int, FrameResult] = {}
-            for target in targets:
-                tid = target.track_id
-                tic = time.perf_counter()
-                if position == 0:
-                    result = trackers[tid].init(frame, target.box_xywh)
-                else:
-                    result = trackers[tid].update(frame, details=render)
-                seconds = time.perf_counter() - tic
-                tracking_seconds += seconds
-                results[tid] = result
-                record(position, frame_index, tid, result, seconds)
+            for tid, result in results.items():
+                tracking_seconds += times[tid]
+                record(position, frame_index, tid, result, times[tid])
             if writer is not None:
                 pending.append((position, frame_index, frame, results))
                 drain(writer)
@@ -188,11 +234,19 @@ def track_source(
             drain(writer, final=True)
         return position + 1
 
-    if render:
-        with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
-            processed = run(writer)
-    else:
-        processed = run(None)
+    with _deferred_interrupt() as stop_request:
+        if render:
+            try:
+                with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
+                    processed = run(writer)
+                    if processed == 0:
+                        # Not even the first frame decoded: discard the empty video (an MP4 needs a frame)
+                        # and let the caller report the unreadable input.
+                        raise _NothingTracked
+            except _NothingTracked:
+                processed = 0
+        else:
+            processed = run(None)
     if progress is not None:
         progress.close()
     return TrackingRun(
@@ -202,6 +256,7 @@ def track_source(
         seconds_tracking=tracking_seconds,
         seconds_total=time.perf_counter() - started,
         decode_error=decode_error,
+        interrupted=interrupted,
         thumbnails=thumbnails,
         overlay_path=overlay_path if render else None,
     )

@@ -81,6 +81,16 @@ def track_summary(track: TrackResult) -> dict[str, Any]:
     }
 
 
+def _seek_seconds(position: int, fps: float) -> float:
+    """Overlay time that shows processed frame ``position``: the middle of its display interval.
+
+    Seeking to ``position / fps`` itself, printed to the millisecond, can fall
+    just before the frame's timestamp (30 fps: frame 1 is at 0.0333 s, the
+    link said 0.033) and the browser then shows the previous frame.
+    """
+    return (position + 0.5) / fps
+
+
 def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: int = 120) -> str:
     """Confidence over the processed frames as an inline SVG; flagged spans shaded and clickable."""
     n = len(track.confidence)
@@ -94,9 +104,15 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
     for span in flagged_spans(track):
         x0, x1 = x(span.start) - 1, x(span.stop - 1) + 1
         parts.append(f'<rect class="flag" x="{x0:.1f}" y="0" width="{max(x1 - x0, 2):.1f}" height="{height}" '
-                     f'onclick="seekTo({span.start / fps:.3f})"><title>frames {span.first_frame}-{span.last_frame} '
-                     f'flagged</title></rect>')
+                     f'onclick="seekTo({_seek_seconds(span.start, fps):.3f})"><title>frames {span.first_frame}-'
+                     f'{span.last_frame} flagged</title></rect>')
     parts.append(f'<line class="threshold" x1="0" x2="{width}" y1="{y(0.5):.1f}" y2="{y(0.5):.1f}"/>')
+    # Human corrections (keyframes after the first frame, which every run has) as green ticks.
+    for i in np.flatnonzero(track.keyframe[1:]) + 1:
+        parts.append(f'<line class="corrected" x1="{x(i):.1f}" x2="{x(i):.1f}" y1="0" y2="{height}" '
+                     'stroke="#00b400" stroke-width="2" vector-effect="non-scaling-stroke" style="cursor: pointer" '
+                     f'onclick="seekTo({_seek_seconds(int(i), fps):.3f})"><title>frame {int(track.frame_indices[i])} '
+                     f'corrected</title></line>')
     step = max(1, n // 2000)
     points = " ".join(f"{x(i):.1f},{y(track.confidence[i]):.1f}" for i in range(0, n, step))
     parts.append(f'<polyline class="confidence" points="{points}"/>')
@@ -113,11 +129,15 @@ def render_report(
     settings: dict[str, Any],
     run_info: dict[str, Any],
     overlay_name: str | None,
+    review: dict[str, Any] | None = None,
 ) -> None:
     """Write ``report.html``: summary, confidence timelines, flagged spans with thumbnails, settings.
 
     The page is self-contained (inline CSS, SVG and JPEG thumbnails) apart
-    from the overlay video beside it, which the span links seek.
+    from the overlay video beside it, which the span links seek. ``review``
+    adds the Corrections section after a re-track (built by
+    :mod:`annotator.review`: the corrections in force and what the last
+    re-track changed).
     """
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(templates_dir())),
@@ -132,9 +152,11 @@ def render_report(
         video=video,
         summaries=[track_summary(t) for t in tracks],
         timelines=[(t.track_id, Markup(_timeline_svg(t, fps))) for t in tracks],
-        spans=[{"span": s, "seconds": s.start / fps, "thumbnail": thumbs.get((s.track_id, s.start))} for s in spans],
+        spans=[{"span": s, "seconds": _seek_seconds(s.start, fps), "thumbnail": thumbs.get((s.track_id, s.start))}
+               for s in spans],
         settings=settings,
         run=run_info,
         overlay=overlay_name,
+        review=review,
     )
     write_text_atomic(path, page)

@@ -1,0 +1,144 @@
+"""Run configuration: defaults < config file < command-line values, and errors that name the closest key."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import yaml
+
+from annotator.config import ConfigError, RunConfig, load_config_file, resolve_config
+from annotator.flagging import FlagParams
+from sptpt.params import get_preset
+
+
+def write_yaml(tmp_path, text: str, name: str = "run.yaml"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_defaults():
+    config = resolve_config()
+    assert config == RunConfig(preset="paper", tracker=get_preset("paper"), flags=FlagParams(), seed=0)
+
+
+PRECEDENCE = [
+    # file values, command-line keywords, expected (seed, n_particles, merge_gap)
+    ({}, {}, (0, get_preset("paper").n_particles, FlagParams().merge_gap)),
+    ({"seed": 5, "tracker": {"n_particles": 80}, "flags": {"merge_gap": 2}}, {}, (5, 80, 2)),
+    ({"seed": 5}, {"seed": 7}, (7, get_preset("paper").n_particles, FlagParams().merge_gap)),
+    ({"seed": 5}, {"seed": 0}, (0, get_preset("paper").n_particles, FlagParams().merge_gap)),  # 0 is a value too
+    ({"tracker": {"n_particles": 80}}, {"tracker_overrides": {"n_particles": 90}}, (0, 90, FlagParams().merge_gap)),
+    ({"flags": {"merge_gap": 2}}, {"flag_overrides": {"merge_gap": 4}}, (0, get_preset("paper").n_particles, 4)),
+]
+
+
+@pytest.mark.parametrize("file_values, flags, expected", PRECEDENCE)
+def test_precedence_defaults_file_flags(file_values, flags, expected):
+    config = resolve_config(file_values, **flags)
+    assert (config.seed, config.tracker.n_particles, config.flags.merge_gap) == expected
+
+
+def test_file_values_are_read_from_yaml(tmp_path):
+    path = write_yaml(tmp_path, "preset: paper\nseed: 3\ntracker:\n  n_particles: 60\n  motion_sigma: [4, 4, 0.01, 0, 0, 0]\n"
+                                "flags:\n  drop: 0.25\n  min_span: 2\n")
+    config = resolve_config(load_config_file(path), source=str(path), seed=None)
+    assert config.seed == 3 and config.preset == "paper"
+    assert config.tracker.n_particles == 60 and config.tracker.motion_sigma == (4.0, 4.0, 0.01, 0.0, 0.0, 0.0)
+    assert config.flags.drop == 0.25 and config.flags.min_span == 2
+    # Everything not named keeps its default.
+    assert config.tracker.n_negatives == get_preset("paper").n_negatives and config.flags.window == FlagParams().window
+
+
+def test_flag_threshold_follows_the_tracker_phi_unless_set():
+    assert resolve_config({"tracker": {"accept_threshold": 0.5}}).flags.accept_threshold == 0.5
+    both = resolve_config({"tracker": {"accept_threshold": 0.5}, "flags": {"accept_threshold": -1}})
+    assert both.tracker.accept_threshold == 0.5 and both.flags.accept_threshold == -1.0
+
+
+def test_recorded_config_reproduces_the_run():
+    """run.json records ``RunConfig.to_dict()``; fed back as a config file it gives the same configuration."""
+    config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]}, "flags": {"drop": 0.3}})
+    again = resolve_config(yaml.safe_load(yaml.safe_dump(config.to_dict())))
+    assert again == config
+
+
+UNKNOWN_KEYS = [
+    # YAML text, words the one-line message must hold
+    ("sed: 3\n", ["unknown top-level key 'sed'", "did you mean 'seed'?"]),
+    ("trackr:\n  n_particles: 5\n", ["'trackr'", "did you mean 'tracker'?"]),
+    ("tracker:\n  n_particle: 5\n", ["unknown tracker parameter 'n_particle'", "did you mean 'n_particles'?"]),
+    ("flags:\n  merge_gapp: 2\n", ["unknown flag parameter 'merge_gapp'", "did you mean 'merge_gap'?"]),
+    ("zzzz: 1\n", ["unknown top-level key 'zzzz'", "valid keys: preset, seed, tracker, flags"]),
+]
+
+
+@pytest.mark.parametrize("text, needles", UNKNOWN_KEYS)
+def test_unknown_key_names_the_closest_valid_key(tmp_path, text, needles):
+    path = write_yaml(tmp_path, text)
+    with pytest.raises(ConfigError) as caught:
+        resolve_config(load_config_file(path), source=str(path))
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith(str(path))
+    for needle in needles:
+        assert needle in message
+
+
+BAD_VALUES = [
+    ({"seed": -1}, "seed must be a non-negative integer"),
+    ({"seed": "abc"}, "seed must be a non-negative integer"),
+    ({"seed": 1.5}, "seed must be a non-negative integer"),
+    ({"seed": True}, "seed must be a non-negative integer"),
+    ({"preset": "turbo"}, "unknown preset 'turbo'"),
+    ({"tracker": [1, 2]}, "'tracker' must be a mapping"),
+    ({"flags": "strict"}, "'flags' must be a mapping"),
+    ({"tracker": {"n_particles": "many"}}, "n_particles='many' is invalid"),
+    ({"tracker": {"n_particles": 0}}, "n_particles=0 is invalid"),
+    ({"tracker": {"ranks": [40, 30, 40]}}, "ranks=(40, 30, 40) is invalid: the superpixel rank 30 exceeds"),
+    ({"flags": {"drop": 1.5}}, "drop=1.5 is invalid"),
+    ({"flags": {"merge_gap": 1.5}}, "merge_gap=1.5 is invalid: expected an integer"),
+    ({"flags": {"min_span": "3"}}, "min_span='3' is invalid"),
+    ({"flags": {"window": True}}, "window=True is invalid"),
+]
+
+
+@pytest.mark.parametrize("values, needle", BAD_VALUES)
+def test_bad_values_name_source_key_and_value(values, needle):
+    with pytest.raises(ConfigError) as caught:
+        resolve_config(values, source="my.yaml")
+    message = str(caught.value)
+    assert message.startswith("my.yaml: ") and needle in message and "\n" not in message
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("seed: [1, 2\n", "is not valid YAML"),
+        ("- a\n- b\n", "must hold a mapping"),
+        ("just a string\n", "must hold a mapping"),
+    ],
+)
+def test_bad_files(tmp_path, text, needle):
+    path = write_yaml(tmp_path, text)
+    with pytest.raises(ConfigError) as caught:
+        load_config_file(path)
+    assert str(path) in str(caught.value) and needle in str(caught.value)
+
+
+def test_invalid_yaml_names_the_line(tmp_path):
+    path = write_yaml(tmp_path, "seed: 1\ntracker:\n  n_particles: [1, 2\n")
+    with pytest.raises(ConfigError, match=rf"{path.name}:\d+ is not valid YAML"):
+        load_config_file(path)
+
+
+def test_missing_file_and_empty_file(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config_file(tmp_path / "nope.yaml")
+    assert load_config_file(write_yaml(tmp_path, "# nothing here\n")) == {}
+
+
+def test_run_config_is_frozen():
+    config = resolve_config()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        config.seed = 3  # type: ignore[misc]

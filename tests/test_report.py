@@ -1,0 +1,223 @@
+"""The review report: every flagged span is listed once, with a link that seeks the overlay to its first frame.
+
+The golden file ``tests/golden/annotate/report.html`` pins the page for fixed
+inputs. After an intended template change, regenerate it with::
+
+    UPDATE_GOLDEN=1 pytest tests/test_report.py
+
+and review the diff before committing.
+"""
+
+from __future__ import annotations
+
+import html.parser
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from annotator.pipeline import SpanThumbnail
+from annotator.report import flagged_spans, render_report, track_summary
+from annotator.tracks import TrackResult, VideoInfo
+
+GOLDEN = Path(__file__).parent / "golden" / "annotate"
+UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
+
+FPS = 20.0
+VIDEO = VideoInfo(path="clips/walk.mp4", name="walk", width=96, height=72, fps=FPS, frame_count=40)
+
+
+def make_track(track_id: int, frame_indices, flags: str, *, label: str = "object", reasons: dict | None = None):
+    """A track whose flags are drawn as a string: ``X`` flagged, ``.`` not (one character per processed frame)."""
+    n = len(flags)
+    flagged = np.array([c == "X" for c in flags])
+    reasons = reasons or {}
+    confidence = np.linspace(0.9, 0.3, n)
+    return TrackResult(
+        track_id=track_id,
+        label=label,
+        frame_indices=np.asarray(frame_indices, dtype=np.int64),
+        boxes_xywh=np.tile([10.0, 12.0, 20.0, 16.0], (n, 1)),
+        confidence=confidence,
+        log_likelihood=np.linspace(5.0, -1.0, n),
+        accepted=~flagged,
+        flagged=flagged,
+        reasons=tuple(reasons.get(i, "drop") if f else "" for i, f in enumerate(flagged)),
+        keyframe=np.arange(n) == 0,
+        outside=np.zeros(n, bool),
+        seconds=np.full(n, 0.125),
+    )
+
+
+def make_tracks() -> list[TrackResult]:
+    """Two tracks over source frames 1, 3, 5, ... (step 2): positions and source indices differ."""
+    indices = np.arange(1, 25, 2)  # 12 processed frames
+    one = make_track(1, indices, ".XXX....XX.X", reasons={1: "rejected", 2: "held", 3: "span"})
+    two = make_track(2, indices, "......XXXXXX", label="car", reasons={6: "low_confidence+drop"})
+    return [one, two]
+
+
+RUN_INFO = {
+    "tool_version": "0.0.test",
+    "created": "2026-01-01T00:00:00+00:00",
+    "frames_processed": 12,
+    "seconds_total": 3.0,
+    "seconds_tracking": 2.5,
+    "seconds_outside": 0.5,
+    "decode_error": None,
+}
+SETTINGS = {"preset": "paper", "seed": 0, "tracker": {"n_particles": 60}, "flags": {"merge_gap": 5, "min_span": 3}}
+
+
+def render(tmp_path, tracks, *, overlay: str | None = "overlay.mp4", thumbnails=(), run_info=None, video=VIDEO) -> str:
+    path = tmp_path / "report.html"
+    render_report(path, video=video, tracks=tracks, thumbnails=list(thumbnails), settings=SETTINGS,
+                  run_info=run_info or RUN_INFO, overlay_name=overlay)
+    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
+    return path.read_text(encoding="utf-8")
+
+
+class SpanRows(html.parser.HTMLParser):
+    """The ``<tr class="span">`` rows: cell texts, the seek link's onclick and the thumbnail src of each."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.rows: list[dict] = []
+        self.videos: list[dict] = []
+        self.flag_rects: list[dict] = []
+        self._row: dict | None = None
+        self._cell: list[str] | None = None
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "tr" and "span" in (attrs.get("class") or "").split():
+            self._row = {"cells": [], "seek": None, "img": None}
+        elif tag == "video":
+            self.videos.append(attrs)
+        elif tag == "rect" and attrs.get("class") == "flag":
+            self.flag_rects.append(attrs)
+        elif self._row is not None:
+            if tag == "td":
+                self._cell = []
+            elif tag == "a" and "seek" in (attrs.get("class") or ""):
+                self._row["seek"] = attrs.get("onclick")
+            elif tag == "img":
+                self._row["img"] = attrs.get("src")
+
+    def handle_endtag(self, tag):
+        if self._row is None:
+            return
+        if tag == "td" and self._cell is not None:
+            self._row["cells"].append("".join(self._cell).strip())
+            self._cell = None
+        elif tag == "tr":
+            self.rows.append(self._row)
+            self._row = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def parse(page: str) -> SpanRows:
+    parser = SpanRows()
+    parser.feed(page)
+    parser.close()
+    return parser
+
+
+def seek_seconds(onclick: str) -> float:
+    match = re.fullmatch(r"seekTo\(([0-9.]+)\)", onclick)
+    assert match, onclick
+    return float(match.group(1))
+
+
+# --------------------------------------------------------------------------- spans
+
+
+def test_flagged_spans_of_a_track():
+    one, two = make_tracks()
+    spans = flagged_spans(one)
+    assert [(s.start, s.stop, s.first_frame, s.last_frame, s.length) for s in spans] == [
+        (1, 4, 3, 7, 3), (8, 10, 17, 19, 2), (11, 12, 23, 23, 1),
+    ]  # fmt: skip
+    assert spans[0].reasons == ("held", "rejected", "span")
+    assert spans[0].min_confidence == pytest.approx(one.confidence[3])
+    assert [(s.start, s.stop, s.reasons) for s in flagged_spans(two)] == [(6, 12, ("drop", "low_confidence"))]
+
+
+def test_track_summary():
+    summary = track_summary(make_tracks()[0])
+    assert summary["frames"] == 12 and summary["flagged"] == 6 and summary["spans"] == 3
+    assert summary["longest_span"] == 3 and summary["flagged_share"] == pytest.approx(0.5)
+    assert summary["seconds"] == pytest.approx(1.5) and summary["fps"] == pytest.approx(8.0)
+
+
+def shows_frame(seconds: float, position: int, fps: float) -> bool:
+    """Whether a player seeking to ``seconds`` shows frame ``position`` of a constant-rate video."""
+    return position / fps <= seconds < (position + 1) / fps
+
+
+@pytest.mark.parametrize("fps", [FPS, 25.0, 30.0, 30000 / 1001, 60.0])
+def test_report_lists_every_flagged_span_with_a_seek_link(tmp_path, fps):
+    tracks = make_tracks()
+    thumbnails = [SpanThumbnail(1, 1, 3, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")]
+    video = VideoInfo(path="clips/walk.mp4", name="walk", width=96, height=72, fps=fps, frame_count=40)
+    page = render(tmp_path, tracks, thumbnails=thumbnails, video=video)
+    parsed = parse(page)
+    expected = sorted(((s.start, s.track_id, s) for t in tracks for s in flagged_spans(t)), key=lambda e: e[:2])
+    assert len(parsed.rows) == len(expected) == 4
+    for row, (_, _, span) in zip(parsed.rows, expected):
+        track, frames, length, lowest, reasons, _ = row["cells"]
+        assert int(track) == span.track_id
+        assert frames == f"{span.first_frame}\u2013{span.last_frame}"
+        assert int(length) == span.length
+        assert float(lowest) == pytest.approx(span.min_confidence, abs=0.005)
+        assert reasons == ", ".join(span.reasons)
+        # The overlay holds the processed frames only, at the source rate: the link shows the span's first one.
+        assert shows_frame(seek_seconds(row["seek"]), span.start, fps), (row["seek"], span.start, fps)
+    thumbs = {int(row["cells"][0]): row["img"] for row in parsed.rows if row["img"]}
+    assert thumbs == {1: "data:image/jpeg;base64,AAAA", 2: "data:image/jpeg;base64,BBBB"}
+    assert [v.get("src") for v in parsed.videos] == ["overlay.mp4"]
+    # The timelines shade the same spans, and clicking them seeks to the same frames.
+    assert [r["onclick"] for r in parsed.flag_rects] == [
+        row["seek"] for row in sorted(parsed.rows, key=lambda row: int(row["cells"][0]))
+    ]
+    assert f"Flagged spans ({len(expected)})" in page
+
+
+def test_report_without_overlay_has_no_links_and_says_why(tmp_path):
+    page = render(tmp_path, make_tracks(), overlay=None)
+    parsed = parse(page)
+    assert len(parsed.rows) == 4 and all(row["seek"] is None for row in parsed.rows)
+    assert parsed.videos == [] and "No overlay video was rendered" in page
+
+
+def test_report_without_flags(tmp_path):
+    track = make_track(1, np.arange(8), "........")
+    parsed = parse(page := render(tmp_path, [track]))
+    assert parsed.rows == [] and parsed.flag_rects == []
+    assert "No frame was flagged for review." in page and "Flagged spans (0)" in page
+
+
+def test_report_shows_a_decode_error(tmp_path):
+    page = render(tmp_path, make_tracks(), run_info={**RUN_INFO, "decode_error": "clip.mp4: decoding stopped <here>"})
+    assert "Decoding stopped early" in page and "decoding stopped &lt;here&gt;" in page  # escaped
+
+
+def test_labels_and_paths_are_escaped(tmp_path):
+    track = make_track(1, np.arange(4), ".XXX", label="<script>alert(1)</script>")
+    page = render(tmp_path, [track])
+    assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
+
+
+def test_report_golden(tmp_path):
+    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 1, 3, "AAAA")])
+    golden = GOLDEN / "report.html"
+    if UPDATE:
+        golden.parent.mkdir(parents=True, exist_ok=True)
+        golden.write_text(page, encoding="utf-8")
+    assert golden.exists(), f"missing golden file {golden}; create it with UPDATE_GOLDEN=1"
+    assert page == golden.read_text(encoding="utf-8"), f"report differs from {golden}; if intended, UPDATE_GOLDEN=1"
