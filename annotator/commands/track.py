@@ -25,6 +25,10 @@ def track_command(
     formats: str = typer.Option("otb,coco,flags,overlay,report", "--formats", help="Comma-separated outputs: otb,coco,flags,overlay,report."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
     force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
+    corrections: Optional[Path] = typer.Option(
+        None, "--corrections",
+        help="CSV frame,x,y,w,h[,track_id] or COCO file of human boxes, applied right after tracking "
+             "(as 'sptpt-annotate retrack')."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
@@ -50,8 +54,22 @@ def track_command(
         chosen = [f.strip() for f in formats.split(",") if f.strip()]
         if no_render:
             chosen = [f for f in chosen if f != "overlay"]
+        if corrections is not None:
+            from annotator.corrections import read_corrections
+
+            read_corrections(corrections)  # a malformed file fails before any tracking
         result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step, formats=chosen,
                           force=force, show_progress=not quiet)
+        review = None
+        if corrections is not None and result.exit_code == EXIT_OK:
+            from annotator.review import apply_corrections
+
+            try:
+                review = apply_corrections(result.out_dir, corrections, show_progress=not quiet, verify_input=False)
+            except ToolError as exc:
+                raise ToolError(
+                    f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "
+                    f"'sptpt-annotate retrack {result.out_dir} --corrections FILE'", exc.exit_code) from None
     except ToolError as error:
         fail(error, debug)
     if result.exit_code != EXIT_OK:
@@ -62,3 +80,5 @@ def track_command(
         total = sum(len(t.frame_indices) for t in result.run.tracks)
         typer.echo(f"{result.run.frames_processed} frames tracked in {result.run.seconds_total:.1f} s; "
                    f"{flagged} of {total} frame boxes flagged for review; results in {result.out_dir}", err=True)
+        if review is not None:
+            typer.echo(review.summary(), err=True)

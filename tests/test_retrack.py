@@ -1,0 +1,471 @@
+"""Re-tracking from corrections: the span logic, the passes, and the output folder rewritten atomically.
+
+Three layers: pure logic with exact answers (segments, merges, scoring
+replay, flags); the algorithm with the real tracker on a tiny synthetic clip
+held in memory (60 particles, 20 negatives); and ``apply_corrections`` /
+``retrack_command`` on the output folder of a real run, sharing one run per
+module (copied per test) because tracking is the slow part.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from annotator.annotate import annotate
+from annotator.commands.retrack import retrack_command
+from annotator.config import resolve_config
+from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.exports import read_flags_csv
+from annotator.frames import open_frames
+from annotator.otb import read_otb_boxes
+from annotator.pipeline import Target, track_source
+from annotator.retrack import (
+    ArrayFrames,
+    PassResult,
+    PreviousTrack,
+    Segment,
+    merge_passes,
+    plan_segments,
+    reflag,
+    retrack_tracks,
+    same_box,
+    scoring_from_accepted,
+)
+from annotator.review import apply_corrections, load_run
+from annotator.synthetic import make_clip
+from sptpt.tracker import Tracker
+
+CONFIG = resolve_config({"seed": 1, "tracker": {"n_particles": 60, "n_negatives": 20}})
+CLIP = make_clip(16, size=(96, 72), object_size=(24, 20))
+INDICES = np.arange(16)
+
+
+# --------------------------------------------------------------------------- pure logic
+
+
+@pytest.mark.parametrize(
+    "anchors, changed, n, expected",
+    [
+        # A first run: one forward segment over everything.
+        ({0: (1, 1, 5, 5)}, {0}, 10, [(0, 10, True, False, True)]),
+        # A new anchor in the middle: the two segments around it, forward and backward before it.
+        ({0: (1, 1, 5, 5), 4: (2, 2, 5, 5)}, {4}, 10, [(0, 4, True, True, False), (4, 10, True, False, True)]),
+        # Only the segments touching the changed anchor; (0, 3) keeps its rows.
+        ({0: (1, 1, 5, 5), 3: (2, 2, 5, 5), 6: (3, 3, 5, 5), 8: (4, 4, 5, 5)}, {6}, 10,
+         [(3, 6, True, True, False), (6, 8, True, True, True)]),
+        # An absence: forward only into it, and nothing tracked after it up to the next anchor.
+        ({0: (1, 1, 5, 5), 4: None, 7: (2, 2, 5, 5)}, {4}, 10, [(0, 4, True, False, False), (4, 7, False, False, True)]),
+    ],
+)
+def test_plan_segments(anchors, changed, n, expected):
+    got = plan_segments(1, anchors, changed, n)
+    assert [(s.start, s.stop, s.forward, s.backward, s.set_start) for s in got] == expected
+    assert all(isinstance(s, Segment) for s in got)
+
+
+def _pass(conf, x) -> PassResult:
+    n = len(conf)
+    return PassResult(boxes_xywh=np.array([[xi, 0.0, 10.0, 10.0] for xi in x]), confidence=np.array(conf, float),
+                      log_likelihood=np.array(conf, float) * 10, accepted=np.ones(n, bool),
+                      scoring=np.array(["subspace"] * n, dtype=object), seconds=np.full(n, 0.5))
+
+
+def test_merge_confidence_picks_the_more_confident_pass_per_frame():
+    fwd, bwd = _pass([0.9, 0.4, 0.7, 0.2], [0, 1, 2, 3]), _pass([0.5, 0.6, 0.7, 0.3], [10, 11, 12, 13])
+    merged = merge_passes(fwd, bwd, "confidence")
+    assert merged.boxes_xywh[:, 0].tolist() == [0, 11, 2, 13]  # ties go forward
+    assert merged.confidence.tolist() == [0.9, 0.6, 0.7, 0.3]
+    assert merged.log_likelihood.tolist() == [9.0, 6.0, 7.0, 3.0]
+    assert merged.seconds.tolist() == [1.0] * 4
+
+
+def test_merge_anchored_trusts_the_pass_near_its_human_box():
+    fwd, bwd = _pass([0.3, 0.9, 0.9, 0.4], [0, 1, 2, 3]), _pass([0.8, 0.8, 0.2, 0.5], [10, 11, 12, 13])
+    fwd.scoring[:] = ["bootstrap", "subspace", "subspace", "subspace"]
+    bwd.scoring[:] = ["subspace", "subspace", "bootstrap", "bootstrap"]
+    merged = merge_passes(fwd, bwd, "anchored")
+    # Frame 0: forward is fresh, backward is not; frames 2-3: backward is fresh; frame 1: by confidence.
+    assert merged.boxes_xywh[:, 0].tolist() == [0, 1, 12, 13]
+    assert merged.scoring.tolist() == ["bootstrap", "subspace", "bootstrap", "bootstrap"]
+
+
+def test_merge_blend_weights_boxes_by_confidence():
+    merged = merge_passes(_pass([0.75, 0.0], [0, 0]), _pass([0.25, 0.0], [8, 8]), "blend")
+    assert merged.boxes_xywh[:, 0].tolist() == [2.0, 4.0]  # 0.75*0 + 0.25*8; no confidence at all: the mean
+    assert merged.confidence[0] == pytest.approx(0.75 * 0.75 + 0.25 * 0.25)
+
+
+def test_merge_handover_switches_once():
+    fwd, bwd = _pass([0.9, 0.2, 0.9, 0.1, 0.1], range(5)), _pass([0.1, 0.5, 0.3, 0.8, 0.9], range(10, 15))
+    merged = merge_passes(fwd, bwd, "handover")
+    assert merged.boxes_xywh[:, 0].tolist() == [0, 1, 2, 13, 14]
+    assert merge_passes(fwd, None, "handover") is fwd
+    with pytest.raises(ValueError, match="choose from"):
+        merge_passes(fwd, bwd, "average")
+
+
+def test_same_box_compares_after_clipping():
+    assert same_box((-5.0, 10, 20, 20), (0.0, 10, 15, 20), width=96, height=72)
+    assert same_box((10.0004, 10, 20, 20), (10.0, 10, 20, 20), width=96, height=72)
+    assert not same_box((10.01, 10, 20, 20), (10.0, 10, 20, 20), width=96, height=72)
+    assert same_box(None, None, width=96, height=72) and not same_box(None, (1, 1, 1, 1), width=96, height=72)
+
+
+def test_reflag_never_flags_anchors_and_always_flags_absences():
+    n = 12
+    ll = np.full(n, -1.0)  # every subspace frame rejected
+    scoring = np.array(["init"] + ["subspace"] * (n - 1), dtype=object)
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 6]] = True
+    outside = np.zeros(n, bool)
+    outside[9:] = True
+    flagged, reasons = reflag(ll, np.full(n, 0.2), scoring, keyframe, outside, CONFIG)
+    assert not flagged[[0, 6]].any()
+    assert flagged[1:6].all() and flagged[9:].all()
+    assert all(r == "outside" for r in reasons[9:])
+    assert all("rejected" in r for r in reasons[1:6])
+
+
+def test_scoring_replay_matches_the_tracker():
+    tracker = Tracker(CONFIG.tracker, seed=np.random.default_rng(3))
+    results = [tracker.init(CLIP.frames[0], CLIP.boxes_xywh[0])] + [tracker.update(f) for f in CLIP.frames[1:]]
+    keyframe = np.zeros(16, bool)
+    keyframe[0] = True
+    replay = scoring_from_accepted(np.array([r.accepted for r in results]), keyframe, np.zeros(16, bool), CONFIG.tracker)
+    assert replay.tolist() == [r.scoring for r in results]
+    assert "subspace" in replay.tolist()
+
+
+# --------------------------------------------------------------------------- the algorithm
+
+
+@pytest.fixture(scope="module")
+def first():
+    """A from-scratch run of the algorithm, and the pipeline's run on the same clip."""
+    result = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {0: tuple(CLIP.boxes_xywh[0])}}, CONFIG)
+    return result
+
+
+@pytest.fixture(scope="module")
+def corrected(first):
+    previous = {1: PreviousTrack(first.tracks[0], first.scoring[1])}
+    return retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                          previous=previous, width=96, height=72)
+
+
+class _Source:
+    """The clip as a frame source for track_source."""
+
+    name, path, width, height, fps, frame_count = "clip", "clip", 96, 72, 25.0, 16
+
+    def __iter__(self):
+        return iter(enumerate(CLIP.frames))
+
+    def __len__(self):
+        return 16
+
+
+def test_forward_from_the_first_frame_reproduces_the_main_command(first):
+    run = track_source(_Source(), [Target(tuple(CLIP.boxes_xywh[0]), 1)], CONFIG)
+    ours, theirs = first.tracks[0], run.tracks[0]
+    np.testing.assert_array_equal(ours.boxes_xywh, theirs.boxes_xywh)
+    np.testing.assert_array_equal(ours.confidence, theirs.confidence)
+    assert ours.reasons == theirs.reasons and ours.keyframe.tolist() == theirs.keyframe.tolist()
+
+
+def test_correction_is_an_anchor_and_only_its_spans_change(first, corrected):
+    before, after = first.tracks[0], corrected.tracks[0]
+    np.testing.assert_array_equal(after.boxes_xywh[10], CLIP.boxes_xywh[10])
+    assert after.keyframe.tolist() == [p in (0, 10) for p in range(16)]
+    assert after.confidence[10] == 1.0 and not after.flagged[10]
+    assert [(s.first_frame, s.last_frame) for s in corrected.segments] == [(1, 9), (10, 15)]
+    change = corrected.anchors[0]
+    assert (change.frame, change.was_anchor) == (10, False)
+    np.testing.assert_array_equal(change.box_before, before.boxes_xywh[10])
+    # The first frame is an anchor too: untouched.
+    np.testing.assert_array_equal(after.boxes_xywh[0], before.boxes_xywh[0])
+    assert corrected.frames_tracked == 1 + 9 + 1 + 9 + 1 + 5  # fwd from 0, bwd from 10, fwd from 10
+
+
+def test_retrack_is_reproducible_and_idempotent(first, corrected):
+    previous = {1: PreviousTrack(first.tracks[0], first.scoring[1])}
+    again = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                           previous=previous, width=96, height=72)
+    np.testing.assert_array_equal(again.tracks[0].boxes_xywh, corrected.tracks[0].boxes_xywh)
+    twice = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                           previous={1: PreviousTrack(corrected.tracks[0], corrected.scoring[1])}, width=96, height=72)
+    assert not twice.changed and twice.frames_tracked == 0 and twice.segments == []
+    np.testing.assert_array_equal(twice.tracks[0].boxes_xywh, corrected.tracks[0].boxes_xywh)
+    assert twice.tracks[0].reasons == corrected.tracks[0].reasons
+
+
+def test_segments_without_new_anchors_keep_their_rows(corrected):
+    track = corrected.tracks[0]
+    previous = {1: PreviousTrack(track, corrected.scoring[1])}
+    later = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {13: tuple(CLIP.boxes_xywh[13])}}, CONFIG,
+                           previous=previous)
+    new = later.tracks[0]
+    np.testing.assert_array_equal(new.boxes_xywh[:11], track.boxes_xywh[:11])
+    np.testing.assert_array_equal(new.log_likelihood[:11], track.log_likelihood[:11])
+    assert [(s.first_frame, s.last_frame) for s in later.segments] == [(11, 12), (13, 15)]
+
+
+def test_backward_in_chunks_equals_buffered(first, corrected):
+    previous = {1: PreviousTrack(first.tracks[0], first.scoring[1])}
+    chunked = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                             previous=previous, max_buffer_frames=3)
+    np.testing.assert_array_equal(chunked.tracks[0].boxes_xywh, corrected.tracks[0].boxes_xywh)
+
+
+def test_pass_cache_reuses_passes_and_changes_no_number(corrected):
+    cache: dict = {}
+    start = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {0: tuple(CLIP.boxes_xywh[0])}}, CONFIG,
+                           pass_cache=cache)
+    again = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                           previous={1: PreviousTrack(start.tracks[0], start.scoring[1])}, width=96, height=72,
+                           pass_cache=cache)
+    assert again.frames_tracked == (1 + 9) + (1 + 5)  # the forward pass from frame 0 comes from the cache
+    for key in ("boxes_xywh", "confidence", "log_likelihood", "accepted", "flagged"):
+        np.testing.assert_array_equal(getattr(again.tracks[0], key), getattr(corrected.tracks[0], key))
+
+
+def test_absence_marks_frames_outside_until_the_next_anchor(corrected):
+    previous = {1: PreviousTrack(corrected.tracks[0], corrected.scoring[1])}
+    absent = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {4: None, 7: tuple(CLIP.boxes_xywh[7])}}, CONFIG,
+                            previous=previous)
+    track = absent.tracks[0]
+    assert track.outside.tolist() == [4 <= p < 7 for p in range(16)]
+    assert np.isnan(track.boxes_xywh[4:7]).all()
+    assert track.reasons[4:7] == ("outside",) * 3 and track.flagged[4:7].all()
+    assert track.keyframe[[0, 4, 7, 10]].all()
+    assert not track.flagged[7]
+
+
+# --------------------------------------------------------------------------- the output folder
+
+
+def _write_folder(path: Path, n: int) -> Path:
+    clip = make_clip(n, size=(96, 72), object_size=(24, 20))
+    path.mkdir()
+    for k, frame in enumerate(clip.frames):
+        cv2.imwrite(str(path / f"{k:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A real run on 28 PNG frames with --start 2 --step 2: 13 processed frames, source index = 2 * position + 2."""
+    root = tmp_path_factory.mktemp("review")
+    frames = _write_folder(root / "seq", 28)
+    box = tuple(make_clip(28, size=(96, 72), object_size=(24, 20)).boxes_xywh[2])
+    annotate(frames, [Target(box, 1)], CONFIG, out_dir=root / "out", start=2, step=2, show_progress=False)
+    return root / "out"
+
+
+GT = make_clip(28, size=(96, 72), object_size=(24, 20)).boxes_xywh
+
+
+@pytest.fixture()
+def out(run_dir, tmp_path):
+    copy = tmp_path / "out"
+    shutil.copytree(run_dir, copy)
+    return copy
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def csv_row(frame: int, box=None, track="") -> str:
+    values = ",,,," if box is None else ",".join(f"{v:.3f}" for v in box)
+    return f"{frame},{values}{',' + str(track) if track != '' else ''}\n"
+
+
+def test_load_run_reads_back_what_annotate_wrote(run_dir):
+    run = load_run(run_dir)
+    track = run.tracks[0]
+    assert track.frame_indices.tolist() == list(range(2, 28, 2))
+    assert track.keyframe.tolist() == [True] + [False] * 12
+    np.testing.assert_allclose(track.boxes_xywh, read_otb_boxes(run_dir / "seq.txt"), atol=5e-4)
+    assert run.scoring[1][0] == "init" and set(run.scoring[1][1:]) <= {"bootstrap", "subspace"}
+
+
+def test_rewrite_without_changes_reproduces_the_exports(out):
+    before = snapshot(out)
+    (out.parent / "same.csv").write_text(csv_row(2, GT[2]))
+    result = apply_corrections(out, out.parent / "same.csv", show_progress=False, rewrite_unchanged=True)
+    assert not result.changed
+    after = snapshot(out)
+    for name in ("seq.txt", "times/seq_time.txt", "annotations.json", "flags.csv"):
+        assert after[name] == before[name], name
+    # And without rewrite_unchanged nothing is written at all.
+    result = apply_corrections(out, out.parent / "same.csv", show_progress=False)
+    assert snapshot(out) == after and "nothing re-tracked" in result.summary()
+
+
+def test_apply_corrections_rewrites_every_output_consistently(out):
+    fix = out.parent / "fix.csv"
+    fix.write_text("frame,x,y,w,h\n" + csv_row(18, GT[18]))
+    before = snapshot(out)
+    result = apply_corrections(out, fix, show_progress=False)
+    assert result.changed and {p.name for p in result.written} >= {
+        "seq.txt", "annotations.json", "flags.csv", "overlay.mp4", "report.html", "run.json"}
+    position = 8  # source frame 18
+    # OTB (1-based) and COCO (0-based) hold the human box; COCO marks it a keyframe; flags do not flag it.
+    otb = read_otb_boxes(out / "seq.txt")
+    np.testing.assert_allclose(otb[position], GT[18], atol=1e-3)
+    coco = json.loads((out / "annotations.json").read_text())
+    image = next(i for i in coco["images"] if i["frame_index"] == 18)
+    ann = next(a for a in coco["annotations"] if a["image_id"] == image["id"])
+    assert ann["attributes"]["keyframe"] is True and ann["attributes"]["needs_review"] is False
+    np.testing.assert_allclose(ann["bbox"], GT[18], atol=1e-3)
+    assert sum(a["attributes"]["keyframe"] for a in coco["annotations"]) == 2
+    flags = read_flags_csv(out / "flags.csv")
+    assert flags.frame.tolist() == list(range(2, 28, 2)) and not flags.flagged[position]
+    # The overlay has one frame per processed frame; the report lists the correction and what changed.
+    assert len(open_frames(out / "overlay.mp4")) == 13
+    report = (out / "report.html").read_text()
+    assert "Corrections (1)" in report and "Last re-track" in report and 'class="corrected"' in report
+    assert f"{fix}:2" in report
+    info = json.loads((out / "run.json").read_text())
+    assert info["review"]["anchors"] == [{"track_id": 1, "frame": 18, "box_xywh": [round(v, 3) for v in GT[18]],
+                                          "source": f"{fix}:2"}]
+    last = info["review"]["retracks"][-1]
+    assert [(s["first_frame"], s["last_frame"]) for s in last["segments"]] == [(4, 16), (18, 26)]
+    assert last["anchors"][0]["frame"] == 18 and last["anchors"][0]["box_before"] is not None
+    assert info["created"] == json.loads(before["run.json"])["created"]
+    # Applying the same file again changes nothing.
+    again = snapshot(out)
+    assert not apply_corrections(out, fix, show_progress=False).changed
+    assert snapshot(out) == again
+
+
+def test_rows_outside_the_affected_spans_stay_byte_identical(out):
+    (out.parent / "a.csv").write_text(csv_row(10, GT[10]))
+    apply_corrections(out, out.parent / "a.csv", show_progress=False)
+    first = snapshot(out)
+    (out.parent / "b.csv").write_text(csv_row(20, GT[20]) + csv_row(10, GT[10]))
+    result = apply_corrections(out, out.parent / "b.csv", show_progress=False)
+    assert [(c.frame) for c in result.retrack.anchors] == [20]  # frame 10 is already in force
+    second = snapshot(out)
+    kept = 5  # positions 0..4 = source frames 2..10: the segment before frame 10 is not touched
+    for name in ("seq.txt", "flags.csv"):
+        old, new = first[name].decode().splitlines(), second[name].decode().splitlines()
+        skip = 1 if name == "flags.csv" else 0
+        assert old[: kept + skip] == new[: kept + skip], name
+        assert old != new
+    info = json.loads(second["run.json"])
+    assert [a["frame"] for a in info["review"]["anchors"]] == [10, 20] and len(info["review"]["retracks"]) == 2
+
+
+def test_absent_rows_and_coco_corrections(out):
+    (out.parent / "gone.csv").write_text(csv_row(14) + csv_row(20, GT[20], 1))
+    apply_corrections(out, out.parent / "gone.csv", show_progress=False)
+    flags = read_flags_csv(out / "flags.csv")
+    assert [f for f, r in zip(flags.frame, flags.reason) if r == "outside"] == [14, 16, 18]
+    assert np.isnan(read_otb_boxes(out / "seq.txt")[6:9]).all()
+    coco = json.loads((out / "annotations.json").read_text())
+    frame_of = {i["id"]: i["frame_index"] for i in coco["images"]}
+    assert sorted(frame_of[a["image_id"]] for a in coco["annotations"]) == [f for f in range(2, 28, 2)
+                                                                            if f not in (14, 16, 18)]
+    # Edit the COCO file elsewhere: move the keyframe at 20 and add one at 6; apply it as corrections.
+    for ann in coco["annotations"]:
+        if frame_of[ann["image_id"]] == 6:
+            ann["attributes"]["keyframe"] = True
+            ann["bbox"] = [round(v, 3) for v in GT[6]]
+    edited = out.parent / "edited.json"
+    edited.write_text(json.dumps(coco))
+    result = apply_corrections(out, edited, show_progress=False)
+    assert [c.frame for c in result.retrack.anchors] == [6]  # 2, 20 are unchanged; absences are not in COCO
+    assert read_flags_csv(out / "flags.csv").reason[6:9] == ("outside",) * 3
+
+
+@pytest.mark.parametrize(
+    "text, code, fragment",
+    [
+        ("frame,x,y,w,h\n3,10,10,20,20\n", EXIT_VALUE, "fix.csv:2: frame 3 was not processed"),
+        ("frame,x,y,w,h,track_id\n4,10,10,20,20,2\n", EXIT_VALUE, "fix.csv:2: unknown track id 2"),
+        ("4,10,10,20\n", EXIT_VALUE, "fix.csv:1: expected 5 or 6 fields"),
+    ],
+)
+def test_bad_corrections_leave_the_folder_unchanged(out, text, code, fragment):
+    before = snapshot(out)
+    (out.parent / "fix.csv").write_text(text)
+    with pytest.raises(ToolError) as info:
+        apply_corrections(out, out.parent / "fix.csv", show_progress=False)
+    assert info.value.exit_code == code and fragment in str(info.value)
+    assert snapshot(out) == before
+
+
+def test_failure_while_writing_leaves_the_folder_unchanged(out, monkeypatch):
+    import annotator.report
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(annotator.report, "render_report", broken)
+    before = snapshot(out)
+    (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        apply_corrections(out, out.parent / "fix.csv", show_progress=False)
+    assert snapshot(out) == before
+    assert not [p for p in out.parent.iterdir() if "retrack" in p.name]
+
+
+def test_changed_input_is_refused(out, tmp_path):
+    info = json.loads((out / "run.json").read_text())
+    moved = tmp_path / "seq2"
+    shutil.copytree(info["input"]["path"], moved)
+    frame = cv2.imread(str(moved / "0004.png"))
+    cv2.imwrite(str(moved / "0004.png"), 255 - frame)
+    info["input"]["path"] = str(moved)
+    (out / "run.json").write_text(json.dumps(info))
+    (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
+    with pytest.raises(ToolError, match="changed since the run") as err:
+        apply_corrections(out, out.parent / "fix.csv", show_progress=False)
+    assert err.value.exit_code == EXIT_INPUT
+
+
+def test_retrack_command(out):
+    app = typer.Typer()
+    app.command()(retrack_command)
+    (out.parent / "bad.csv").write_text("frame,x,y,w,h\n5,1,2,3,4\n")
+    result = CliRunner().invoke(app, [str(out), "--corrections", str(out.parent / "bad.csv"), "--quiet"])
+    assert result.exit_code == EXIT_VALUE
+    assert result.output.strip().count("\n") == 0 and "bad.csv:2: frame 5 was not processed" in result.output
+    (out.parent / "good.csv").write_text(csv_row(8, GT[8]))
+    result = CliRunner().invoke(app, [str(out), "--corrections", str(out.parent / "good.csv"), "--merge", "blend"])
+    assert result.exit_code == 0, result.output
+    assert "1 new or changed correction" in result.output
+    assert json.loads((out / "run.json").read_text())["review"]["retracks"][0]["merge"] == "blend"
+
+
+def test_video_input(tmp_path):
+    """A video source: one decoding sweep for the passes, a second for the overlay; frames checked by index."""
+    import imageio_ffmpeg
+
+    clip = make_clip(12, size=(96, 72), object_size=(24, 20))
+    video = tmp_path / "clip.mp4"
+    writer = imageio_ffmpeg.write_frames(str(video), (96, 72), fps=25.0, codec="libx264", macro_block_size=1,
+                                         ffmpeg_log_level="error", output_params=["-g", "4"])
+    writer.send(None)
+    for frame in clip.frames:
+        writer.send(np.ascontiguousarray(frame))
+    writer.close()
+    annotate(video, [Target(tuple(clip.boxes_xywh[0]), 1, "ball")], CONFIG, out_dir=tmp_path / "out",
+             show_progress=False)
+    (tmp_path / "fix.csv").write_text(csv_row(4, clip.boxes_xywh[4], 1) + csv_row(9, clip.boxes_xywh[9], 1))
+    result = apply_corrections(tmp_path / "out", tmp_path / "fix.csv", show_progress=False)
+    assert [c.frame for c in result.retrack.anchors] == [4, 9]
+    assert len(open_frames(tmp_path / "out" / "overlay.mp4")) == 12
+    coco = json.loads((tmp_path / "out" / "annotations.json").read_text())
+    assert coco["categories"][0]["name"] == "ball"
+    assert [a["attributes"]["keyframe"] for a in coco["annotations"]].count(True) == 3
