@@ -31,11 +31,14 @@ class FlagParams:
 
     accept_threshold: float = 0.0
     """Phi: a subspace-scored frame with log-likelihood <= Phi is flagged ('rejected'). [paper]"""
-    window: int = 30
-    """Frames in the running level of the log-likelihood (median of the last accepted frames). [ours]"""
-    drop: float = 0.5
+    margin: float = 2.0
+    """Also flag ('low_likelihood') frames the model accepted by less than this: ``Phi < l <= Phi + margin``.
+    On ../shared/otb a tracker that has slid onto the background often keeps a small positive score. [ours]"""
+    window: int = 100
+    """Frames in the running level of the log-likelihood (median of the last trusted frames). [ours]"""
+    drop: float = 0.3
     """Flag ('drop') when the log-likelihood falls below ``level * (1 - drop)`` for positive levels. [ours]"""
-    recover: float = 0.8
+    recover: float = 0.95
     """Hysteresis: a flagged track clears once the score is back above ``level * recover``. [ours]"""
     min_confidence: float = 0.0
     """Also flag frames whose confidence is below this ('low_confidence'); 0 disables. [ours]"""
@@ -46,6 +49,7 @@ class FlagParams:
 
     def __post_init__(self) -> None:
         checks = [
+            (self.margin >= 0.0, "margin", "a number >= 0"),
             (self.window >= 1, "window", "an integer >= 1"),
             (0.0 <= self.drop <= 1.0, "drop", "a number in [0, 1]"),
             (0.0 <= self.recover <= 1.0, "recover", "a number in [0, 1]"),
@@ -67,7 +71,7 @@ class FlagResult:
     flagged : (F,) bool ndarray
     reasons : tuple of str
         ``''`` for unflagged frames, else ``'+'``-joined reasons among
-        ``rejected``, ``drop``, ``low_confidence``, ``held`` (hysteresis) and
+        ``rejected``, ``low_likelihood``, ``drop``, ``low_confidence``, ``held`` (hysteresis) and
         ``span`` (merged into a span from a gap).
     spans : (S, 2) int64 ndarray
         ``[start, stop)`` positions of flagged spans in the processed frame list.
@@ -123,6 +127,8 @@ class OnlineFlagger:
                 level = float(np.median(self._history[-p.window :])) if self._history else np.nan
                 if not np.isfinite(log_likelihood) or log_likelihood <= p.accept_threshold:
                     reasons.append("rejected")
+                elif log_likelihood <= p.accept_threshold + p.margin:
+                    reasons.append("low_likelihood")
                 elif np.isfinite(level) and level > 0 and log_likelihood < level * (1.0 - p.drop):
                     reasons.append("drop")
                 if reasons:
@@ -134,7 +140,7 @@ class OnlineFlagger:
                     else:
                         reasons.append("held")
                 # Only frames the tracker trusts define the running level.
-                if not reasons and log_likelihood > p.accept_threshold:
+                if not reasons and log_likelihood > p.accept_threshold + p.margin:
                     self._history.append(float(log_likelihood))
         self._raw.append(bool(reasons))
         self._keyframe.append(bool(keyframe))

@@ -26,6 +26,7 @@ from typer.testing import CliRunner
 import annotator
 from annotator.cli import app
 from annotator.exports import read_flags_csv
+from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.synthetic import make_clip
@@ -250,7 +251,7 @@ def test_main_run_json(main_run, clip):
     config = info["config"]
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
-    assert config["flags"]["min_confidence"] == 0.99 and config["flags"]["window"] == 30  # file, then defaults
+    assert config["flags"]["min_confidence"] == 0.99 and config["flags"]["window"] == FlagParams().window  # file, then defaults
     assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "paper"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}

@@ -41,6 +41,8 @@ def reference_raw(log_likelihood, confidence, scoring, keyframe, p: FlagParams) 
             level = statistics.median(trusted[-p.window :]) if trusted else None
             if not math.isfinite(ll) or ll <= p.accept_threshold:
                 frame.append("rejected")
+            elif ll <= p.accept_threshold + p.margin:
+                frame.append("low_likelihood")
             elif level is not None and level > 0 and ll < level * (1 - p.drop):
                 frame.append("drop")
             if frame:
@@ -51,7 +53,7 @@ def reference_raw(log_likelihood, confidence, scoring, keyframe, p: FlagParams) 
                     holding = False
                 else:
                     frame.append("held")
-            if not frame and ll > p.accept_threshold:
+            if not frame and ll > p.accept_threshold + p.margin:
                 trusted.append(ll)
         reasons.append(frame)
     return reasons
