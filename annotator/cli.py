@@ -8,10 +8,12 @@ and an exit code documented in :mod:`annotator.errors` (no traceback unless
 from __future__ import annotations
 
 import sys
+import traceback
+
 import typer
 
 from annotator import __version__
-from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK
+from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ToolError
 
 app = typer.Typer(
     add_completion=False,
@@ -26,13 +28,17 @@ app = typer.Typer(
     ),
 )
 
+from annotator.commands.batch import batch_command  # noqa: E402
 from annotator.commands.eval import eval_command  # noqa: E402
+from annotator.commands.retrack import retrack_command  # noqa: E402
 from annotator.commands.track import track_command  # noqa: E402
 
 app.command("track")(track_command)
 app.command("eval")(eval_command)
+app.command("batch")(batch_command)
+app.command("retrack")(retrack_command)
 
-SUBCOMMANDS = ("track", "eval")
+SUBCOMMANDS = ("track", "eval", "batch", "retrack")
 
 def _with_default_command(argv: list[str]) -> list[str]:
     """``sptpt-annotate VIDEO ...`` means ``sptpt-annotate track VIDEO ...``."""
@@ -58,6 +64,9 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(EXIT_INTERRUPTED)
     except SystemExit:
         raise
+    except ToolError as exc:  # re-raised by the command under --debug: the traceback, and still its exit code
+        traceback.print_exc()
+        raise SystemExit(exc.exit_code)
     except Exception as exc:  # a bug: one line unless --debug
         if debug:
             raise

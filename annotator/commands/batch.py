@@ -1,0 +1,69 @@
+"""``sptpt-annotate batch``: label every video of a manifest (or an OTB root), resumably, in parallel."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from annotator.commands.common import fail
+from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
+
+
+def batch_command(
+    manifest: Optional[Path] = typer.Argument(None, help="Manifest: .csv, .jsonl or .yaml; each item a video and its first-frame box."),
+    out: Path = typer.Option(..., "--out", help="Output folder: one subfolder per item, plus annotations.json, summary.json, failures.jsonl, report.html."),
+    otb_root: Optional[Path] = typer.Option(None, "--otb-root", help="Use an OTB-layout root as the manifest (boxes from each ground truth's first line)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Parallel worker processes on this machine (default: the number of cores)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a Dask distributed scheduler to run the items on instead."),
+    start: Optional[int] = typer.Option(None, "--start", help="First frame of items whose manifest row gives none (default 0)."),
+    stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this frame in items whose row gives none (default: the end)."),
+    preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset for all items (item params override)."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Base seed (default 0); each item's seed derives from it and the item id."),
+    formats: str = typer.Option("otb,coco,flags,overlay,report", "--formats", help="Comma-separated outputs per item: otb,coco,flags,overlay,report."),
+    no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay videos (faster)."),
+    force: bool = typer.Option(False, "--force", help="Redo every item, finished ones included."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line."),
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
+) -> None:
+    """Label a dataset: every manifest item in parallel; finished items are skipped on a rerun; failures stay isolated."""
+    from annotator.batch import run_batch
+    from annotator.config import ConfigError, load_config_file
+    from annotator.manifest import InvalidManifestError, items_from_otb_root, read_manifest
+
+    try:
+        if (manifest is None) == (otb_root is None):
+            raise ToolError("give either a MANIFEST file or --otb-root DIR (one of them)", EXIT_USAGE)
+        try:
+            items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest)
+            file_values = load_config_file(config_file) if config_file is not None else {}
+            chosen = [f.strip() for f in formats.split(",") if f.strip()]
+            if no_render:
+                chosen = [f for f in chosen if f != "overlay"]
+            result = run_batch(items, out_dir=out, config_values=file_values,
+                               config_source=str(config_file or "command line"), preset=preset, seed=seed,
+                               formats=chosen, force=force, start=start, stop=stop, workers=workers,
+                               scheduler=scheduler, show_progress=not quiet, manifest=str(otb_root or manifest))
+        except InvalidManifestError as exc:
+            if debug:
+                raise
+            for error in exc.errors[:50]:
+                typer.echo(f"sptpt-annotate: error: {error}", err=True)
+            if len(exc.errors) > 50:
+                typer.echo(f"sptpt-annotate: ... and {len(exc.errors) - 50} more problems", err=True)
+            raise typer.Exit(EXIT_VALUE)
+        except ConfigError as exc:
+            raise ToolError(str(exc), EXIT_VALUE) from None
+    except ToolError as error:
+        fail(error, debug)
+    counts = result.counts
+    message = (f"{counts['items']} items: {counts['done']} done ({counts['reused']} kept from an earlier run), "
+               f"{counts['partial']} partly decoded, {counts['failed']} failed; {result.frames_this_run} frames "
+               f"tracked in {result.seconds:.1f} s; index {result.paths['report']}")
+    if result.exit_code != EXIT_OK:
+        typer.echo(f"sptpt-annotate: warning: {message}; reasons in {result.paths['failures']}", err=True)
+        raise typer.Exit(result.exit_code)
+    if not quiet:
+        typer.echo(message, err=True)
