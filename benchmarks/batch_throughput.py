@@ -140,12 +140,11 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
 
 
 def update_results(text: str) -> None:
-    old = RESULTS.read_text(encoding="utf-8") if RESULTS.is_file() else "# Benchmark results\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip("\n") + "\n\n" + text
-    tmp = RESULTS.with_name(f".{RESULTS.name}.tmp")
-    tmp.write_text(new, encoding="utf-8")
-    os.replace(tmp, RESULTS)
+    # The shared helper keeps each benchmark's section between its own markers.
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from _results import update_section
+
+    update_section("batch", text)
 
 
 def main() -> None:
