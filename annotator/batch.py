@@ -96,7 +96,7 @@ from annotator.errors import (
 )
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
 from annotator.pipeline import Target
-from annotator.progress import Progress
+from annotator.progress import Progress, format_clock
 
 __all__ = [
     "BATCH_FILES",
@@ -701,7 +701,7 @@ class BatchProgress:
         extra = [f"{self.failed} failed"] if self.failed else []
         extra += [f"{self.reused} reused"] if self.reused else []
         extra_text = f" ({', '.join(extra)})" if extra else ""
-        eta_text = _clock(eta) if eta == eta else "--:--"
+        eta_text = format_clock(eta) if eta == eta else "--:--"
         share = min(frames / estimate, 1.0) if estimate else self.items_done / max(self.n_items, 1)
         width = 20
         filled = int(round(width * share))
@@ -721,13 +721,6 @@ class BatchProgress:
         if self.enabled and self._tty:
             self.stream.write("\n")
             self.stream.flush()
-
-
-def _clock(seconds: float) -> str:
-    seconds = int(round(seconds))
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes:02d}:{secs:02d}"
 
 
 # --------------------------------------------------------------------------- the run

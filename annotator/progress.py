@@ -6,7 +6,7 @@ import sys
 import time
 from typing import TextIO
 
-__all__ = ["Progress"]
+__all__ = ["Progress", "format_clock"]
 
 
 class Progress:
@@ -53,7 +53,7 @@ class Progress:
         width = 24
         filled = int(round(width * min(share, 1.0)))
         eta = (self.total - self.done) / rate if rate > 0 else float("nan")
-        eta_text = _clock(eta) if eta == eta else "--:--"
+        eta_text = format_clock(eta) if eta == eta else "--:--"
         return (f"{self.label} {self.done}/{self.total} [{'#' * filled}{'.' * (width - filled)}] "
                 f"{100 * share:3.0f}%  {rate:5.1f} {self.label}/s  ETA {eta_text}")
 
@@ -63,7 +63,8 @@ class Progress:
             self.stream.flush()
 
 
-def _clock(seconds: float) -> str:
+def format_clock(seconds: float) -> str:
+    """``MM:SS``, or ``H:MM:SS`` from an hour on."""
     seconds = int(round(seconds))
     hours, rest = divmod(seconds, 3600)
     minutes, secs = divmod(rest, 60)
