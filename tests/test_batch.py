@@ -192,10 +192,13 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
 
 
 def in_progress(out: Path) -> tuple[list[Path], list[Path]]:
-    """Item folders with a run.json, and those being written (temporary files, no run.json yet)."""
+    """Item folders with a run.json, and those being written (files, temporary or final, but no run.json yet).
+
+    Final files count too: between two atomic renames an item in progress can hold no temporary file.
+    """
     folders = [d for d in out.iterdir() if d.is_dir()] if out.is_dir() else []
     finished = [d for d in folders if (d / "run.json").is_file()]
-    running = [d for d in folders if not (d / "run.json").exists() and any(d.glob(".*.tmp*"))]
+    running = [d for d in folders if not (d / "run.json").exists() and any(d.iterdir())]
     return finished, running
 
 
