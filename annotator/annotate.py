@@ -238,7 +238,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             (out_dir / name).unlink()
     # run.json last: its presence marks a finished run (batch resumption relies on it).
-    write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=_json_default) + "\n")
+    write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=json_default) + "\n")
     outputs["provenance"] = [out_dir / "run.json"]
 
 
@@ -254,7 +254,8 @@ def _previous_outputs(out_dir: Path) -> set[str]:
     return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts}
 
 
-def _json_default(value):
+def json_default(value):
+    """``json.dumps`` fallback for NumPy scalars and arrays and paths (run.json)."""
     if isinstance(value, (np.integer,)):
         return int(value)
     if isinstance(value, (np.floating,)):

@@ -67,6 +67,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from annotator import __version__
+from annotator.annotate import json_default
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.corrections import read_corrections, resolve_corrections
@@ -692,18 +693,7 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
         )
         written["report"] = [Path("report.html")]
     info["outputs"] = {k: [str(p) for p in v] for k, v in written.items()}
-    write_text_atomic(tmp / RUN_JSON, json.dumps(info, indent=2, default=_json_default) + "\n")
+    write_text_atomic(tmp / RUN_JSON, json.dumps(info, indent=2, default=json_default) + "\n")
     files = [p for paths in written.values() for p in paths]
     return files + [Path(RUN_JSON)]
 
-
-def _json_default(value):
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

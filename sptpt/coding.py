@@ -24,6 +24,7 @@ import numbers
 import numpy as np
 
 from sptpt._kernels.lasso import nonnegative_lasso
+from sptpt._validation import positive_int as _positive_int
 
 __all__ = ["learn_dictionary", "encode_nonnegative", "kkt_residual"]
 
@@ -268,11 +269,3 @@ def _nonnegative_float(value: object, name: str) -> float:
         raise ValueError(f"{name} must be a finite number >= 0, got {value}")
     return value
 
-
-def _positive_int(value: object, name: str) -> int:
-    """``value`` as an int >= 1, or an error naming it."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value}")
-    return int(value)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from sptpt._kernels.histograms import cue_features
+from sptpt._validation import positive_int as _positive_int
 
 __all__ = ["CUES", "superpixel_features"]
 
@@ -111,11 +112,3 @@ def superpixel_features(
     labels = np.ascontiguousarray(labels, dtype=np.int32)
     return cue_features(templates, labels, n_superpixels, n_bins)
 
-
-def _positive_int(value: object, name: str) -> int:
-    """Return ``value`` as an int if it is a positive integer, else raise naming it."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value}")
-    return int(value)
