@@ -29,7 +29,6 @@ import datetime as dt
 import json
 import os
 import platform
-import re
 import shutil
 import subprocess
 import sys
@@ -106,7 +105,7 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
         SECTION,
         "",
         f"Measured {dt.date.today().isoformat()} on {platform.machine()} with {os.cpu_count()} cores "
-        f"(Python {platform.python_version()}). Command:",
+        f"(Python {platform.python_version()}), shared with other processes. Command:",
         "",
         f"    {invocation}",
         "",
@@ -115,7 +114,7 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
         "`sptpt-annotate batch` process into an empty folder, so worker start-up (about 1-3 s: fork server, "
         "numba cache load) is included.",
         "",
-        "| workers | numba threads / worker | wall s (all runs) | CPU s | frames | frames/s | "
+        "| configuration | numba threads / worker | wall s (all runs) | CPU s | frames | frames/s | "
         + "".join(f"speed-up vs {label} | " for _, label in bases)
         + "mean per-item frames/s | peak RSS per worker (MB) | load avg before -> after |",
         "|---:|---:|---:|---:|---:|---:|" + "---:|" * len(bases) + "---:|---|---|",
@@ -124,7 +123,7 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
         rss = ", ".join(f"{v:.0f}" for v in r["worker_peak_rss_mb"])
         speedups = "".join(f"{by_spec[spec]['wall_seconds'] / r['wall_seconds']:.2f}x | " for spec, _ in bases)
         lines.append(
-            f"| {r['workers']} | {r['numba_threads_per_worker']} | {r['wall_seconds']:.1f} "
+            f"| `{r['spec']}` | {r['numba_threads_per_worker']} | {r['wall_seconds']:.1f} "
             f"({', '.join(f'{w:.1f}' for w in r['all_walls'])}) | {r['cpu_seconds']:.1f} | "
             f"{r['frames']} | {r['frames_per_second']:.2f} | {speedups}"
             f"{r['mean_item_fps']:.2f} | {rss} | {r['load_before'][0]:.2f} -> {r['load_after'][0]:.2f} |")
@@ -134,8 +133,12 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
               "Each configuration ran the given number of times, alternating; the row shows the fastest run "
               "(least disturbed by other processes) and lists every run's wall time. "
               "Speed-up = wall time with 1 worker / wall time with N workers (same frames). CPU s: user + "
-              "system time of the workers while running items (start-up excluded). A load average above "
-              "about 0.5 before a run means other processes shared the two cores."]
+              "system time of the workers while running items (start-up excluded). `--workers 1` already keeps "
+              "both cores busy through numba's parallel kernels (CPU s well above wall s), so two workers gain "
+              "over it only what the kernels leave serial; the runner's own process parallelism is the "
+              "speed-up over one core (`1x1`). The load average includes the benchmark's own processes (about "
+              "1 per busy core); a load above about 0.5 before the first run means other processes shared the "
+              "cores."]
     return "\n".join(lines) + "\n"
 
 
