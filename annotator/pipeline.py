@@ -179,14 +179,18 @@ def track_source(
                     thumbnails.append(SpanThumbnail(tid, position, frame_index, _thumbnail(drawn)))
                 in_span[tid] = flagged
 
-    def record(position: int, frame_index: int, tid: int, result: FrameResult, seconds: float) -> None:
+    def settle(tid: int, decided: list[tuple[int, bool, str]]) -> None:
+        """Store the flags the flagger has made final."""
+        for pos, flagged, reason in decided:
+            recorders[tid].set_flag(pos, flagged, reason)
+            flags[tid][pos] = (flagged, reason)
+
+    def record(frame_index: int, tid: int, result: FrameResult, seconds: float) -> None:
         recorders[tid].append(
             frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
             accepted=result.accepted, seconds=seconds, keyframe=result.scoring == "init")
-        for pos, flagged, reason in flaggers[tid].push(
-                result.log_likelihood, result.confidence, result.scoring, keyframe=result.scoring == "init"):
-            recorders[tid].set_flag(pos, flagged, reason)
-            flags[tid][pos] = (flagged, reason)
+        settle(tid, flaggers[tid].push(
+            result.log_likelihood, result.confidence, result.scoring, keyframe=result.scoring == "init"))
 
     def run(writer: OverlayWriter | None) -> int:
         nonlocal tracking_seconds, decode_error, interrupted
@@ -220,16 +224,14 @@ def track_source(
             position += 1
             for tid, result in results.items():
                 tracking_seconds += times[tid]
-                record(position, frame_index, tid, result, times[tid])
+                record(frame_index, tid, result, times[tid])
             if writer is not None:
                 pending.append((position, frame_index, frame, results))
                 drain(writer)
             if progress is not None:
                 progress.advance()
         for tid, flagger in flaggers.items():
-            for pos, flagged, reason in flagger.finish():
-                recorders[tid].set_flag(pos, flagged, reason)
-                flags[tid][pos] = (flagged, reason)
+            settle(tid, flagger.finish())
         if writer is not None:
             drain(writer, final=True)
         return position + 1

@@ -61,9 +61,9 @@ def ensure_peer_env() -> Path:
 def _sptpt_job(args: dict) -> dict:
     import numba
 
-    if args.pop("threads", None):
-        numba.set_num_threads(args["threads_n"])
-    args.pop("threads_n", None)
+    threads = args.pop("numba_threads")
+    if threads is not None:
+        numba.set_num_threads(threads)
     from _sptpt_runner import run_sequence
 
     return run_sequence(**args)
@@ -86,7 +86,7 @@ def run_tracker(name: str, sequences: list[Path], out_root: Path, *, workers: in
     else:
         params = PRESETS[name].to_dict()
         jobs = [dict(seq_dir=str(s), out_dir=str(out_dir), params=params, seed=seed, name=s.name, stop=stop,
-                     threads=workers > 1, threads_n=1) for s in sequences]
+                     numba_threads=1 if workers > 1 else None) for s in sequences]
         fn = _sptpt_job
     if workers == 1:
         return [fn(job) for job in jobs]
@@ -152,7 +152,8 @@ def main() -> None:
             row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in recs)
         rows.append(row)
 
-    write_report(HERE / "otb_plots", scores, flag_quality=flag_reports)
+    # Trial runs (--no-record) keep their plots beside their results, not over the recorded ones.
+    write_report(args.out / "plots" if args.no_record else HERE / "otb_plots", scores, flag_quality=flag_reports)
     markdown = render_markdown(args, trackers, sequences, rows, scores, time.time() - started)
     print(markdown)
     if not args.no_record:
