@@ -1,3 +1,3 @@
 """sptpt-annotate: the headless annotation tool built on the ``sptpt`` tracker."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

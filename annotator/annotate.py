@@ -25,18 +25,19 @@ from annotator import __version__
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, ToolError
-from annotator.exports import write_coco, write_flags_csv, write_otb_results
+from annotator.exports import write_exports
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import Progress
 from annotator.report import render_report, track_summary
+from annotator.store import STORE_NAME, RunStore, write_store
 
 __all__ = ["ALL_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
 
 ALL_FORMATS = ("otb", "coco", "flags", "overlay", "report")
 OVERLAY_NAME = "overlay.mp4"
 # Files whose presence means a folder already holds a run's results.
-RESULT_FILES = ("run.json", "annotations.json", "flags.csv", OVERLAY_NAME, "report.html")
+RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html")
 
 
 @dataclass
@@ -181,14 +182,10 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         why = f" ({run.decode_error.reason})" if run.decode_error is not None else ""
         raise ToolError(f"{source.path}: no frame could be decoded in the selected range{why}; nothing was written",
                         EXIT_INPUT)
-    if "otb" in formats:
-        outputs["otb"] = write_otb_results(out_dir, run.video.name, run.tracks)
-    if "coco" in formats:
-        write_coco(out_dir / "annotations.json", run.video, run.tracks)
-        outputs["coco"] = [out_dir / "annotations.json"]
-    if "flags" in formats:
-        write_flags_csv(out_dir / "flags.csv", run.tracks)
-        outputs["flags"] = [out_dir / "flags.csv"]
+    # The store first and always, whatever --formats says: every export below is a view of it.
+    store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step, tracks=run.tracks)
+    outputs["store"] = [write_store(out_dir / STORE_NAME, store)]
+    outputs.update(write_exports(out_dir, store, formats))
     if run.overlay_path is not None:
         outputs["overlay"] = [run.overlay_path]
     run_info = {

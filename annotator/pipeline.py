@@ -28,7 +28,7 @@ from annotator.flagging import OnlineFlagger
 from annotator.frames import DecodeError, FrameSource
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter
-from annotator.tracks import TrackRecorder, TrackResult, VideoInfo
+from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoInfo
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
@@ -188,7 +188,8 @@ def track_source(
     def record(frame_index: int, tid: int, result: FrameResult, seconds: float) -> None:
         recorders[tid].append(
             frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
-            accepted=result.accepted, seconds=seconds, keyframe=result.scoring == "init")
+            accepted=result.accepted, seconds=seconds, keyframe=result.scoring == "init", scoring=result.scoring,
+            keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else "")
         settle(tid, flaggers[tid].push(
             result.log_likelihood, result.confidence, result.scoring, keyframe=result.scoring == "init"))
 

@@ -61,7 +61,7 @@ import numpy as np
 from annotator.config import RunConfig
 from annotator.flagging import flag_frames
 from annotator.pipeline import seed_for_track
-from annotator.tracks import TrackResult
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
 
@@ -751,13 +751,18 @@ def retrack_tracks(
             accepted, seconds = t.accepted.copy(), t.seconds.copy()
             keyframe, outside, occluded = t.keyframe.copy(), t.outside.copy(), t.occluded.copy()
             scoring = prev.scoring.copy()
+            sources = list(t.keyframe_source)
             label = t.label
         else:
             boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
             accepted, seconds = np.zeros(n, bool), np.zeros(n)
             keyframe, outside, occluded = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
             scoring = np.full(n, NO_SCORING, dtype=object)
+            sources = [""] * n
             label = (labels or {}).get(tid, "object")
+        for change in anchor_changes:
+            if change.track_id == tid:
+                sources[change.position] = change.where or KEYFRAME_GIVEN
         rewritten: list[tuple[int, int]] = []
         for run in runs_by_track.get(tid, []):
             seg = run.segment
@@ -778,6 +783,7 @@ def retrack_tracks(
                     outside[seg.start], scoring[seg.start] = False, "init"
             rows = slice(seg.start + 1, seg.stop)
             keyframe[rows] = False
+            sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
             occluded[rows] = False
             if seg.forward:
                 merged = merge_passes(run.fwd, run.bwd, merge)
@@ -793,7 +799,8 @@ def retrack_tracks(
         track = TrackResult(
             track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
             log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,
-            outside=outside, seconds=seconds, occluded=occluded,
+            outside=outside, seconds=seconds, occluded=occluded, scoring=tuple(str(v) for v in scoring),
+            keyframe_source=tuple(sources),
         )
         results.append(track)
         scorings[tid] = scoring

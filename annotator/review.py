@@ -5,18 +5,15 @@ on the main command both come down to :func:`apply_corrections`.
 
 Reading a run back
 ------------------
-The folder's files are the only state. ``run.json`` gives the source (path,
-range, content hash), the configuration and the anchors of earlier reviews
-(``review`` section, below); ``flags.csv`` the per-frame confidence,
-log-likelihood and acceptance; ``<name>.txt`` (OTB) the boxes unclipped, or
-``annotations.json`` the boxes when the OTB file was not written;
-``times/<name>_time.txt`` the per-frame seconds. The exports round (OTB boxes
-to 1/1000 px, COCO boxes clipped to the image, confidences to 6 and 4
-decimals): each kept row is reconciled with all the files, choosing, within
-the rounding of each, the values that every exporter writes back exactly as
-they were. So a re-track rewrites rows outside the affected spans byte for
-byte, and a re-track with no new correction writes nothing at all (the
-outputs are already those of the anchors: the command is idempotent).
+``run.json`` gives the source (path, range, content hash) and the
+configuration; the track store (``tracks.npz``, :mod:`annotator.store`) every
+per-frame value at full precision: boxes, scores, scoring stages, flags, and
+the anchors (keyframe rows, with who gave them). No export is read. So a
+re-track rewrites rows outside the affected spans bit for bit, and a
+re-track with no new correction writes nothing at all (the outputs are
+already those of the anchors: the command is idempotent). A folder written
+before track stores existed is rejected with a message that says how to redo
+it.
 
 Additions to run.json
 ---------------------
@@ -24,15 +21,11 @@ A ``review`` section, written by the first re-track::
 
     "review": {
       "anchors": [{"track_id": 1, "frame": 120, "box_xywh": [x, y, w, h] | null, "source": "fix.csv:2"}, ...],
-      "scoring": {"1": [["init", 1], ["bootstrap", 4], ["subspace", 95], ...]},
       "retracks": [{"created": ..., "corrections_file": ..., "anchors": [...], "segments": [...], ...}, ...]
     }
 
-``anchors`` lists every human correction in force (the first-frame boxes stay
-in ``targets``), at full precision; ``scoring`` the tracker's scoring stage
-per row, run-length encoded, which flags need and no export stores (a run
-without it replays the stage from ``accepted``, exact for a forward run, see
-:func:`annotator.retrack.scoring_from_accepted`); ``retracks`` one entry per
+``anchors`` lists every human correction in force, for people reading the
+file (re-tracking takes them from the store); ``retracks`` one entry per
 re-track that changed something: its corrections, the segments re-tracked
 and what changed in them.
 
@@ -72,14 +65,13 @@ from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.corrections import read_corrections, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError
-from annotator.exports import read_flags_csv, write_coco, write_flags_csv, write_otb_results
-from annotator.exports.flags import FlagsFormatError
-from annotator.exports.otb import otb_sequence_names
+from annotator.exports import write_exports
 from annotator.flagging import FlagParams
 from annotator.frames import DecodeError, FrameSource, FrameSourceError, open_frames
 from annotator.progress import Progress
-from annotator.retrack import DEFAULT_MERGE, PreviousTrack, RetrackResult, retrack_tracks, scoring_from_accepted
-from annotator.tracks import TrackResult, VideoInfo
+from annotator.retrack import DEFAULT_MERGE, PreviousTrack, RetrackResult, retrack_tracks
+from annotator.store import STORE_NAME, RunStore, StoreError, read_store, write_store
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult, VideoInfo
 from sptpt.params import params_from_mapping
 
 __all__ = ["LoadedRun", "ReviewResult", "SourceFrames", "apply_corrections", "load_run"]
@@ -96,44 +88,29 @@ BUFFER_BYTES = 512 * 2**20
 
 @dataclass
 class LoadedRun:
-    """A run read back from its output folder."""
+    """A run read back from its output folder: its run.json and its track store."""
 
     out_dir: Path
     info: dict[str, Any]  # run.json
     config: RunConfig
-    video: VideoInfo
-    tracks: list[TrackResult]
-    scoring: dict[int, np.ndarray]
+    store: RunStore
     targets: dict[int, dict[str, Any]]  # track_id -> run.json target
     formats: list[str]
 
     @property
+    def video(self) -> VideoInfo:
+        return self.store.video
+
+    @property
+    def tracks(self) -> list[TrackResult]:
+        return list(self.store.tracks)
+
+    @property
     def frame_indices(self) -> np.ndarray:
-        return self.tracks[0].frame_indices
+        return self.store.frame_indices
 
     def previous(self) -> dict[int, PreviousTrack]:
-        return {t.track_id: PreviousTrack(t, self.scoring[t.track_id]) for t in self.tracks}
-
-
-def _rle(values: np.ndarray) -> list[list]:
-    out: list[list] = []
-    for v in values:
-        if out and out[-1][0] == v:
-            out[-1][1] += 1
-        else:
-            out.append([str(v), 1])
-    return out
-
-
-def _unrle(runs: list, n: int, where: str) -> np.ndarray:
-    try:
-        values = np.array([str(v) for v, k in runs for _ in range(int(k))], dtype=object)
-    except (TypeError, ValueError):
-        values = np.zeros(0, dtype=object)
-    if values.shape != (n,):
-        raise ToolError(f"{where}: review.scoring does not describe {n} frames; the file was edited or is damaged - "
-                        "restore it or re-run the annotation", EXIT_INPUT)
-    return values
+        return {t.track_id: PreviousTrack(t, np.asarray(t.scoring, dtype=object)) for t in self.store.tracks}
 
 
 def _read_json(path: Path, what: str) -> Any:
@@ -149,68 +126,16 @@ def _read_json(path: Path, what: str) -> Any:
                         EXIT_INPUT) from None
 
 
-def _otb_rows(path: Path, n: int) -> tuple[np.ndarray, list[list[str]] | None]:
-    """0-based boxes of an OTB result file and, when it is in this tool's own ``%.3f`` layout, the raw fields."""
-    from annotator.otb import OTBFormatError, read_otb_boxes
-
-    try:
-        boxes = read_otb_boxes(path, origin=1)
-    except OTBFormatError as exc:
-        raise ToolError(f"{exc}; restore the file or re-run the annotation", EXIT_INPUT) from None
-    if len(boxes) != n:
-        raise ToolError(f"{path} has {len(boxes)} rows but flags.csv has {n} frames for its track: the files are from "
-                        "different runs - re-run the annotation", EXIT_INPUT)
-    fields = [line.split(",") for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-    if len(fields) != n or any(len(f) != 4 for f in fields):
-        fields = None
-    return boxes, fields
-
-
-# Offsets tried inside the rounding interval of a written value (well inside +-0.5 of its last digit).
-_BOX_OFFSETS = (0.0, 2e-4, -2e-4, 4e-4, -4e-4)
-_CONF_OFFSETS = (0.0, 2e-7, -2e-7, 4e-7, -4e-7)
-
-
-def _clip_axis(v: float, size: float, limit: float) -> tuple[float, float] | None:
-    # The COCO writer's clipping and rounding (annotator.exports.coco), along one axis.
-    v0, v1 = round(max(v, 0.0), 3), round(min(v + size, float(limit)), 3)
-    if v1 <= v0:
-        return None
-    return (v0, round(v1 - v0, 3))
-
-
-def _reconcile_axis(v: float, size: float, s_v: str, s_size: str, coco: tuple[float, float] | None,
-                    limit: float) -> tuple[float, float]:
-    """A coordinate and size that the OTB writer prints as ``s_v, s_size`` and the COCO writer clips to ``coco``."""
-    for dv in _BOX_OFFSETS:
-        for ds in _BOX_OFFSETS:
-            cv, cs = v + dv, size + ds
-            if f"{cv + 1:.3f}" != s_v or f"{cs:.3f}" != s_size:
-                continue
-            if coco is None or _clip_axis(cv, cs, limit) == coco:
-                return cv, cs
-    return v, size
-
-
-def _reconcile_confidence(c: float, score: float | None) -> float:
-    """A confidence that flags.csv prints as it was and COCO rounds to ``score``."""
-    if score is None:
-        return c
-    for d in _CONF_OFFSETS:
-        cc = min(max(c + d, 0.0), 1.0)
-        if f"{cc:.6f}" == f"{c:.6f}" and round(cc, 4) == score:
-            return cc
-    return c
-
-
 def load_run(out_dir: str | os.PathLike) -> LoadedRun:
-    """Read the run in ``out_dir`` back into tracks (see the module docstring).
+    """Read the run in ``out_dir`` back: ``run.json`` and the track store, never an export.
 
     Raises
     ------
     ToolError
-        Exit code 3 when a needed file is missing or inconsistent, 4 when the
-        configuration in run.json is not valid for this version.
+        Exit code 3 when run.json or the store is missing, damaged or of
+        another version (a folder written before track stores existed is
+        rejected with how to redo it), 4 when the configuration in run.json
+        is not valid for this version.
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -223,144 +148,28 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
         config = RunConfig(preset=str(cfg["preset"]), tracker=params_from_mapping(cfg["tracker"]),
                            flags=FlagParams(**cfg["flags"]), seed=int(cfg["seed"]))
         targets = {int(t["track_id"]): t for t in info["targets"]}
-        source_info = info["input"]
         formats = list(info.get("formats") or [])
     except (KeyError, TypeError, ValueError) as exc:
         raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
                         "or edited - re-run the annotation", EXIT_VALUE) from None
-    flags_path = out_dir / "flags.csv"
-    if not flags_path.is_file():
-        raise ToolError(f"{flags_path} does not exist: re-tracking needs the per-frame scores of flags.csv - re-run "
-                        "the annotation with 'flags' in --formats", EXIT_INPUT)
+    store_path = out_dir / STORE_NAME
+    if not store_path.exists():
+        raise ToolError(f"{out_dir} holds no {STORE_NAME}: it was written by sptpt-annotate "
+                        f"{info.get('tool_version', 'before 0.2')}, before runs kept a lossless track store; "
+                        "re-run the annotation into it with --force", EXIT_INPUT)
     try:
-        table = read_flags_csv(flags_path)
-    except FlagsFormatError as exc:
-        raise ToolError(f"{exc}; restore the file or re-run the annotation", EXIT_INPUT) from None
+        store = read_store(store_path)
+    except StoreError as exc:
+        raise ToolError(str(exc), EXIT_INPUT) from None
     ids = sorted(targets)
-    found = sorted(set(int(t) for t in table.track))
-    if found != ids:
-        raise ToolError(f"{flags_path} holds tracks {found} but run.json names tracks {ids}: the files are from "
+    found = sorted(t.track_id for t in store.tracks)
+    if found != ids or not found:
+        raise ToolError(f"{store_path} holds tracks {found} but {run_path} names tracks {ids}: the files are from "
                         "different runs - re-run the annotation", EXIT_INPUT)
-    name = _video_name(out_dir, info)
-    video = VideoInfo(path=str(source_info["path"]), name=name, width=int(source_info["width"]),
-                      height=int(source_info["height"]), fps=float(source_info["fps"]),
-                      frame_count=int(source_info["frame_count"]))
-
-    coco = _coco_rows(out_dir / "annotations.json") if (out_dir / "annotations.json").is_file() else None
-    review = info.get("review") or {}
-    review_anchors: dict[tuple[int, int], list | None] = {
-        (int(a["track_id"]), int(a["frame"])): a["box_xywh"] for a in review.get("anchors", [])}
-    otb_names = dict(zip(ids, otb_sequence_names(name, [_Named(t) for t in ids])))
-    tracks, scoring = [], {}
-    for tid in ids:
-        rows = table.for_track(tid)
-        n = len(rows)
-        indices = rows.frame
-        if n == 0 or np.any(np.diff(indices) <= 0):
-            raise ToolError(f"{flags_path}: the rows of track {tid} are not one per frame in frame order; restore "
-                            "the file or re-run the annotation", EXIT_INPUT)
-        if tracks and not np.array_equal(indices, tracks[0].frame_indices):
-            raise ToolError(f"{flags_path}: tracks {tracks[0].track_id} and {tid} cover different frames; restore the "
-                            "file or re-run the annotation", EXIT_INPUT)
-        outside = np.array(["outside" in r.split("+") for r in rows.reason], dtype=bool)
-        keyframe = np.zeros(n, bool)
-        keyframe[0] = True
-        anchor_box: dict[int, list | None] = {0: list(targets[tid]["box_xywh"])}
-        position_of = {int(f): p for p, f in enumerate(indices)}
-        for (t, frame), box in review_anchors.items():
-            if t == tid and frame in position_of:
-                keyframe[position_of[frame]] = True
-                anchor_box[position_of[frame]] = box
-        otb_path = out_dir / f"{otb_names[tid]}.txt"
-        times_path = out_dir / "times" / f"{otb_names[tid]}_time.txt"
-        fields = None
-        if otb_path.is_file():
-            boxes, fields = _otb_rows(otb_path, n)
-        elif coco is not None:
-            boxes = np.full((n, 4), np.nan)
-            for p, f in enumerate(indices):
-                ann = coco.get((tid, int(f)))
-                if ann is not None:
-                    boxes[p] = ann[0]
-        else:
-            raise ToolError(f"{out_dir} holds neither {otb_path.name} nor annotations.json: re-tracking needs the "
-                            "boxes - re-run the annotation with 'otb' or 'coco' in --formats", EXIT_INPUT)
-        seconds = np.zeros(n)
-        if times_path.is_file():
-            try:
-                values = np.loadtxt(times_path, dtype=np.float64, ndmin=1)
-            except ValueError:
-                values = np.zeros(0)
-            if values.shape == (n,) and np.all(values >= 0):
-                seconds = values
-        confidence = rows.confidence.copy()
-        for p in range(n):
-            f = int(indices[p])
-            ann = coco.get((tid, f)) if coco is not None else None
-            if p in anchor_box:
-                box = anchor_box[p]
-                boxes[p] = np.nan if box is None else box
-                continue
-            if fields is not None and np.all(np.isfinite(boxes[p])):
-                x, y, w, h = boxes[p]
-                cx = cy = None
-                if ann is not None:
-                    bx, by, bw, bh = ann[0]
-                    cx, cy = (bx, bw), (by, bh)
-                x, w = _reconcile_axis(x, w, fields[p][0].strip(), fields[p][2].strip(), cx, video.width)
-                y, h = _reconcile_axis(y, h, fields[p][1].strip(), fields[p][3].strip(), cy, video.height)
-                boxes[p] = (x, y, w, h)
-            if ann is not None:
-                confidence[p] = _reconcile_confidence(float(confidence[p]), ann[1])
-        if "scoring" in review and str(tid) in review["scoring"]:
-            scores = _unrle(review["scoring"][str(tid)], n, str(run_path))
-        else:
-            scores = scoring_from_accepted(rows.accepted, keyframe, outside, config.tracker)
-        try:
-            track = TrackResult(
-                track_id=tid, label=str(targets[tid].get("label") or "object"), frame_indices=indices,
-                boxes_xywh=boxes, confidence=confidence, log_likelihood=rows.log_likelihood,
-                accepted=rows.accepted, flagged=rows.flagged, reasons=rows.reason, keyframe=keyframe,
-                outside=outside, seconds=seconds,
-            )
-        except ValueError as exc:
-            raise ToolError(f"{out_dir}: the files do not describe a valid track ({exc}); re-run the annotation",
-                            EXIT_INPUT) from None
-        tracks.append(track)
-        scoring[tid] = scores
-    return LoadedRun(out_dir=out_dir, info=info, config=config, video=video, tracks=tracks, scoring=scoring,
-                     targets=targets, formats=formats)
-
-
-@dataclass(frozen=True)
-class _Named:
-    track_id: int
-
-
-def _video_name(out_dir: Path, info: dict) -> str:
-    """The sequence name the run used: from annotations.json if present, else the input's name."""
-    coco_path = out_dir / "annotations.json"
-    if coco_path.is_file():
-        try:
-            videos = json.loads(coco_path.read_text(encoding="utf-8")).get("videos") or []
-            if videos and videos[0].get("name"):
-                return str(videos[0]["name"])
-        except (OSError, ValueError, AttributeError):
-            pass
-    path = Path(info["input"]["path"])
-    return path.name if path.is_dir() else path.stem  # as annotator.frames names sources
-
-
-def _coco_rows(path: Path) -> dict[tuple[int, int], tuple[list[float], float | None]]:
-    """``{(track_id, frame_index): (bbox, score)}`` of a COCO file this tool wrote."""
-    data = _read_json(path, "annotations.json")
-    try:
-        frames = {img["id"]: int(img["frame_index"]) for img in data["images"]}
-        return {(int(a["track_id"]), frames[a["image_id"]]): (list(a["bbox"]), a.get("score"))
-                for a in data["annotations"]}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ToolError(f"{path}: not a COCO file written by sptpt-annotate ({exc}); restore it or re-run the "
-                        "annotation", EXIT_INPUT) from None
+    if any(not np.array_equal(t.frame_indices, store.frame_indices) for t in store.tracks):
+        raise ToolError(f"{store_path}: its tracks cover different frames; restore the file or re-run the "
+                        "annotation", EXIT_INPUT)
+    return LoadedRun(out_dir=out_dir, info=info, config=config, store=store, targets=targets, formats=formats)
 
 
 # --------------------------------------------------------------------------- frames
@@ -557,14 +366,14 @@ def apply_corrections(
 
 
 def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Path, merge: str) -> dict[str, Any]:
+    """run.json's record of the corrections in force and of the re-tracks; written for people, never read back
+    (the anchors that re-tracking uses are the store's keyframe rows)."""
     review = dict(run.info.get("review") or {})
     anchors = {(int(a["track_id"]), int(a["frame"])): a for a in review.get("anchors", [])}
     for change in retrack.anchors:
         anchors[(change.track_id, change.frame)] = {
             "track_id": change.track_id, "frame": change.frame, "box_xywh": _box_list(change.box_after),
             "source": change.where}
-    review["anchors"] = [anchors[k] for k in sorted(anchors)]
-    review["scoring"] = {str(tid): _rle(values) for tid, values in sorted(retrack.scoring.items())}
     history = list(review.get("retracks", []))
     if retrack.changed:
         history.append({
@@ -578,22 +387,23 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
             "frames_tracked": retrack.frames_tracked,
             "seconds": round(retrack.seconds, 3),
         })
-    review["retracks"] = history
-    return review
+    return {"anchors": [anchors[k] for k in sorted(anchors)], "retracks": history}
 
 
 def _report_review(review: dict[str, Any], tracks: Sequence[TrackResult], fps: float) -> dict[str, Any]:
     """What the report's Corrections section shows."""
     from annotator.report import _seek_seconds
 
-    position = {(t.track_id, int(f)): p for t in tracks for p, f in enumerate(t.frame_indices)}
-
     def fmt(box) -> str:
         return "absent" if box is None else ", ".join(f"{v:.1f}" for v in box)
 
-    anchors = [{"track_id": a["track_id"], "frame": a["frame"], "box": fmt(a["box_xywh"]), "source": a["source"],
-                "seconds": _seek_seconds(position.get((a["track_id"], a["frame"]), 0), fps)}
-               for a in review.get("anchors", [])]
+    # Every human correction in force: the keyframes a person gave other than the first-frame boxes.
+    anchors = sorted(
+        ({"track_id": t.track_id, "frame": int(t.frame_indices[p]),
+          "box": fmt(None if t.outside[p] else t.boxes_xywh[p]), "source": t.keyframe_source[p],
+          "seconds": _seek_seconds(int(p), fps)}
+         for t in tracks for p in np.flatnonzero(t.keyframe) if t.keyframe_source[p] != KEYFRAME_GIVEN),
+        key=lambda a: (a["frame"], a["track_id"]))
     last = review["retracks"][-1] if review.get("retracks") else None
     if last is not None:
         last = {**last,
@@ -649,15 +459,10 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     from annotator.report import render_report, track_summary
 
     formats, tracks, video = run.formats, retrack.tracks, run.video
-    written: dict[str, list[Path]] = {}
-    if "otb" in formats:
-        written["otb"] = [p.relative_to(tmp) for p in write_otb_results(tmp, video.name, tracks)]
-    if "coco" in formats:
-        write_coco(tmp / "annotations.json", video, tracks)
-        written["coco"] = [Path("annotations.json")]
-    if "flags" in formats:
-        write_flags_csv(tmp / "flags.csv", tracks)
-        written["flags"] = [Path("flags.csv")]
+    store = RunStore(video=video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
+    written: dict[str, list[Path]] = {"store": [write_store(tmp / STORE_NAME, store).relative_to(tmp)]}
+    written.update({name: [p.relative_to(tmp) for p in paths]
+                    for name, paths in write_exports(tmp, store, formats).items()})
     thumbnails: list[SpanThumbnail] = []
     if "overlay" in formats:
         renderer = OverlayRenderer()

@@ -13,11 +13,18 @@ and calls :meth:`TrackRecorder.to_result` at the end, or after a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from types import MappingProxyType
+from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["VideoInfo", "TrackResult", "TrackRecorder"]
+__all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder"]
+
+#: How the tracker scored a row: the first frame (``init``), before both subspace models exist
+#: (``bootstrap``), with them (``subspace``), or not at all (``none``: an absence anchor and its span).
+SCORING_STAGES = ("init", "bootstrap", "subspace", "none")
+#: ``keyframe_source`` of the first-frame box the user gave on the command line or in a manifest.
+KEYFRAME_GIVEN = "given"
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,17 @@ class TrackResult:
     occluded : (F,) bool ndarray, optional
         Occlusion judgement, exported as a COCO/CVAT attribute; all False by
         default (the tracker does not estimate it).
+    scoring : tuple of str, length F, optional
+        The tracker's scoring stage per row (:data:`SCORING_STAGES`); flags
+        are recomputed from it after a re-track. By default ``init`` on
+        keyframes, ``none`` on outside rows and ``subspace`` elsewhere.
+    keyframe_source : tuple of str, length F, optional
+        Who gave each keyframe's box: :data:`KEYFRAME_GIVEN` for the
+        first-frame box, ``FILE:LINE`` of a correction; ``""`` exactly on
+        rows that are not keyframes. By default ``given`` on keyframes.
+    signals : mapping of str to (F,) float64 ndarray, optional
+        Further per-frame numbers (failure-probability signals), by name;
+        stored and exported as they are.
     """
 
     track_id: int
@@ -118,6 +136,9 @@ class TrackResult:
     outside: np.ndarray
     seconds: np.ndarray
     occluded: np.ndarray | None = field(default=None)
+    scoring: tuple[str, ...] | None = field(default=None)
+    keyframe_source: tuple[str, ...] | None = field(default=None)
+    signals: Mapping[str, np.ndarray] | None = field(default=None)
 
     def __post_init__(self) -> None:
         name = f"TrackResult(track_id={self.track_id!r})"
@@ -185,6 +206,38 @@ class TrackResult:
                 f"flag it with a reason such as 'object absent' so the flags file records the absence"
             )
 
+        if self.scoring is None:
+            default = np.where(self.keyframe & ~self.outside, "init", np.where(self.outside, "none", "subspace"))
+            object.__setattr__(self, "scoring", tuple(str(v) for v in default))
+        scoring = tuple(str(v) for v in self.scoring)
+        if len(scoring) != n or not set(scoring) <= set(SCORING_STAGES):
+            bad = sorted(set(scoring) - set(SCORING_STAGES))
+            raise ValueError(f"{name}: scoring must be {n} values from {SCORING_STAGES}, got {len(scoring)} "
+                             f"values{' including ' + repr(bad[0]) if bad else ''}")
+        object.__setattr__(self, "scoring", scoring)
+
+        if self.keyframe_source is None:
+            object.__setattr__(self, "keyframe_source", tuple(KEYFRAME_GIVEN if k else "" for k in self.keyframe))
+        sources = tuple(self.keyframe_source)
+        if len(sources) != n or not all(isinstance(v, str) for v in sources):
+            raise ValueError(f"{name}: keyframe_source must be {n} strings (one per frame), got {len(sources)}")
+        for i, (key, source) in enumerate(zip(self.keyframe, sources)):
+            if bool(key) != bool(source):
+                raise ValueError(f"{name}: frame {indices[i]} has keyframe={bool(key)} and keyframe_source "
+                                 f"{source!r}; a keyframe names who gave its box and other rows the empty string")
+        object.__setattr__(self, "keyframe_source", sources)
+
+        signals = {}
+        for key, values in dict(self.signals or {}).items():
+            if not isinstance(key, str) or not key.isidentifier():
+                raise ValueError(f"{name}: signal names must be identifiers such as 'p_fail', got {key!r}")
+            values = np.asarray(values, dtype=np.float64)
+            if values.shape != (n,):
+                raise ValueError(f"{name}: signal {key!r} must have shape ({n},) to match frame_indices, "
+                                 f"got {values.shape}")
+            signals[key] = _frozen(values)
+        object.__setattr__(self, "signals", MappingProxyType(signals))
+
     def __len__(self) -> int:
         return int(self.frame_indices.shape[0])
 
@@ -218,7 +271,24 @@ class TrackResult:
             outside=self.outside[picked],
             seconds=self.seconds[picked],
             occluded=self.occluded[picked],
+            scoring=tuple(self.scoring[i] for i in picked),
+            keyframe_source=tuple(self.keyframe_source[i] for i in picked),
+            signals={key: values[picked] for key, values in self.signals.items()},
         )
+
+    def equals(self, other: TrackResult) -> bool:
+        """Whether two tracks hold the same rows bit for bit (NaN equals NaN; a lossless round trip)."""
+        def same(a: np.ndarray, b: np.ndarray) -> bool:
+            return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+        arrays = ("frame_indices", "boxes_xywh", "confidence", "log_likelihood", "accepted", "flagged", "keyframe",
+                  "outside", "seconds", "occluded")
+        return (self.track_id == other.track_id and self.label == other.label
+                and all(same(getattr(self, k), getattr(other, k)) for k in arrays)
+                and (self.reasons, self.scoring, self.keyframe_source)
+                == (other.reasons, other.scoring, other.keyframe_source)
+                and self.signals.keys() == other.signals.keys()
+                and all(same(v, other.signals[k]) for k, v in self.signals.items()))
 
 
 class TrackRecorder:
@@ -257,12 +327,22 @@ class TrackRecorder:
         keyframe: bool = False,
         outside: bool = False,
         occluded: bool = False,
+        scoring: str | None = None,
+        keyframe_source: str | None = None,
     ) -> None:
-        """Add one processed frame. Validation happens in :meth:`to_result`."""
+        """Add one processed frame. Validation happens in :meth:`to_result`.
+
+        ``scoring`` and ``keyframe_source`` default as in :class:`TrackResult`.
+        """
         box = np.asarray(box_xywh, dtype=np.float64).reshape(4)
+        if scoring is None:
+            scoring = "none" if outside else "init" if keyframe else "subspace"
+        if keyframe_source is None:
+            keyframe_source = KEYFRAME_GIVEN if keyframe else ""
         self._rows.append(
             (int(frame_index), box, float(confidence), float(log_likelihood), bool(accepted), bool(flagged),
-             str(reason), bool(keyframe), bool(outside), float(seconds), bool(occluded))
+             str(reason), bool(keyframe), bool(outside), float(seconds), bool(occluded), str(scoring),
+             str(keyframe_source))
         )  # fmt: skip
 
     def set_flag(self, position: int, flagged: bool, reason: str) -> None:
@@ -277,7 +357,7 @@ class TrackRecorder:
 
     def to_result(self) -> TrackResult:
         rows = self._rows
-        col = list(zip(*rows)) if rows else [()] * 11
+        col = list(zip(*rows)) if rows else [()] * 13
         return TrackResult(
             track_id=self.track_id,
             label=self.label,
@@ -292,4 +372,6 @@ class TrackRecorder:
             outside=np.asarray(col[8], dtype=bool),
             seconds=np.asarray(col[9], dtype=np.float64),
             occluded=np.asarray(col[10], dtype=bool),
+            scoring=tuple(col[11]),
+            keyframe_source=tuple(col[12]),
         )

@@ -35,7 +35,7 @@ from test_report import parse, seek_seconds, shows_frame
 
 N_FRAMES, SIZE, FPS = 16, (96, 72), 25.0
 TRACKER_YAML = "seed: 1\ntracker:\n  n_particles: 60\n  n_negatives: 20\n"
-RESULT_NAMES = {"run.json", "annotations.json", "flags.csv", "overlay.mp4", "report.html"}
+RESULT_NAMES = {"run.json", "tracks.npz", "annotations.json", "flags.csv", "overlay.mp4", "report.html"}
 
 
 def write_clip(path: Path, n: int = N_FRAMES, *, faststart: bool = False) -> Path:
@@ -346,7 +346,7 @@ def test_formats_subset_writes_only_those_files(clip, config_file, work):
     result = invoke(clip, "--box", BOX0, "--config", config_file, "--stop", 4, "--formats", "otb,flags", "--out", out)
     assert result.exit_code == 0, result.output
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
-        "clip.txt", "flags.csv", "run.json", "times", "times/clip_time.txt",
+        "clip.txt", "flags.csv", "run.json", "times", "times/clip_time.txt", "tracks.npz",
     ]  # fmt: skip
     check_complete_outputs(out, "clip", [0, 1, 2, 3])
     assert json.loads((out / "run.json").read_text())["formats"] == ["otb", "flags"]
@@ -382,6 +382,7 @@ def test_existing_results_are_refused_unless_force(clip, config_file, work):
     assert again.exit_code == 0, again.output
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
         "clip.1.txt", "clip.2.txt", "run.json", "times", "times/clip.1_time.txt", "times/clip.2_time.txt",
+        "tracks.npz",
     ]  # fmt: skip
 
 

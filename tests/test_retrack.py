@@ -295,7 +295,7 @@ def test_load_run_reads_back_what_annotate_wrote(run_dir):
     assert track.frame_indices.tolist() == list(range(2, 28, 2))
     assert track.keyframe.tolist() == [True] + [False] * 12
     np.testing.assert_allclose(track.boxes_xywh, read_otb_boxes(run_dir / "seq.txt"), atol=5e-4)
-    assert run.scoring[1][0] == "init" and set(run.scoring[1][1:]) <= {"bootstrap", "subspace"}
+    assert track.scoring[0] == "init" and set(track.scoring[1:]) <= {"bootstrap", "subspace"}
 
 
 def test_rewrite_without_changes_reproduces_the_exports(out):

@@ -1,4 +1,4 @@
-"""Exporters: OTB result files, COCO with video fields, the flags CSV.
+"""Exporters: OTB result files, COCO with video fields, the flags CSV; all views of the track store.
 
 Every writer goes through :mod:`annotator.atomic`, so an interrupted export
 leaves the previous file or none, never half of one.
@@ -9,8 +9,10 @@ from __future__ import annotations
 from annotator.exports.coco import build_coco, dumps_coco, merge_coco, save_coco, write_coco
 from annotator.exports.flags import FLAGS_HEADER, FlagTable, FlagsFormatError, read_flags_csv, write_flags_csv
 from annotator.exports.otb import otb_sequence_names, write_otb_results
+from annotator.exports.views import FILE_EXPORTS, write_exports
 
 __all__ = [
+    "FILE_EXPORTS",
     "FLAGS_HEADER",
     "FlagTable",
     "FlagsFormatError",
@@ -22,5 +24,6 @@ __all__ = [
     "save_coco",
     "write_coco",
     "write_flags_csv",
+    "write_exports",
     "write_otb_results",
 ]

@@ -1,0 +1,48 @@
+"""Every file export is a view of the run's track store: ``write_exports(out_dir, store, formats)``.
+
+Each format is a function from the :class:`~annotator.store.RunStore` to its
+files, nothing else: no tracking, no reading of other exports. The main
+command, ``retrack`` and batch all write exports through here, so a format
+added to :data:`FILE_EXPORTS` appears everywhere at once.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+from annotator.exports.coco import write_coco
+from annotator.exports.flags import write_flags_csv
+from annotator.exports.otb import write_otb_results
+from annotator.store import RunStore
+
+__all__ = ["FILE_EXPORTS", "write_exports"]
+
+
+def _otb(out_dir: Path, store: RunStore) -> list[Path]:
+    return write_otb_results(out_dir, store.video.name, store.tracks)
+
+
+def _coco(out_dir: Path, store: RunStore) -> list[Path]:
+    write_coco(out_dir / "annotations.json", store.video, store.tracks)
+    return [out_dir / "annotations.json"]
+
+
+def _flags(out_dir: Path, store: RunStore) -> list[Path]:
+    write_flags_csv(out_dir / "flags.csv", store.tracks)
+    return [out_dir / "flags.csv"]
+
+
+#: ``--formats`` value -> view writing its files into a folder and returning their paths.
+FILE_EXPORTS: Mapping[str, Callable[[Path, RunStore], list[Path]]] = {
+    "otb": _otb,
+    "coco": _coco,
+    "flags": _flags,
+}
+
+
+def write_exports(out_dir: str | os.PathLike, store: RunStore, formats: Sequence[str]) -> dict[str, list[Path]]:
+    """Write the file exports among ``formats`` (others, such as ``overlay``, are skipped) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    return {name: FILE_EXPORTS[name](out_dir, store) for name in formats if name in FILE_EXPORTS}
