@@ -5,7 +5,7 @@
     python benchmarks/simulated_reviewer.py --sequences all --budget 40
 
 Per OTB sequence (frames held in memory, the tracker driven through
-:func:`annotator.retrack.retrack_tracks`; no files are written):
+:func:`annotator.review.retrack_tracks`; no files are written):
 
 1. **Simulated reviewer.** Track from the first ground-truth box. Then,
    until at least ``--target`` (95%) of the frames have IoU >= 0.5 with the
@@ -28,7 +28,7 @@ Per OTB sequence (frames held in memory, the tracker driven through
 3. **Merge study** (``--merge-study M``): ground truth every M frames,
    forward and backward passes between them, and the share of frames with
    IoU >= 0.5 for each way of merging the two passes
-   (:data:`annotator.retrack.MERGES`), forward only and backward only.
+   (:data:`annotator.review.MERGES`), forward only and backward only.
    It measures on the same passes, so it costs one forward and one
    backward pass per sequence, and it is what chose ``DEFAULT_MERGE``.
 
@@ -63,7 +63,7 @@ from annotator.config import RunConfig  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.retrack import DEFAULT_MERGE, MERGES, ArrayFrames, PreviousTrack, merge_passes, retrack_tracks  # noqa: E402
+from annotator.review import DEFAULT_MERGE, MERGES, ArrayFrames, PreviousTrack, merge_passes, retrack_tracks  # noqa: E402
 from sptpt.params import PRESETS, get_preset, params_from_mapping  # noqa: E402
 
 DEFAULT_SUBSET = ("Deer", "Skiing", "Crossing", "Couple", "Diving", "Jogging.1", "Bolt2")

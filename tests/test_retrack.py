@@ -27,21 +27,20 @@ from annotator.exports import read_flags_csv
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.pipeline import Target, track_source
-from annotator.retrack import (
+from annotator.review import (
     ArrayFrames,
     PassResult,
     PreviousTrack,
     Segment,
+    apply_corrections,
+    load_run,
     merge_passes,
     plan_segments,
     reflag,
     retrack_tracks,
     same_box,
-    scoring_from_accepted,
 )
-from annotator.review import apply_corrections, load_run
 from annotator.synthetic import make_clip
-from sptpt.tracker import Tracker
 
 CONFIG = resolve_config({"seed": 1, "tracker": {"n_particles": 60, "n_negatives": 20}})
 CLIP = make_clip(16, size=(96, 72), object_size=(24, 20))
@@ -132,16 +131,6 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert flagged[1:6].all() and flagged[9:].all()
     assert all(r == "outside" for r in reasons[9:])
     assert all("rejected" in r for r in reasons[1:6])
-
-
-def test_scoring_replay_matches_the_tracker():
-    tracker = Tracker(CONFIG.tracker, seed=np.random.default_rng(3))
-    results = [tracker.init(CLIP.frames[0], CLIP.boxes_xywh[0])] + [tracker.update(f) for f in CLIP.frames[1:]]
-    keyframe = np.zeros(16, bool)
-    keyframe[0] = True
-    replay = scoring_from_accepted(np.array([r.accepted for r in results]), keyframe, np.zeros(16, bool), CONFIG.tracker)
-    assert replay.tolist() == [r.scoring for r in results]
-    assert "subspace" in replay.tolist()
 
 
 # --------------------------------------------------------------------------- the algorithm

@@ -25,7 +25,7 @@ def retrack_command(
     """Apply corrections to a run: human boxes become anchors, the spans they affect are re-tracked forward and
     backward, and every output (OTB, COCO, flags, overlay, report, run.json) is rewritten; on any error the folder
     is left unchanged."""
-    from annotator.retrack import DEFAULT_MERGE, MERGES
+    from annotator.review import DEFAULT_MERGE, MERGES
     from annotator.review import apply_corrections
 
     try:

@@ -55,201 +55,28 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from annotator import __version__
 from annotator.annotate import json_default
 from annotator.atomic import write_text_atomic
-from annotator.config import RunConfig
 from annotator.corrections import read_corrections, resolve_corrections
-from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import write_exports
-from annotator.flagging import FlagParams
-from annotator.frames import DecodeError, FrameSource, FrameSourceError, open_frames
+from annotator.frames import DecodeError
 from annotator.progress import Progress
-from annotator.retrack import DEFAULT_MERGE, PreviousTrack, RetrackResult, retrack_tracks
-from annotator.store import STORE_NAME, RunStore, StoreError, read_store, write_store
-from annotator.tracks import KEYFRAME_GIVEN, TrackResult, VideoInfo
-from sptpt.params import params_from_mapping
+from annotator.review.frames import BUFFER_BYTES, SourceFrames, open_run_source
+from annotator.review.merge import DEFAULT_MERGE
+from annotator.review.retrack import RetrackResult, retrack_tracks
+from annotator.review.run import RUN_JSON, LoadedRun, load_run
+from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 
-__all__ = ["LoadedRun", "ReviewResult", "SourceFrames", "apply_corrections", "load_run"]
+__all__ = ["ReviewResult", "apply_corrections"]
 
-RUN_JSON = "run.json"
 OVERLAY_NAME = "overlay.mp4"
-#: Memory a backward pass may spend on buffered frames; longer spans are re-read in chunks of this size
-#: (see :mod:`annotator.retrack`). 512 MiB is ~580 frames of 640x480, ~85 of 1080p.
-BUFFER_BYTES = 512 * 2**20
-
-
-# --------------------------------------------------------------------------- reading a run
-
-
-@dataclass
-class LoadedRun:
-    """A run read back from its output folder: its run.json and its track store."""
-
-    out_dir: Path
-    info: dict[str, Any]  # run.json
-    config: RunConfig
-    store: RunStore
-    targets: dict[int, dict[str, Any]]  # track_id -> run.json target
-    formats: list[str]
-
-    @property
-    def video(self) -> VideoInfo:
-        return self.store.video
-
-    @property
-    def tracks(self) -> list[TrackResult]:
-        return list(self.store.tracks)
-
-    @property
-    def frame_indices(self) -> np.ndarray:
-        return self.store.frame_indices
-
-    def previous(self) -> dict[int, PreviousTrack]:
-        return {t.track_id: PreviousTrack(t, np.asarray(t.scoring, dtype=object)) for t in self.store.tracks}
-
-
-def _read_json(path: Path, what: str) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ToolError(f"{path} does not exist: give the output folder of an sptpt-annotate run ({what})",
-                        EXIT_INPUT) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ToolError(f"{path} cannot be read ({exc}): restore it or re-run the annotation", EXIT_INPUT) from None
-    except json.JSONDecodeError as exc:
-        raise ToolError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}); restore it or re-run the annotation",
-                        EXIT_INPUT) from None
-
-
-def load_run(out_dir: str | os.PathLike) -> LoadedRun:
-    """Read the run in ``out_dir`` back: ``run.json`` and the track store, never an export.
-
-    Raises
-    ------
-    ToolError
-        Exit code 3 when run.json or the store is missing, damaged or of
-        another version (a folder written before track stores existed is
-        rejected with how to redo it), 4 when the configuration in run.json
-        is not valid for this version.
-    """
-    out_dir = Path(out_dir)
-    if not out_dir.is_dir():
-        raise ToolError(f"output folder {out_dir} does not exist: give the folder an sptpt-annotate run wrote",
-                        EXIT_INPUT)
-    run_path = out_dir / RUN_JSON
-    info = _read_json(run_path, "run.json records the run")
-    try:
-        cfg = info["config"]
-        config = RunConfig(preset=str(cfg["preset"]), tracker=params_from_mapping(cfg["tracker"]),
-                           flags=FlagParams(**cfg["flags"]), seed=int(cfg["seed"]))
-        targets = {int(t["track_id"]): t for t in info["targets"]}
-        formats = list(info.get("formats") or [])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
-                        "or edited - re-run the annotation", EXIT_VALUE) from None
-    store_path = out_dir / STORE_NAME
-    if not store_path.exists():
-        raise ToolError(f"{out_dir} holds no {STORE_NAME}: it was written by sptpt-annotate "
-                        f"{info.get('tool_version', 'before 0.2')}, before runs kept a lossless track store; "
-                        "re-run the annotation into it with --force", EXIT_INPUT)
-    try:
-        store = read_store(store_path)
-    except StoreError as exc:
-        raise ToolError(str(exc), EXIT_INPUT) from None
-    ids = sorted(targets)
-    found = sorted(t.track_id for t in store.tracks)
-    if found != ids or not found:
-        raise ToolError(f"{store_path} holds tracks {found} but {run_path} names tracks {ids}: the files are from "
-                        "different runs - re-run the annotation", EXIT_INPUT)
-    if any(not np.array_equal(t.frame_indices, store.frame_indices) for t in store.tracks):
-        raise ToolError(f"{store_path}: its tracks cover different frames; restore the file or re-run the "
-                        "annotation", EXIT_INPUT)
-    return LoadedRun(out_dir=out_dir, info=info, config=config, store=store, targets=targets, formats=formats)
-
-
-# --------------------------------------------------------------------------- frames
-
-
-class SourceFrames:
-    """A :class:`~annotator.retrack.FrameProvider` over a run's frame source, decoding sequentially.
-
-    Reading forward continues the live decoder (a video is decoded once for
-    all the segments of a re-track); reading backwards, or far ahead in an
-    image folder, re-opens the source at the first frame wanted (for a video,
-    ffmpeg decodes again from the start of the file).
-    """
-
-    def __init__(self, source: FrameSource, frame_indices: np.ndarray) -> None:
-        self.source = source
-        self.frame_indices = np.asarray(frame_indices, dtype=np.int64)
-        self._live: Iterator | None = None
-        self._next = 0
-
-    def _open(self, lo: int) -> None:
-        self.close()
-        if getattr(self.source, "kind", "") == "images":
-            sub = open_frames(self.source.path, start=int(self.frame_indices[lo]), stop=self.source.stop,
-                              step=self.source.step, fps=self.source.fps)
-            self._live, self._next = iter(sub), lo
-        else:
-            self._live, self._next = iter(self.source), 0
-
-    def close(self) -> None:
-        if self._live is not None and hasattr(self._live, "close"):
-            self._live.close()
-        self._live = None
-
-    def frames(self, lo: int, hi: int) -> Iterator[tuple[int, np.ndarray]]:
-        if lo >= hi:
-            return
-        images = getattr(self.source, "kind", "") == "images"
-        if self._live is None or self._next > lo or (images and lo - self._next > 8):
-            self._open(lo)
-        while self._next < hi:
-            try:
-                index, frame = next(self._live)
-            except StopIteration:
-                raise ToolError(f"{self.source.path}: ended before frame {int(self.frame_indices[self._next])} "
-                                "that the run processed; the input changed - re-run the annotation", EXIT_INPUT) from None
-            position = self._next
-            if index != self.frame_indices[position]:
-                raise ToolError(f"{self.source.path}: decoded frame {index} where the run had frame "
-                                f"{int(self.frame_indices[position])}; the input changed - re-run the annotation",
-                                EXIT_INPUT)
-            self._next = position + 1
-            if position >= lo:
-                yield position, frame
-
-
-def _open_source(run: LoadedRun, *, verify_input: bool) -> FrameSource:
-    source_info, rng = run.info["input"], run.info["range"]
-    path = Path(source_info["path"])
-    try:
-        source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]))
-    except FrameSourceError as exc:
-        raise ToolError(f"{exc} (the input recorded in {run.out_dir / RUN_JSON})", EXIT_INPUT) from None
-    if (source.width, source.height, source.frame_count) != (run.video.width, run.video.height, run.video.frame_count):
-        raise ToolError(f"{path} is now {source.width}x{source.height} with {source.frame_count} frames, the run had "
-                        f"{run.video.width}x{run.video.height} with {run.video.frame_count}: the input changed - "
-                        "re-run the annotation", EXIT_INPUT)
-    if not np.array_equal(source.indices[: len(run.frame_indices)], run.frame_indices):
-        raise ToolError(f"{path}: the frames of the recorded range do not match flags.csv: re-run the annotation",
-                        EXIT_INPUT)
-    if verify_input and source_info.get("content_hash"):
-        from annotator.annotate import content_hash
-
-        if content_hash(path) != source_info["content_hash"]:
-            raise ToolError(f"{path} changed since the run (its content hash differs from run.json): corrections "
-                            "refer to the frames the run saw - re-run the annotation on the new input", EXIT_INPUT)
-    return source
-
-
-# --------------------------------------------------------------------------- writing
 
 
 @dataclass
@@ -308,7 +135,7 @@ def apply_corrections(
         CSV ``frame,x,y,w,h[,track_id]`` or COCO with ``attributes.keyframe``
         (:mod:`annotator.corrections`).
     merge : str
-        How the forward and backward passes combine (:data:`annotator.retrack.MERGES`).
+        How the forward and backward passes combine (:data:`annotator.review.MERGES`).
     show_progress : bool
         Progress bars on stderr.
     verify_input : bool
@@ -334,7 +161,7 @@ def apply_corrections(
     run = load_run(out_dir)
     resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
-    source = _open_source(run, verify_input=verify_input)
+    source = open_run_source(run, verify_input=verify_input)
     provider = SourceFrames(source, run.frame_indices)
     bar: list[Progress] = []
 
@@ -501,4 +328,3 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     write_text_atomic(tmp / RUN_JSON, json.dumps(info, indent=2, default=json_default) + "\n")
     files = [p for paths in written.values() for p in paths]
     return files + [Path(RUN_JSON)]
-

@@ -1,0 +1,92 @@
+"""Frames for re-tracking, decoded again from the input that ``run.json`` records."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from annotator.errors import EXIT_INPUT, ToolError
+from annotator.frames import FrameSource, FrameSourceError, open_frames
+from annotator.review.run import RUN_JSON, LoadedRun
+
+__all__ = ["BUFFER_BYTES", "SourceFrames", "open_run_source"]
+
+#: Memory a backward pass may spend on buffered frames; longer spans are re-read in chunks of this size
+#: (see :mod:`annotator.review.retrack`). 512 MiB is ~580 frames of 640x480, ~85 of 1080p.
+BUFFER_BYTES = 512 * 2**20
+
+
+class SourceFrames:
+    """A :class:`~annotator.review.FrameProvider` over a run's frame source, decoding sequentially.
+
+    Reading forward continues the live decoder (a video is decoded once for
+    all the segments of a re-track); reading backwards, or far ahead in an
+    image folder, re-opens the source at the first frame wanted (for a video,
+    ffmpeg decodes again from the start of the file).
+    """
+
+    def __init__(self, source: FrameSource, frame_indices: np.ndarray) -> None:
+        self.source = source
+        self.frame_indices = np.asarray(frame_indices, dtype=np.int64)
+        self._live: Iterator | None = None
+        self._next = 0
+
+    def _open(self, lo: int) -> None:
+        self.close()
+        if getattr(self.source, "kind", "") == "images":
+            sub = open_frames(self.source.path, start=int(self.frame_indices[lo]), stop=self.source.stop,
+                              step=self.source.step, fps=self.source.fps)
+            self._live, self._next = iter(sub), lo
+        else:
+            self._live, self._next = iter(self.source), 0
+
+    def close(self) -> None:
+        if self._live is not None and hasattr(self._live, "close"):
+            self._live.close()
+        self._live = None
+
+    def frames(self, lo: int, hi: int) -> Iterator[tuple[int, np.ndarray]]:
+        if lo >= hi:
+            return
+        images = getattr(self.source, "kind", "") == "images"
+        if self._live is None or self._next > lo or (images and lo - self._next > 8):
+            self._open(lo)
+        while self._next < hi:
+            try:
+                index, frame = next(self._live)
+            except StopIteration:
+                raise ToolError(f"{self.source.path}: ended before frame {int(self.frame_indices[self._next])} "
+                                "that the run processed; the input changed - re-run the annotation", EXIT_INPUT) from None
+            position = self._next
+            if index != self.frame_indices[position]:
+                raise ToolError(f"{self.source.path}: decoded frame {index} where the run had frame "
+                                f"{int(self.frame_indices[position])}; the input changed - re-run the annotation",
+                                EXIT_INPUT)
+            self._next = position + 1
+            if position >= lo:
+                yield position, frame
+
+
+def open_run_source(run: LoadedRun, *, verify_input: bool) -> FrameSource:
+    source_info, rng = run.info["input"], run.info["range"]
+    path = Path(source_info["path"])
+    try:
+        source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]))
+    except FrameSourceError as exc:
+        raise ToolError(f"{exc} (the input recorded in {run.out_dir / RUN_JSON})", EXIT_INPUT) from None
+    if (source.width, source.height, source.frame_count) != (run.video.width, run.video.height, run.video.frame_count):
+        raise ToolError(f"{path} is now {source.width}x{source.height} with {source.frame_count} frames, the run had "
+                        f"{run.video.width}x{run.video.height} with {run.video.frame_count}: the input changed - "
+                        "re-run the annotation", EXIT_INPUT)
+    if not np.array_equal(source.indices[: len(run.frame_indices)], run.frame_indices):
+        raise ToolError(f"{path}: the frames of the recorded range do not match flags.csv: re-run the annotation",
+                        EXIT_INPUT)
+    if verify_input and source_info.get("content_hash"):
+        from annotator.annotate import content_hash
+
+        if content_hash(path) != source_info["content_hash"]:
+            raise ToolError(f"{path} changed since the run (its content hash differs from run.json): corrections "
+                            "refer to the frames the run saw - re-run the annotation on the new input", EXIT_INPUT)
+    return source

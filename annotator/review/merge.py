@@ -1,0 +1,109 @@
+"""How a segment's forward and backward passes combine into one box per frame, and its flags.
+
+The merge rules (:data:`MERGES`) were compared on ../shared/otb by
+``benchmarks/simulated_reviewer.py --merge-study``; flags are recomputed over
+whole tracks from each row's stored scores (:func:`reflag`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from annotator.config import RunConfig
+from annotator.flagging import flag_frames
+
+__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PassResult", "merge_passes", "reflag"]
+
+#: How a frame between two anchors takes its box from the forward and the backward pass:
+#:
+#: * ``anchored``: the pass still in its bootstrap stage (its first frames after the human box,
+#:   before its subspace models exist) when the other pass is not; otherwise the more confident.
+#:   The two stages score on different scales (histogram intersection with the anchor's codes vs.
+#:   the logistic of ``RE- - RE+``), so their confidences are not comparable, and a pass that
+#:   just left a human box is the one to trust there.
+#: * ``confidence``: the more confident pass's box (ties go forward).
+#: * ``blend``: the confidence-weighted mean of both boxes.
+#: * ``handover``: forward up to the one frame that maximises the summed confidence of
+#:   "forward before, backward from", backward after it.
+MERGES = ("anchored", "confidence", "blend", "handover")
+#: Measured on ../shared/otb by ``benchmarks/simulated_reviewer.py --merge-study`` (RESULTS.md,
+#: "Simulated reviewer: merge study"): anchored > confidence ~ handover > blend.
+DEFAULT_MERGE = "anchored"
+
+#: ``scoring`` value of rows no tracker scored (``outside`` rows).
+NO_SCORING = "none"
+
+
+@dataclass
+class PassResult:
+    """One tracker pass over a segment's interior, rows in increasing position order."""
+
+    boxes_xywh: np.ndarray
+    confidence: np.ndarray
+    log_likelihood: np.ndarray
+    accepted: np.ndarray
+    scoring: np.ndarray
+    seconds: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> PassResult:
+        return cls(np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan), np.zeros(n, bool),
+                   np.full(n, NO_SCORING, dtype=object), np.zeros(n))
+
+def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_MERGE) -> PassResult:
+    """Combine a forward and a backward pass over the same frames (see :data:`MERGES`).
+
+    ``bwd=None`` returns the forward pass. Per row the result keeps the
+    log-likelihood, acceptance and scoring stage of the pass whose box (or
+    whose larger weight, for ``blend``) it takes; ``seconds`` is the sum of both.
+    """
+    if method not in MERGES:
+        raise ValueError(f"merge method {method!r} is not known: choose from {', '.join(MERGES)}")
+    if bwd is None:
+        return fwd
+    n = len(fwd.confidence)
+    cf, cb = fwd.confidence, bwd.confidence
+    if method == "handover":
+        # Forward up to t*, backward from t*: t* maximises sum(cf[:t*]) + sum(cb[t*:]).
+        gain = np.concatenate([[0.0], np.cumsum(cf)]) + np.concatenate([np.cumsum(cb[::-1])[::-1], [0.0]])
+        switch = int(np.argmax(gain))
+        take_fwd = np.arange(n) < switch
+    elif method == "anchored":
+        fresh_f = np.asarray(fwd.scoring == "bootstrap", dtype=bool)
+        fresh_b = np.asarray(bwd.scoring == "bootstrap", dtype=bool)
+        take_fwd = np.where(fresh_f & ~fresh_b, True, np.where(fresh_b & ~fresh_f, False, cf >= cb))
+    else:
+        take_fwd = cf >= cb
+    pick = lambda a, b: np.where(take_fwd.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+    out = PassResult(
+        boxes_xywh=pick(fwd.boxes_xywh, bwd.boxes_xywh),
+        confidence=pick(cf, cb),
+        log_likelihood=pick(fwd.log_likelihood, bwd.log_likelihood),
+        accepted=pick(fwd.accepted, bwd.accepted),
+        scoring=pick(fwd.scoring, bwd.scoring),
+        seconds=fwd.seconds + bwd.seconds,
+    )
+    if method == "blend":
+        total = cf + cb
+        w = np.where(total > 0, cf / np.where(total > 0, total, 1.0), 0.5)
+        out.boxes_xywh = w[:, None] * fwd.boxes_xywh + (1 - w[:, None]) * bwd.boxes_xywh
+        out.confidence = np.clip(w * cf + (1 - w) * cb, 0.0, 1.0)
+    return out
+
+def reflag(log_likelihood: np.ndarray, confidence: np.ndarray, scoring: np.ndarray, keyframe: np.ndarray,
+           outside: np.ndarray, config: RunConfig) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Flags of a whole track: :func:`flag_frames` with anchors and ``outside`` rows exempt, then absences flagged.
+
+    ``outside`` rows are passed to the flagger as keyframes: they have no
+    tracker score, must not hold a span open, and must not bridge two flagged
+    stretches; afterwards they are flagged with reason ``outside`` (FORMATS.md:
+    absences are recorded in the flags file), human-marked absences included.
+    """
+    outside = np.asarray(outside, bool)
+    result = flag_frames(log_likelihood, confidence, np.asarray(scoring, dtype=str), config.flags,
+                         keyframe=np.asarray(keyframe, bool) | outside)
+    flagged = result.flagged | outside
+    reasons = tuple("outside" if outside[i] else r for i, r in enumerate(result.reasons))
+    return flagged, reasons

@@ -1,0 +1,317 @@
+"""Re-tracking from human anchors: only the spans a correction affects, forward and backward.
+
+A track's *anchors* are the frames a human set: the first-frame box and every
+correction. An anchor holds a box, or ``None`` for "the object is absent
+from here until the next anchor". Tracking never overwrites an anchor; only
+a later correction of the same frame replaces it. An absence anchor is a
+keyframe that is still flagged (reason ``outside``): every absence is
+recorded in the flags file (FORMATS.md), and ``TrackResult`` requires it.
+
+Between two consecutive anchors ``A < B`` lies a *segment*. A segment is
+re-tracked when ``A`` or ``B`` is a new or changed anchor; every other
+segment keeps its previous rows untouched. A re-tracked segment:
+
+* ``A`` present, ``B`` present: the tracker is initialised on ``A`` with the
+  human box and run forward over ``A+1 .. B-1``, and initialised on ``B`` and
+  run backward (frames in reverse order) over ``B-1 .. A+1``. Each frame then
+  takes a box from the two passes (:data:`MERGES`; by default the pass that
+  is still near its own human box, else the more confident one).
+* ``A`` present, no ``B`` (end of the track) or ``B`` absent: forward only.
+* ``A`` absent: every frame up to ``B`` is ``outside`` (no box, flagged
+  ``outside``, no COCO annotation, a ``nan`` OTB row).
+
+Seeds: each pass has its own generator, derived from the run seed, the track
+id, the anchor's source frame index and the direction, so a re-track is
+reproducible and independent of which other segments were re-tracked. The
+forward pass from the first processed frame uses the run's own track seed
+(:func:`annotator.pipeline.seed_for_track`), so it reproduces the original
+run's rows exactly. A pass thus depends only on its anchor: when a new
+anchor ``C`` splits ``A .. B``, the forward pass from the unchanged ``A`` over
+``A .. C`` gives the rows it gave before, and the backward pass from ``C``
+meets it there (and the forward pass from ``C`` meets the one from ``B``).
+Re-running the unchanged side costs time but changes nothing;
+``pass_cache`` skips it when a caller keeps the passes (the simulated
+reviewer does; the command line does not, as the folder stores merged rows
+only).
+
+Frames: passes read frames through a :class:`FrameProvider`, one ordered
+sweep over the union of the segments' frames. Forward passes stream. A
+backward pass keeps its segment's frames in a buffer until it reaches ``B``
+when the segment has at most ``max_buffer_frames`` frames; a longer segment
+is run backward afterwards in chunks of that size, each read again from the
+provider (for a video that means decoding again from the start of the file
+for every chunk, so a span of L frames costs about L / chunk extra decodes
+of the video head: the price of memory that does not grow with the span;
+spans between corrections are usually short, and the command line sizes
+the chunk from a byte budget, ``annotator.review.BUFFER_BYTES``).
+
+Flags are recomputed over whole tracks with :func:`annotator.flagging.flag_frames`
+(anchors are never flagged; ``outside`` frames are flagged ``outside``), from
+each row's stored log-likelihood, confidence and scoring stage.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from annotator.config import RunConfig
+from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PassResult, merge_passes, reflag
+from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
+from annotator.review.segments import (
+    AnchorChange,
+    Box,
+    PreviousTrack,
+    Segment,
+    SegmentChange,
+    _iou,
+    plan_segments,
+    same_box,
+)
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+
+__all__ = ["RetrackResult", "retrack_tracks"]
+
+
+@dataclass
+class RetrackResult:
+    """New tracks, their scoring stages, and what changed."""
+
+    tracks: list[TrackResult]
+    scoring: dict[int, np.ndarray]
+    anchors: list[AnchorChange]
+    segments: list[SegmentChange]
+    frames_tracked: int  # tracker calls (init and update) over all passes
+    seconds: float
+    #: The raw passes of each re-tracked segment, ``(track_id, start, stop) -> (forward, backward or None)``,
+    #: for comparing merge methods without tracking again (benchmarks).
+    passes: dict[tuple[int, int, int], tuple[PassResult, PassResult | None]] = field(default_factory=dict)
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.anchors)
+
+def retrack_tracks(
+    frames: FrameProvider,
+    frame_indices: np.ndarray,
+    anchors: Mapping[int, Mapping[int, Box | None | tuple[Box | None, str]]],
+    config: RunConfig,
+    *,
+    previous: Mapping[int, PreviousTrack] | None = None,
+    labels: Mapping[int, str] | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    merge: str = DEFAULT_MERGE,
+    max_buffer_frames: int = DEFAULT_MAX_BUFFER_FRAMES,
+    progress: Callable[[int, int], None] | None = None,
+    pass_cache: dict | None = None,
+) -> RetrackResult:
+    """Apply anchors to tracks and re-track exactly the segments they affect.
+
+    Parameters
+    ----------
+    frames : FrameProvider
+        The processed frames by position.
+    frame_indices : (F,) int ndarray
+        Source index of each processed position (for seeds and reports).
+    anchors : mapping track_id -> {position: box or None, or (box or None, where)}
+        Corrections (0-based ``xywh``; None = absent from here to the next
+        anchor). With ``previous``, they are merged into each track's existing
+        anchors, replacing those at the same positions. Without ``previous``
+        every track is tracked from scratch and needs an anchor at position 0.
+    config : RunConfig
+        Tracker parameters, flag thresholds and seed (the run's).
+    previous : mapping track_id -> PreviousTrack, optional
+        The tracks before the corrections; segments no new anchor touches keep
+        these rows. Tracks not named in ``anchors`` are kept as they are.
+    labels : mapping track_id -> str, optional
+        Labels of tracks without ``previous`` (default ``"object"``).
+    width, height : int, optional
+        Frame size, to decide whether a correction equals an existing anchor
+        after clipping; defaults to an unbounded frame.
+    merge : str
+        How frames between two anchors combine the passes (:data:`MERGES`).
+    max_buffer_frames : int
+        Longest segment whose backward pass is buffered in one go (see module docstring).
+    progress : callable, optional
+        ``progress(done, total)`` with the tracker calls (init and update)
+        made so far and planned in all, after each frame read.
+    pass_cache : dict, optional
+        Passes already run, kept across calls by a caller that re-tracks the
+        same frames with the same config again and again (the simulated
+        reviewer): a pass is deterministic given its anchor, so a segment
+        whose pass from an unchanged anchor was run before, over at least as
+        many frames, reuses its rows instead of tracking again. Start with
+        ``{}``; the results are identical with or without it.
+
+    Returns
+    -------
+    RetrackResult
+    """
+    if merge not in MERGES:
+        raise ValueError(f"merge={merge!r} is not known: choose from {', '.join(MERGES)}")
+    if max_buffer_frames < 1:
+        raise ValueError(f"max_buffer_frames must be >= 1, got {max_buffer_frames}")
+    started = time.perf_counter()
+    frame_indices = np.asarray(frame_indices, dtype=np.int64)
+    n = len(frame_indices)
+    previous = dict(previous or {})
+    width = np.inf if width is None else width
+    height = np.inf if height is None else height
+    track_ids = list(dict.fromkeys([*previous, *anchors]))
+
+    runs: list[_SegmentRun] = []
+    plans: dict[int, tuple[dict, list[Segment]]] = {}
+    anchor_changes: list[AnchorChange] = []
+    for tid in track_ids:
+        given = {int(p): (v if isinstance(v, tuple) and len(v) == 2 and not _is_number(v[0]) else (v, ""))
+                 for p, v in (anchors.get(tid) or {}).items()}
+        for p in given:
+            if not 0 <= p < n:
+                raise ValueError(f"track {tid}: anchor position {p} is outside the {n} processed frames")
+        if tid in previous:
+            prev = previous[tid]
+            if len(prev.track) != n:
+                raise ValueError(f"track {tid} has {len(prev.track)} rows but {n} frame indices were given")
+            current = prev.anchors()
+            changed = set()
+            for p, (box, where) in sorted(given.items()):
+                box = None if box is None else tuple(float(v) for v in box)
+                if p in current and same_box(current[p], box, width=width, height=height):
+                    continue
+                before = None if prev.track.outside[p] else tuple(float(v) for v in prev.track.boxes_xywh[p])
+                anchor_changes.append(AnchorChange(tid, p, int(frame_indices[p]), before, box, p in current, where))
+                current[p] = box
+                changed.add(p)
+        else:
+            if 0 not in given:
+                raise ValueError(f"track {tid} has no previous rows and no anchor at position 0 to start from")
+            current = {p: (None if b is None else tuple(float(v) for v in b)) for p, (b, _) in given.items()}
+            changed = set(current)
+            anchor_changes.extend(AnchorChange(tid, p, int(frame_indices[p]), None, current[p], False, given[p][1])
+                                  for p in sorted(changed))
+        segments = plan_segments(tid, current, changed, n)
+        plans[tid] = (current, segments)
+        for seg in segments:
+            box_stop = current.get(seg.stop) if seg.stop < n else None
+            runs.append(_SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
+                                    max_buffer_frames, pass_cache))
+
+    # One ordered sweep over the frames any pass needs.
+    spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
+    intervals = _merge_intervals([span for span, _ in spans])
+    by_start = sorted(spans, key=lambda item: item[0][0])
+    active: list[tuple[tuple[int, int], _SegmentRun]] = []
+    nxt = 0
+    planned = sum(r.planned for r in runs)
+    for lo, hi in intervals:
+        for position, frame in frames.frames(lo, hi):
+            while nxt < len(by_start) and by_start[nxt][0][0] <= position:
+                active.append(by_start[nxt])
+                nxt += 1
+            for _, run in active:
+                run.feed(position, frame)
+            active = [(span, r) for span, r in active if span[1] > position + 1]
+            if progress is not None:
+                progress(sum(r.calls for r in runs), planned)
+    for run in runs:
+        if run.deferred:
+            run.run_deferred(frames, max_buffer_frames)
+            if progress is not None:
+                progress(sum(r.calls for r in runs), planned)
+
+    # Assemble the new rows.
+    results: list[TrackResult] = []
+    scorings: dict[int, np.ndarray] = {}
+    changes: list[SegmentChange] = []
+    runs_by_track: dict[int, list[_SegmentRun]] = {}
+    for run in runs:
+        runs_by_track.setdefault(run.segment.track_id, []).append(run)
+    for tid in track_ids:
+        current, segments = plans[tid]
+        prev = previous.get(tid)
+        if prev is not None:
+            t = prev.track
+            boxes, conf, ll = t.boxes_xywh.copy(), t.confidence.copy(), t.log_likelihood.copy()
+            accepted, seconds = t.accepted.copy(), t.seconds.copy()
+            keyframe, outside, occluded = t.keyframe.copy(), t.outside.copy(), t.occluded.copy()
+            scoring = prev.scoring.copy()
+            sources = list(t.keyframe_source)
+            label = t.label
+        else:
+            boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
+            accepted, seconds = np.zeros(n, bool), np.zeros(n)
+            keyframe, outside, occluded = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+            scoring = np.full(n, NO_SCORING, dtype=object)
+            sources = [""] * n
+            label = (labels or {}).get(tid, "object")
+        for change in anchor_changes:
+            if change.track_id == tid:
+                sources[change.position] = change.where or KEYFRAME_GIVEN
+        rewritten: list[tuple[int, int]] = []
+        for run in runs_by_track.get(tid, []):
+            seg = run.segment
+            lo = seg.start if seg.set_start else seg.start + 1
+            rewritten.append((lo, seg.stop))
+            if seg.set_start:
+                box = current[seg.start]
+                keyframe[seg.start] = True
+                occluded[seg.start] = False
+                if box is None:
+                    boxes[seg.start], conf[seg.start], ll[seg.start] = np.nan, 0.0, np.nan
+                    accepted[seg.start], seconds[seg.start] = False, 0.0
+                    outside[seg.start], scoring[seg.start] = True, NO_SCORING
+                else:
+                    loglik, secs = run.start_row
+                    boxes[seg.start], conf[seg.start], ll[seg.start] = box, 1.0, loglik
+                    accepted[seg.start], seconds[seg.start] = True, secs
+                    outside[seg.start], scoring[seg.start] = False, "init"
+            rows = slice(seg.start + 1, seg.stop)
+            keyframe[rows] = False
+            sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
+            occluded[rows] = False
+            if seg.forward:
+                merged = merge_passes(run.fwd, run.bwd, merge)
+                boxes[rows], conf[rows], ll[rows] = merged.boxes_xywh, merged.confidence, merged.log_likelihood
+                accepted[rows], scoring[rows], seconds[rows] = merged.accepted, merged.scoring, merged.seconds
+                outside[rows] = False
+            else:
+                boxes[rows], conf[rows], ll[rows] = np.nan, 0.0, np.nan
+                accepted[rows], scoring[rows], seconds[rows] = False, NO_SCORING, 0.0
+                outside[rows] = True
+        # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
+        flagged, reasons = reflag(ll, conf, scoring, keyframe, outside, config)
+        track = TrackResult(
+            track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
+            log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,
+            outside=outside, seconds=seconds, occluded=occluded, scoring=tuple(str(v) for v in scoring),
+            keyframe_source=tuple(sources),
+        )
+        results.append(track)
+        scorings[tid] = scoring
+        for lo, hi in rewritten:
+            if hi <= lo:
+                continue
+            if prev is not None:
+                iou = _iou(prev.track.boxes_xywh[lo:hi], boxes[lo:hi])
+                both_outside = prev.track.outside[lo:hi] & outside[lo:hi]
+                iou = np.where(both_outside, 1.0, iou)
+                mean_iou, moved = float(iou.mean()), int((iou < 0.5).sum())
+                before = int(prev.track.flagged[lo:hi].sum())
+            else:
+                mean_iou, moved, before = float("nan"), 0, 0
+            changes.append(SegmentChange(tid, int(frame_indices[lo]), int(frame_indices[hi - 1]), hi - lo,
+                                         round(mean_iou, 4) if np.isfinite(mean_iou) else mean_iou, moved, before,
+                                         int(flagged[lo:hi].sum())))
+    return RetrackResult(tracks=results, scoring=scorings, anchors=anchor_changes,
+                         segments=sorted(changes, key=lambda c: (c.first_frame, c.track_id)),
+                         frames_tracked=sum(r.calls for r in runs), seconds=time.perf_counter() - started,
+                         passes={(r.segment.track_id, r.segment.start, r.segment.stop): (r.fwd, r.bwd)
+                                 for r in runs if r.segment.forward})
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating))

@@ -1,0 +1,168 @@
+"""Anchors and segments: what a set of corrections asks to re-track.
+
+A track's anchors are its keyframe rows (the first-frame box and every human
+correction, or ``None`` for an absence); the frames between two consecutive
+anchors form a segment, re-tracked when either end is new or changed. See
+:mod:`annotator.review.retrack` for the whole procedure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from annotator.tracks import TrackResult
+
+__all__ = ["AnchorChange", "Box", "PreviousTrack", "Segment", "SegmentChange", "plan_segments", "same_box"]
+
+Box = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class PreviousTrack:
+    """A track as it stands before re-tracking.
+
+    Attributes
+    ----------
+    track : TrackResult
+        Its rows; ``keyframe`` rows are its anchors (an ``outside`` keyframe is
+        an absence anchor).
+    scoring : (F,) str ndarray
+        Scoring stage of each row (``init``, ``bootstrap``, ``subspace`` or
+        ``none``), needed to recompute flags; see :func:`scoring_from_accepted`.
+    """
+
+    track: TrackResult
+    scoring: np.ndarray
+
+    def __post_init__(self) -> None:
+        scoring = np.asarray(self.scoring, dtype=object)
+        if scoring.shape != (len(self.track),):
+            raise ValueError(f"scoring must have shape ({len(self.track)},) like the track, got {scoring.shape}")
+        object.__setattr__(self, "scoring", scoring)
+
+    def anchors(self) -> dict[int, Box | None]:
+        """``{position: box or None}`` of the keyframe rows."""
+        track = self.track
+        return {int(p): (None if track.outside[p] else tuple(float(v) for v in track.boxes_xywh[p]))
+                for p in np.flatnonzero(track.keyframe)}
+
+@dataclass(frozen=True)
+class Segment:
+    """Frames strictly between anchor ``start`` and ``stop`` (``stop`` = F when no anchor follows).
+
+    ``forward``: track forward from ``start``; ``backward``: also backward from
+    ``stop``; neither: every frame is outside. ``set_start``: the anchor row
+    ``start`` itself is new and must be written.
+    """
+
+    track_id: int
+    start: int
+    stop: int
+    forward: bool
+    backward: bool
+    set_start: bool
+
+    @property
+    def interior(self) -> range:
+        return range(self.start + 1, self.stop)
+
+@dataclass(frozen=True)
+class SegmentChange:
+    """What re-tracking one segment changed, for the report and run.json."""
+
+    track_id: int
+    first_frame: int  # source index of the first re-tracked row (the anchor when it is new)
+    last_frame: int
+    frames: int  # rows rewritten
+    mean_iou: float  # IoU of the new boxes with the previous ones (NaN rows count as 0); NaN without previous
+    moved: int  # rows whose new box has IoU < 0.5 with the previous one
+    flagged_before: int
+    flagged_after: int
+
+    def to_dict(self) -> dict:
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+@dataclass(frozen=True)
+class AnchorChange:
+    """A new or changed anchor."""
+
+    track_id: int
+    position: int
+    frame: int
+    box_before: Box | None  # the row's box before (tracker's or previous anchor's); None if it was outside
+    box_after: Box | None  # None: absent
+    was_anchor: bool
+    where: str
+
+    def to_dict(self) -> dict:
+        return {
+            "track_id": self.track_id, "frame": self.frame,
+            "box_before": None if self.box_before is None else [round(v, 3) for v in self.box_before],
+            "box_after": None if self.box_after is None else [round(v, 3) for v in self.box_after],
+            "was_anchor": self.was_anchor, "source": self.where,
+            "iou": _iou_or_none(self.box_before, self.box_after),
+        }
+
+def same_box(a: Box | None, b: Box | None, *, width: int, height: int, tol: float = 2e-3) -> bool:
+    """Whether two anchors say the same thing: both absent, or boxes equal after clipping to the frame.
+
+    Clipping and the 1/1000-pixel tolerance make a box read back from the run's
+    COCO file (clipped, rounded) the same anchor as the box it was written from.
+    """
+    if a is None or b is None:
+        return a is None and b is None
+
+    def clip(box):
+        x, y, w, h = box
+        return np.array([max(x, 0.0), max(y, 0.0), min(x + w, width), min(y + h, height)])
+
+    return bool(np.all(np.abs(clip(a) - clip(b)) <= tol))
+
+def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise IoU of (N, 4) xywh boxes; 0 where either is NaN."""
+    a = np.asarray(a, dtype=np.float64).reshape(-1, 4)
+    b = np.asarray(b, dtype=np.float64).reshape(-1, 4)
+    x0 = np.maximum(a[:, 0], b[:, 0])
+    y0 = np.maximum(a[:, 1], b[:, 1])
+    x1 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
+    y1 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        iou = inter / union
+    return np.where(np.isfinite(iou), iou, 0.0)
+
+def _iou_or_none(a: Box | None, b: Box | None) -> float | None:
+    if a is None or b is None or not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
+        return None
+    return round(float(_iou(np.array(a), np.array(b))[0]), 4)
+
+def plan_segments(track_id: int, anchors: Mapping[int, Box | None], changed: set[int], n_frames: int) -> list[Segment]:
+    """The segments of one track to re-track, given its anchors and which of them are new or changed.
+
+    Parameters
+    ----------
+    anchors : mapping position -> box or None
+        All anchors after applying the corrections; must include position 0.
+    changed : set of int
+        Positions of new or changed anchors (all of them for a first run).
+    n_frames : int
+        Rows of the track.
+    """
+    if 0 not in anchors:
+        raise ValueError("anchors must include position 0 (the first-frame box)")
+    positions = sorted(anchors)
+    segments = []
+    for k, start in enumerate(positions):
+        stop = positions[k + 1] if k + 1 < len(positions) else n_frames
+        stop_changed = stop in changed if stop < n_frames else False
+        if start not in changed and not stop_changed:
+            continue
+        present = anchors[start] is not None
+        backward = present and stop < n_frames and anchors[stop] is not None
+        segments.append(Segment(track_id, start, stop, forward=present, backward=backward,
+                                set_start=start in changed))
+    return segments
