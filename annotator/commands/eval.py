@@ -15,6 +15,9 @@ def eval_command(
     ground_truth: Path = typer.Argument(..., help="A ground-truth file (one sequence) or an OTB-layout root (dataset)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for plots and tables (default: print the table only)."),
     tracker_name: str = typer.Option("sptpt", "--name", help="Tracker name in tables and plots."),
+    sequences: Optional[str] = typer.Option(
+        None, "--sequences", metavar="NAME,NAME",
+        help="Dataset mode: score only these sequences (e.g. those a batch with --stop finished)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
@@ -22,17 +25,28 @@ def eval_command(
     from annotator.evaluation import results_markdown, write_report
     from annotator.otb import OTBFormatError
 
+    notes: list[str] = []
     try:
         try:
             if ground_truth.is_dir():
-                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name)
+                names = [n.strip() for n in sequences.split(",") if n.strip()] if sequences is not None else None
+                if names == []:
+                    raise ToolError(f"--sequences {sequences!r} names no sequence: give names such as "
+                                    "--sequences Coke,David", EXIT_VALUE)
+                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names,
+                                             notes=notes)
             else:
-                sequence = evaluate_result_file(results, ground_truth)
+                if sequences is not None:
+                    raise ToolError("--sequences picks sequences of a dataset: give an OTB-layout root as "
+                                    "GROUND_TRUTH, or drop --sequences", EXIT_VALUE)
+                sequence = evaluate_result_file(results, ground_truth, notes=notes)
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
         except (EvaluationError, OTBFormatError) as exc:
             raise ToolError(str(exc), EXIT_VALUE) from None
+        for note in notes:
+            typer.echo(note, err=True)
         typer.echo(results_markdown([score]))
         if out is not None:
             written = write_report(out, [score])

@@ -12,13 +12,22 @@ Ground truth
     the ground-truth file defines the frames, and results must have one row
     per ground-truth row.
 Results
-    One OTB result file per sequence, 1-based ``x,y,w,h`` rows. Where to
-    find it is decided by a *locator*, a function ``(folder, name) ->
-    candidate paths`` tried in order; :func:`default_result_candidates`
-    accepts ``<folder>/<Name>.txt`` (got10k and pysot layout, and what
-    :func:`annotator.exports.write_otb_results` writes) or a per-sequence
-    output folder ``<folder>/<Name>/`` holding one of
-    :data:`OUTPUT_FOLDER_RESULT_NAMES`. Pass another locator to adapt.
+    An sptpt-annotate output folder is read from its track store
+    (``tracks.npz``, full precision, never its exports); any other tracker's
+    results from one OTB result file per sequence, 1-based ``x,y,w,h`` rows.
+    Where to find it is decided by a *locator*, a function ``(folder, name)
+    -> candidate paths`` tried in order; :func:`default_result_candidates`
+    accepts ``<folder>/<Name>.txt`` (got10k and pysot layout), a per-sequence
+    output folder ``<folder>/<Name>/`` holding a track store (what batch
+    writes), or ``<folder>/<Name>/`` holding one of
+    :data:`OUTPUT_FOLDER_RESULT_NAMES`. Pass another locator
+    to adapt.
+Partial runs
+    A track store knows which source frames it holds (a run made with
+    ``--start``/``--stop``/``--step``, or cut short): exactly those frames
+    are scored, against the ground-truth rows of the same index, and
+    :attr:`SequencePair.note` says so. An OTB file has no such record and
+    must have one row per ground-truth row.
 
 Every error names the file (and line, via :class:`~annotator.otb.OTBFormatError`)
 or the missing path, and says how to fix it.
@@ -43,6 +52,7 @@ from annotator.evaluation.metrics import (
     evaluate_sequence,
 )
 from annotator.otb import read_otb_boxes
+from annotator.store import STORE_NAME, StoreError, read_store
 
 __all__ = [
     "OUTPUT_FOLDER_RESULT_NAMES",
@@ -68,11 +78,12 @@ def default_result_candidates(folder: Path, name: str) -> list[Path]:
     """Candidate result files for sequence ``name`` under a results ``folder``.
 
     ``<folder>/<name>.txt`` first, then the per-sequence output folder
-    ``<folder>/<name>/`` with each of :data:`OUTPUT_FOLDER_RESULT_NAMES`.
+    ``<folder>/<name>/`` with its track store, then with each of
+    :data:`OUTPUT_FOLDER_RESULT_NAMES`.
     """
     folder = Path(folder)
     inside = [folder / name / pattern.format(name=name) for pattern in OUTPUT_FOLDER_RESULT_NAMES]
-    return [folder / f"{name}.txt", *inside]
+    return [folder / f"{name}.txt", folder / name / STORE_NAME, *inside]
 
 
 def _output_folder_candidates(folder: Path, name: str | None) -> list[Path]:
@@ -108,6 +119,8 @@ def find_result_file(path: str | os.PathLike, *, name: str | None = None) -> Pat
         return path
     if not path.exists():
         raise EvaluationError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h per row")
+    if (path / STORE_NAME).is_file():
+        return path / STORE_NAME
     candidates = _output_folder_candidates(path, name)
     for candidate in candidates:
         if candidate.is_file():
@@ -189,6 +202,39 @@ class SequencePair:
     gt: np.ndarray
     pred_path: Path
     gt_path: Path
+    #: Source frames scored (rows of the ground-truth file), when the result says which; None: every row.
+    frames: np.ndarray | None = None
+    #: Rows of the ground-truth file.
+    gt_rows: int = 0
+
+    @property
+    def note(self) -> str | None:
+        """A sentence for the output when only part of the ground truth was scored."""
+        if self.frames is None or len(self.frames) == self.gt_rows:
+            return None
+        f = self.frames
+        steps = np.unique(np.diff(f))
+        step = f", every {int(steps[0])}th" if len(steps) == 1 and steps[0] > 1 else ""
+        return (f"{self.name}: scored the {len(f)} frames the run processed (source frames {int(f[0])}-{int(f[-1])}"
+                f"{step}) against those rows of the {self.gt_rows}-row ground truth")
+
+
+def _store_track(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """0-based boxes and source frame indices of the track of sequence ``name`` in a track store."""
+    try:
+        store = read_store(path)
+    except StoreError as exc:
+        raise EvaluationError(str(exc)) from None
+    ids = [t.track_id for t in store.tracks]
+    if len(store.tracks) == 1:
+        track = store.tracks[0]
+    else:
+        suffix = name.rsplit(".", 1)[-1] if "." in name else ""
+        if not suffix.isdigit() or int(suffix) not in ids:
+            raise EvaluationError(f"{path} holds tracks {ids}: name the sequence <Name>.<track id> (OTB multi-target "
+                                  f"naming, e.g. {store.video.name}.{ids[0]}) to pick one")
+        track = store.track(int(suffix))
+    return track.boxes_xywh, track.frame_indices
 
 
 def load_sequence_pair(
@@ -213,13 +259,22 @@ def load_sequence_pair(
         if not path.is_file():
             raise EvaluationError(f"sequence {name!r}: {role} file {path} does not exist")
     gt = read_otb_boxes(gt_path, origin=gt_origin)
+    if pred_path.suffix == ".npz":
+        pred, frames = _store_track(pred_path, name)
+        if len(frames) == 0 or frames[-1] >= len(gt):
+            last = int(frames[-1]) if len(frames) else None
+            raise EvaluationError(
+                f"sequence {name!r}: {pred_path} holds source frames up to {last} but the ground truth {gt_path} has "
+                f"{len(gt)} rows (frames 0-{len(gt) - 1}); evaluate against the ground truth of the same video")
+        return SequencePair(name=name, pred=np.array(pred), gt=gt[frames], pred_path=pred_path, gt_path=gt_path,
+                            frames=frames, gt_rows=len(gt))
     pred = read_otb_boxes(pred_path, origin=pred_origin)
     if len(pred) != len(gt):
         raise EvaluationError(
             f"sequence {name!r}: {pred_path} has {len(pred)} rows but the ground truth {gt_path} has {len(gt)}; "
             "an OTB result file needs exactly one x,y,w,h row per ground-truth frame, the first frame included"
         )
-    return SequencePair(name=name, pred=pred, gt=gt, pred_path=pred_path, gt_path=gt_path)
+    return SequencePair(name=name, pred=pred, gt=gt, pred_path=pred_path, gt_path=gt_path, gt_rows=len(gt))
 
 
 def _select(available: Mapping[str, Path], sequences: Iterable[str] | None, root: Path) -> dict[str, Path]:
@@ -284,7 +339,7 @@ def load_dataset_pairs(
     if missing:
         raise EvaluationError(
             f"{results_dir}: no result for {len(missing)} of {len(selected)} sequence(s): {'; '.join(missing)}; "
-            "add the files or restrict the evaluation to the sequences that have results"
+            "add the files, or score only the sequences that have results with --sequences NAME,NAME"
         )
     return {name: load_sequence_pair(found[name], selected[name], name=name) for name in selected}
 
@@ -296,6 +351,7 @@ def evaluate_result_file(
     name: str | None = None,
     replace_first: bool = True,
     invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
+    notes: list[str] | None = None,
 ) -> SequenceScore:
     """Score one result file (or output folder) against one ground-truth file.
 
@@ -310,11 +366,15 @@ def evaluate_result_file(
         Sequence name; defaults to the ground-truth file's folder name.
     replace_first, invalid_pred
         As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
+    notes : list of str, optional
+        Receives :attr:`SequencePair.note` when only part of the ground truth is scored.
     """
     ground_truth = Path(ground_truth)
     name = name or _sequence_name(ground_truth)
     result_path = find_result_file(result, name=name)
     pair = load_sequence_pair(result_path, ground_truth, name=name)
+    if notes is not None and pair.note:
+        notes.append(pair.note)
     return evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
 
 
@@ -327,6 +387,7 @@ def evaluate_results_dir(
     locate: ResultLocator = default_result_candidates,
     replace_first: bool = True,
     invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
+    notes: list[str] | None = None,
 ) -> DatasetScore:
     """Score a folder of results against an OTB-layout root (one tracker).
 
@@ -342,6 +403,8 @@ def evaluate_results_dir(
         As in :func:`load_dataset_pairs`.
     replace_first, invalid_pred
         As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
+    notes : list of str, optional
+        Receives :attr:`SequencePair.note` of each sequence scored only in part.
 
     Returns
     -------
@@ -349,6 +412,8 @@ def evaluate_results_dir(
     """
     results_dir = Path(results_dir)
     pairs = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
+    if notes is not None:
+        notes.extend(pair.note for pair in pairs.values() if pair.note)
     scores = {
         name: evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
         for name, pair in pairs.items()

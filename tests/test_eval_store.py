@@ -1,0 +1,139 @@
+"""eval reads an output folder's track store: runs of part of a video score exactly the frames they hold.
+
+Issue #14 item 2: a run made with ``--start``/``--stop`` (or a batch with
+``--stop``) used to fail with "has 150 rows but the ground truth has 291".
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotator.cli import _with_default_command, app
+from annotator.evaluation import EvaluationError, evaluate_result_file, evaluate_results_dir, evaluate_sequence
+from annotator.otb import write_otb_boxes
+from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.synthetic import make_clip
+from annotator.tracks import TrackResult, VideoInfo
+
+VIDEO = VideoInfo(path="Alpha", name="Alpha", width=96, height=72, fps=30.0, frame_count=20)
+
+
+def _track(frames, boxes, track_id=1) -> TrackResult:
+    n = len(frames)
+    return TrackResult(track_id=track_id, label="object", frame_indices=np.asarray(frames), boxes_xywh=boxes,
+                       confidence=np.full(n, 0.9), log_likelihood=np.ones(n), accepted=np.ones(n, bool),
+                       flagged=np.zeros(n, bool), reasons=("",) * n, keyframe=np.eye(1, n, dtype=bool)[0],
+                       outside=np.zeros(n, bool), seconds=np.zeros(n))
+
+
+def _gt(n: int) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    return np.column_stack([rng.uniform(0, 50, (n, 2)), rng.uniform(10, 30, (n, 2))])
+
+
+def test_a_store_of_part_of_the_video_scores_exactly_its_frames(tmp_path):
+    gt = _gt(20)
+    write_otb_boxes(tmp_path / "gt.txt", gt)
+    frames = np.arange(4, 16, 2)
+    pred = gt[frames] + np.array([0.5, -0.25, 1.0, 0.0])
+    out = tmp_path / "run"
+    out.mkdir()
+    write_store(out / STORE_NAME, RunStore(video=VIDEO, start=4, stop=16, step=2, tracks=[_track(frames, pred)]))
+    notes: list[str] = []
+    score = evaluate_result_file(out, tmp_path / "gt.txt", name="Alpha", notes=notes)
+    expected = evaluate_sequence(pred, gt[frames], name="Alpha")
+    assert score.auc == expected.auc and score.precision_20 == expected.precision_20
+    assert notes == ["Alpha: scored the 6 frames the run processed (source frames 4-14, every 2th) against those "
+                     "rows of the 20-row ground truth"]
+
+
+def test_a_whole_run_needs_no_note_and_a_longer_store_is_refused(tmp_path):
+    gt = _gt(8)
+    write_otb_boxes(tmp_path / "gt.txt", gt)
+    out = tmp_path / "run"
+    out.mkdir()
+    write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=8, step=1, tracks=[_track(np.arange(8), gt)]))
+    notes: list[str] = []
+    assert evaluate_result_file(out, tmp_path / "gt.txt", notes=notes).auc > 0.95 and notes == []
+    write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=9, step=1,
+                                           tracks=[_track(np.arange(9), np.vstack([gt, gt[:1]]))]))
+    with pytest.raises(EvaluationError, match=r"source frames up to 8 but the ground truth .* has 8 rows"):
+        evaluate_result_file(out, tmp_path / "gt.txt")
+
+
+def test_a_multi_track_store_is_picked_by_otb_multi_target_name(tmp_path):
+    gt = _gt(6)
+    root = tmp_path / "otb"
+    for k in (1, 2):
+        (root / f"Jog.{k}").mkdir(parents=True)
+        write_otb_boxes(root / f"Jog.{k}" / "groundtruth_rect.txt", gt + k)
+    results = tmp_path / "res"
+    store = RunStore(video=VIDEO, start=0, stop=6, step=1, tracks=[_track(np.arange(6), gt + 1, 1),
+                                                                   _track(np.arange(6), gt + 2, 2)])
+    for k in (1, 2):
+        (results / f"Jog.{k}").mkdir(parents=True)
+        write_store(results / f"Jog.{k}" / STORE_NAME, store)
+    score = evaluate_results_dir(root, results)
+    assert all(s.auc > 0.95 for s in score.sequences.values())
+    with pytest.raises(EvaluationError, match=r"holds tracks \[1, 2\]: name the sequence"):
+        evaluate_result_file(results / "Jog.1", root / "Jog.1" / "groundtruth_rect.txt", name="Jog")
+
+
+@pytest.fixture(scope="module")
+def otb_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("otb")
+    for seed, name in enumerate(("Alpha", "Beta")):
+        clip = make_clip(24, size=(96, 72), object_size=(24, 20), seed=seed)
+        (root / name / "img").mkdir(parents=True)
+        for i, frame in enumerate(clip.frames):
+            cv2.imwrite(str(root / name / "img" / f"{i + 1:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+        write_otb_boxes(root / name / "groundtruth_rect.txt", clip.boxes_xywh)
+    return root
+
+
+def _run(*args) -> tuple[int, str, str]:
+    result = CliRunner().invoke(app, _with_default_command([str(a) for a in args]))
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_eval_of_a_start_stop_run_from_the_command_line(otb_root, tmp_path):
+    box = ",".join(f"{v:.3f}" for v in make_clip(24, size=(96, 72), object_size=(24, 20), seed=0).boxes_xywh[3])
+    out = tmp_path / "alpha"
+    code, _, err = _run(otb_root / "Alpha", "--box", box, "--start", 3, "--stop", 15, "--out", out, "--no-render",
+                        "--config", _fast(tmp_path), "--quiet")
+    assert code == 0, err
+    code, table, err = _run("eval", out, otb_root / "Alpha" / "groundtruth_rect.txt")
+    assert code == 0, err
+    assert "scored the 12 frames the run processed (source frames 3-14)" in err
+    assert "Alpha" in table
+
+
+def test_eval_of_a_batch_with_stop_and_sequences(otb_root, tmp_path):
+    out = tmp_path / "batch"
+    code, _, err = _run("batch", "--otb-root", otb_root, "--out", out, "--stop", 10, "--no-render", "--config",
+                        _fast(tmp_path), "--quiet", "--workers", 1)
+    assert code == 0, err
+    code, table, err = _run("eval", out, otb_root)
+    assert code == 0, err
+    assert err.count("scored the 10 frames the run processed (source frames 0-9)") == 2
+    # Only one sequence has results: --sequences picks it, and the hint names the option.
+    shutil.rmtree(out / "Beta")
+    code, _, err = _run("eval", out, otb_root)
+    assert code != 0 and "--sequences" in err
+    code, table, err = _run("eval", out, otb_root, "--sequences", "Alpha")
+    assert code == 0, err
+    assert "Alpha" in table and "Beta" not in table
+    code, _, err = _run("eval", out, otb_root / "Alpha" / "groundtruth_rect.txt", "--sequences", "Alpha")
+    assert code == 4 and "--sequences picks sequences of a dataset" in err
+
+
+def _fast(tmp_path: Path) -> Path:
+    config = tmp_path / "fast.yaml"
+    config.write_text("tracker:\n  n_particles: 60\n  n_negatives: 20\n")
+    return config
