@@ -36,6 +36,9 @@ __all__ = ["ALL_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "p
 
 ALL_FORMATS = ("otb", "coco", "flags", "overlay", "report")
 OVERLAY_NAME = "overlay.mp4"
+#: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
+#: kernels (about 15 s on 2 cores) and caches them beside the package.
+COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
 # Files whose presence means a folder already holds a run's results.
 RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html")
 
@@ -156,7 +159,7 @@ def annotate(
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     _prepare_output_dir(out_dir, force=force)
     render = "overlay" in formats
-    progress = Progress(len(source), enabled=show_progress)
+    progress = Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE)
     run = track_source(source, targets, config, overlay_path=out_dir / OVERLAY_NAME if render else None,
                        progress=progress)
     result = AnnotateResult(out_dir=out_dir, run=run)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from typing import TextIO
 
@@ -14,10 +15,20 @@ class Progress:
 
     On a terminal the line is redrawn in place; otherwise (a log file, CI) a
     line is printed every 10% so logs stay short. ``enabled=False`` prints nothing.
+
+    The rate and ETA are measured from the first update on, and shown from
+    the :data:`ETA_AFTER` th: the first step often costs far more than the
+    rest (kernels compiling, a decoder starting) or far less (steps taken
+    from a cache), and a rate that counted it would mislead. ``slow_start``
+    is a line printed once if the first update has not come after
+    ``slow_start_after`` seconds, to say what the wait is.
     """
 
+    #: Updates before the rate and ETA are shown.
+    ETA_AFTER = 3
+
     def __init__(self, total: int, *, label: str = "frames", enabled: bool = True, stream: TextIO | None = None,
-                 interval: float = 0.2) -> None:
+                 interval: float = 0.2, slow_start: str | None = None, slow_start_after: float = 2.0) -> None:
         self.total = max(int(total), 0)
         self.label = label
         self.enabled = enabled
@@ -25,15 +36,38 @@ class Progress:
         self.interval = interval
         self.done = 0
         self._start = time.perf_counter()
+        self._first: tuple[float, int] | None = None  # time and count of the first update
+        self._updates = 0
         self._last_draw = 0.0
         self._last_decile = -1
         self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._lock = threading.Lock()
+        self._notice: threading.Timer | None = None
+        if enabled and slow_start:
+            self._notice = threading.Timer(slow_start_after, self._slow_start, args=(slow_start,))
+            self._notice.daemon = True
+            self._notice.start()
+
+    def _slow_start(self, text: str) -> None:
+        with self._lock:
+            if self._updates == 0:
+                self.stream.write(text + "\n")
+                self.stream.flush()
 
     def advance(self, steps: int = 1) -> None:
+        with self._lock:
+            self._advance(steps)
+
+    def _advance(self, steps: int) -> None:
         self.done += steps
+        self._updates += 1
+        now = time.perf_counter()
+        if self._first is None:
+            self._first = (now, self.done)
+            if self._notice is not None:
+                self._notice.cancel()
         if not self.enabled:
             return
-        now = time.perf_counter()
         if self._tty:
             if now - self._last_draw >= self.interval or self.done >= self.total:
                 self._last_draw = now
@@ -46,18 +80,28 @@ class Progress:
                 self.stream.write(self.line() + "\n")
                 self.stream.flush()
 
+    def rate(self) -> float | None:
+        """Steps per second since the first update, or None before :data:`ETA_AFTER` updates."""
+        if self._first is None or self._updates < self.ETA_AFTER:
+            return None
+        elapsed = time.perf_counter() - self._first[0]
+        return (self.done - self._first[1]) / elapsed if elapsed > 0 else None
+
     def line(self) -> str:
-        elapsed = time.perf_counter() - self._start
-        rate = self.done / elapsed if elapsed > 0 else 0.0
+        rate = self.rate()
         share = self.done / self.total if self.total else 1.0
         width = 24
         filled = int(round(width * min(share, 1.0)))
-        eta = (self.total - self.done) / rate if rate > 0 else float("nan")
-        eta_text = format_clock(eta) if eta == eta else "--:--"
+        if rate is None or rate <= 0:
+            rate_text, eta_text = f"  ... {self.label}/s", "--:--"
+        else:
+            rate_text, eta_text = f"{rate:5.1f} {self.label}/s", format_clock((self.total - self.done) / rate)
         return (f"{self.label} {self.done}/{self.total} [{'#' * filled}{'.' * (width - filled)}] "
-                f"{100 * share:3.0f}%  {rate:5.1f} {self.label}/s  ETA {eta_text}")
+                f"{100 * share:3.0f}%  {rate_text}  ETA {eta_text}")
 
     def close(self) -> None:
+        if self._notice is not None:
+            self._notice.cancel()
         if self.enabled and self._tty:
             self.stream.write("\n")
             self.stream.flush()
