@@ -15,6 +15,7 @@ import json
 import os
 import platform
 import tempfile
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -24,7 +25,8 @@ import numpy as np
 from annotator import __version__
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
-from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, ToolError
+from annotator.corrections import Correction, resolve_corrections
+from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports import write_exports
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
@@ -94,14 +96,31 @@ def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
                         "choose a writable --out folder", EXIT_OUTPUT) from None
 
 
+#: Boxes smaller than this (px, either side) hold too little texture for the tracker's superpixels and
+#: histograms: accepted, with a warning.
+SMALL_BOX_PX = 8
+#: A first-frame box with less than this share of its area inside the frame gets a warning.
+MIN_VISIBLE_SHARE = 0.5
+
+
 def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
     for target in targets:
         x, y, w, h = target.box_xywh
+        text = f"--box {x:g},{y:g},{w:g},{h:g} (0-based)"
         if x >= source.width or y >= source.height or x + w <= 0 or y + h <= 0:
             raise ToolError(
-                f"--box {x:g},{y:g},{w:g},{h:g} (0-based) lies outside the {source.width}x{source.height} first frame "
+                f"{text} lies outside the {source.width}x{source.height} first frame "
                 f"of {source.path}: give pixel coordinates of the object in frame {source.start}"
                 " (use --box-origin 1 for OTB-style 1-based boxes)", EXIT_VALUE)
+        if w < SMALL_BOX_PX or h < SMALL_BOX_PX:
+            warnings.warn(f"{text} is only {w:g}x{h:g} px: the tracker needs about {SMALL_BOX_PX}x{SMALL_BOX_PX} px "
+                          "of object to follow it; check the box (x,y is the top-left corner, then width, height)",
+                          InputWarning, stacklevel=3)
+        visible = (min(x + w, source.width) - max(x, 0.0)) * (min(y + h, source.height) - max(y, 0.0)) / (w * h)
+        if visible < MIN_VISIBLE_SHARE:
+            warnings.warn(f"{text} lies {100 * (1 - visible):.0f}% outside the {source.width}x{source.height} frame: "
+                          "the tracker learns the object from the part inside; check the box", InputWarning,
+                          stacklevel=3)
 
 
 def content_hash(path: Path) -> str:
@@ -129,8 +148,14 @@ def annotate(
     formats: Sequence[str] = ALL_FORMATS,
     force: bool = False,
     show_progress: bool = True,
+    corrections: Sequence[Correction] | None = None,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
+
+    ``corrections``, when given, are only checked here against the frames
+    and tracks the run will have, before any tracking (so that a correction
+    of a frame outside ``--start``/``--stop`` fails at once); the caller
+    applies them afterwards with :func:`annotator.review.apply_corrections`.
 
     Raises
     ------
@@ -156,6 +181,9 @@ def annotate(
     except FrameSourceError as exc:
         raise ToolError(str(exc), EXIT_INPUT) from None
     _check_boxes(targets, source)
+    if corrections is not None:
+        resolve_corrections(corrections, frame_indices=source.indices, track_ids=[t.track_id for t in targets],
+                            width=source.width, height=source.height)
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     _prepare_output_dir(out_dir, force=force)
     render = "overlay" in formats

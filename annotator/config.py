@@ -23,16 +23,28 @@ from typing import Any, Mapping
 
 import yaml
 
+from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
 
-__all__ = ["RunConfig", "ConfigError", "load_config_file", "resolve_config"]
+__all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "resolve_config"]
+
+#: The tracker preset of a run that names none.
+DEFAULT_PRESET = "paper"
 
 _TOP_LEVEL = ("preset", "seed", "tracker", "flags")
 
 
 class ConfigError(ValueError):
-    """A configuration file or value that cannot be used; the message names the source."""
+    """A configuration file or value that cannot be used; the message names the source.
+
+    ``exit_code`` is the tool's code for it: 4 (invalid value) by default, 3
+    when the file itself is missing or unreadable.
+    """
+
+    def __init__(self, message: str, exit_code: int = EXIT_VALUE) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 @dataclass(frozen=True)
@@ -59,9 +71,9 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist: give the path of a YAML file") from None
+        raise ConfigError(f"config file {path} does not exist: give the path of a YAML file", EXIT_INPUT) from None
     except OSError as exc:
-        raise ConfigError(f"config file {path} cannot be read: {exc.strerror}") from None
+        raise ConfigError(f"config file {path} cannot be read: {exc.strerror}", EXIT_INPUT) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -95,7 +107,7 @@ def resolve_config(
     for key in file_values:
         if key not in _TOP_LEVEL:
             raise _unknown("top-level key", key, list(_TOP_LEVEL), source)
-    preset_name = preset or file_values.get("preset") or "paper"
+    preset_name = preset or file_values.get("preset") or DEFAULT_PRESET
     seed_value = seed if seed is not None else file_values.get("seed", 0)
     if isinstance(seed_value, bool) or not isinstance(seed_value, int) or seed_value < 0:
         raise ConfigError(f"{source}: seed must be a non-negative integer, got {seed_value!r}")

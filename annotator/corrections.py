@@ -115,8 +115,16 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
     except OSError as exc:
         raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
     if text.lstrip().startswith("{"):
-        return _read_coco(path, text)
-    return _read_csv(path, text)
+        corrections = _read_coco(path, text)
+        if not corrections:
+            raise ToolError(f"corrections file {path} holds no corrected box: mark the annotations you fixed with "
+                            "attributes.keyframe = true", EXIT_VALUE)
+        return corrections
+    corrections = _read_csv(path, text)
+    if not corrections:
+        raise ToolError(f"corrections file {path} is empty: add a row frame,x,y,w,h[,track_id] for each box you "
+                        "fixed", EXIT_VALUE)
+    return corrections
 
 
 # --------------------------------------------------------------------------- CSV

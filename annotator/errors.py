@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-__all__ = ["ToolError", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT", "EXIT_VALUE", "EXIT_OUTPUT",
+__all__ = ["InputWarning", "ToolError", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT", "EXIT_VALUE", "EXIT_OUTPUT",
            "EXIT_PARTIAL", "EXIT_BATCH_FAILURES", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
@@ -35,3 +35,7 @@ class ToolError(Exception):
     def __init__(self, message: str, exit_code: int) -> None:
         super().__init__(message)
         self.exit_code = exit_code
+
+
+class InputWarning(UserWarning):
+    """Input the tool accepts but that will likely give poor results; the CLI prints it as one line."""

@@ -421,6 +421,8 @@ def bad_inputs(work, clip) -> dict[str, Path]:
     (folder / "bad_ranks.yaml").write_text("tracker:\n  ranks: [40, 30, 40]\n")
     (folder / "results").mkdir()
     (folder / "results" / "annotations.json").write_text("{}")
+    (folder / "fix_past_stop.csv").write_text("frame,x,y,w,h\n12,5,5,10,10\n")
+    (folder / "fix_empty.csv").write_text("frame,x,y,w,h,track_id\n")
     return {"clip": clip, **{p.name: p for p in folder.iterdir()}}
 
 
@@ -452,7 +454,11 @@ BAD = [
      ["unknown_key.yaml", "unknown tracker parameter 'n_particle'", "did you mean 'n_particles'?"]),
     ("config-bad-value", "clip", ["--config", "@bad_flag.yaml"], 4, ["bad_flag.yaml", "min_span=0 is invalid"]),
     ("config-tracker-rejects", "clip", ["--config", "@bad_ranks.yaml"], 4, ["bad_ranks.yaml", "superpixel rank 30"]),
-    ("config-missing", "clip", ["--config", "nope.yaml"], 4, ["nope.yaml does not exist"]),
+    ("config-missing", "clip", ["--config", "nope.yaml"], 3, ["nope.yaml does not exist"]),
+    # Corrections are checked against the range before any tracking (nothing is written).
+    ("corrections-past-stop", "clip", ["--stop", "8", "--corrections", "@fix_past_stop.csv"], 4,
+     ["fix_past_stop.csv:2", "frame 12 was not processed"]),
+    ("corrections-empty", "clip", ["--corrections", "@fix_empty.csv"], 4, ["fix_empty.csv is empty"]),
     ("unknown-preset", "clip", ["--preset", "turbo"], 4, ["unknown preset 'turbo'"]),
     ("negative-seed", "clip", ["--seed", "-1"], 4, ["seed must be a non-negative integer"]),
     ("out-is-a-file", "clip", ["--out", "@a_file"], 5, ["a_file is a file"]),
@@ -509,3 +515,27 @@ def test_read_only_output_folder_exits_5(clip, tmp_path):
         assert list(out.iterdir()) == []
     finally:
         out.chmod(0o700)
+
+
+# --------------------------------------------------------------------------- what a new user trips over (issue #14)
+
+
+@pytest.mark.parametrize("box, needle", [("30,30,1,1", "is only 1x1 px"), ("-30,40,40,40", "80% outside the 96x72")])
+def test_doubtful_boxes_are_tracked_with_a_one_line_warning(clip, config_file, tmp_path, box, needle):
+    result = invoke(clip, "--box", box, "--stop", 3, "--config", config_file, "--out", tmp_path / "o", "-q",
+                    "--no-render")
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("sptpt-annotate: warning: ")]
+    assert len(warnings) == 1 and needle in warnings[0], result.stderr
+
+
+def test_a_good_box_gets_no_warning(clip, config_file, tmp_path):
+    result = invoke(clip, "--box", BOX0, "--stop", 3, "--config", config_file, "--out", tmp_path / "o", "-q",
+                    "--no-render")
+    assert result.exit_code == 0 and "warning" not in result.stderr
+
+
+def test_help_names_the_box_layout_and_the_default_preset():
+    text = CliRunner().invoke(app, ["track", "--help"], terminal_width=200).stdout
+    assert "--box X,Y,W,H" in text and "list[str]" not in text
+    assert "[default: paper" in text

@@ -458,3 +458,62 @@ def test_video_input(tmp_path):
     coco = json.loads((tmp_path / "out" / "annotations.json").read_text())
     assert coco["categories"][0]["name"] == "ball"
     assert [a["attributes"]["keyframe"] for a in coco["annotations"]].count(True) == 3
+
+
+# --------------------------------------------------------------------------- retrack on a moved input, interrupted (#14)
+
+
+def _retrack_cli(*args):
+    app = typer.Typer()
+    app.command()(retrack_command)
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_retrack_follows_a_moved_input_given_with_input(out, tmp_path):
+    info = json.loads((out / "run.json").read_text())
+    moved = tmp_path / "moved" / "seq"
+    shutil.move(info["input"]["path"], moved)
+    try:
+        (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
+        refused = _retrack_cli(out, "--corrections", out.parent / "fix.csv", "--quiet")
+        assert refused.exit_code == EXIT_INPUT and "give its new path with --input PATH" in refused.output
+        done = _retrack_cli(out, "--corrections", out.parent / "fix.csv", "--input", moved, "--quiet")
+        assert done.exit_code == 0, done.output
+        assert json.loads((out / "run.json").read_text())["input"]["path"] == str(moved.resolve())
+        assert load_run(out).video.path == str(moved.resolve())
+        # A later re-track finds the input at its new place without --input.
+        (out.parent / "fix2.csv").write_text(csv_row(20, GT[20]))
+        again = _retrack_cli(out, "--corrections", out.parent / "fix2.csv", "--quiet")
+        assert again.exit_code == 0, again.output
+    finally:
+        shutil.move(moved, info["input"]["path"])
+
+
+def test_retrack_refuses_an_input_that_is_not_the_runs(out, tmp_path):
+    info = json.loads((out / "run.json").read_text())
+    other = tmp_path / "other"
+    shutil.copytree(info["input"]["path"], other)
+    frame = cv2.imread(str(other / "0004.png"))
+    cv2.imwrite(str(other / "0004.png"), 255 - frame)
+    before = snapshot(out)
+    (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
+    # --no-verify does not skip the check of an --input: the hash is what ties it to the run.
+    result = _retrack_cli(out, "--corrections", out.parent / "fix.csv", "--input", other, "--no-verify", "--quiet")
+    assert result.exit_code == EXIT_INPUT and "is not the input of this run" in result.output
+    assert result.output.strip().count("\n") == 0
+    assert snapshot(out) == before
+
+
+def test_retrack_interrupted_says_so_and_changes_nothing(out, monkeypatch):
+    import annotator.review
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(annotator.review, "apply_corrections", interrupted)
+    before = snapshot(out)
+    (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
+    result = _retrack_cli(out, "--corrections", out.parent / "fix.csv", "--quiet")
+    assert result.exit_code == 130
+    assert "interrupted; nothing in" in result.output and "was changed" in result.output
+    assert snapshot(out) == before

@@ -55,7 +55,7 @@ def batch_command(
                 typer.echo(f"sptpt-annotate: ... and {len(exc.errors) - 50} more problems", err=True)
             raise typer.Exit(EXIT_VALUE)
         except ConfigError as exc:
-            raise ToolError(str(exc), EXIT_VALUE) from None
+            raise ToolError(str(exc), exc.exit_code) from None
     except ToolError as error:
         fail(error, debug)
     counts = result.counts

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
 from annotator.commands.common import fail
-from annotator.errors import EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INTERRUPTED, EXIT_VALUE, ToolError
 
 
 def retrack_command(
-    output_dir: Path = typer.Argument(..., help="Output folder of an sptpt-annotate run (holds run.json and flags.csv)."),
+    output_dir: Path = typer.Argument(..., help="Output folder of an sptpt-annotate run (holds run.json and tracks.npz)."),
     corrections: Path = typer.Option(..., "--corrections", help="CSV frame,x,y,w,h[,track_id] (source frame index, "
                                      "0-based pixels; empty x,y,w,h = absent until the next correction) or a COCO "
                                      "file whose corrected annotations have attributes.keyframe = true."),
@@ -19,6 +20,9 @@ def retrack_command(
                               "pass still near its human box, else the more confident), confidence, blend or "
                               "handover."),
     no_verify: bool = typer.Option(False, "--no-verify", help="Skip checking the input's content hash against run.json."),
+    input_path: Optional[Path] = typer.Option(
+        None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "
+                              "the content hash in run.json, then recorded there)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
@@ -33,8 +37,12 @@ def retrack_command(
         if method not in MERGES:
             raise ToolError(f"--merge {merge!r} is not known: choose from {', '.join(MERGES)}", EXIT_VALUE)
         result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
-                                   verify_input=not no_verify)
+                                   verify_input=not no_verify, input_path=input_path)
     except ToolError as error:
         fail(error, debug)
+    except KeyboardInterrupt:
+        # Outputs are only moved in once the whole re-track is written, so an interruption changes nothing.
+        typer.echo(f"sptpt-annotate: warning: interrupted; nothing in {output_dir} was changed", err=True)
+        raise typer.Exit(EXIT_INTERRUPTED) from None
     if not quiet:
         typer.echo(result.summary(), err=True)

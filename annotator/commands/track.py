@@ -7,18 +7,23 @@ from typing import List, Optional
 
 import typer
 
-from annotator.commands.common import fail
+from annotator.commands.common import fail, one_line_warnings
+from annotator.config import DEFAULT_PRESET
+from sptpt.params import PRESETS
 from annotator.errors import EXIT_OK, EXIT_VALUE, ToolError
 
 def track_command(
     video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),
-    box: List[str] = typer.Option(..., "--box", help="First-frame box x,y,w,h in pixels (0-based). Repeat for several objects."),
-    label: List[str] = typer.Option([], "--label", help="Label of each --box (one per box, or one for all). Default 'object'."),
+    box: List[str] = typer.Option(..., "--box", metavar="X,Y,W,H",
+                                  help="First-frame box x,y,w,h in pixels (0-based). Repeat for several objects."),
+    label: List[str] = typer.Option([], "--label", metavar="NAME", help="Label of each --box (one per box, or one for all). Default 'object'."),
     box_origin: int = typer.Option(0, "--box-origin", help="1 to read --box as OTB-style 1-based coordinates."),
     start: int = typer.Option(0, "--start", help="First frame to process (0-based source index)."),
     stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this source frame (default: the end)."),
     step: int = typer.Option(1, "--step", help="Process every n-th frame."),
-    preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset: 'paper' (the spec) or 'fast'."),
+    preset: Optional[str] = typer.Option(
+        None, "--preset", help=f"Tracker preset: {', '.join(PRESETS)}. [default: {DEFAULT_PRESET}, or the --config "
+                               "file's preset]"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0): same seed, same boxes."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <input>_sptpt beside the input)."),
@@ -50,16 +55,18 @@ def track_command(
             file_values = load_config_file(config_file) if config_file is not None else {}
             config = resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed)
         except ConfigError as exc:
-            raise ToolError(str(exc), EXIT_VALUE) from None
+            raise ToolError(str(exc), exc.exit_code) from None
         chosen = [f.strip() for f in formats.split(",") if f.strip()]
         if no_render:
             chosen = [f for f in chosen if f != "overlay"]
+        fixes = None
         if corrections is not None:
             from annotator.corrections import read_corrections
 
-            read_corrections(corrections)  # a malformed file fails before any tracking
-        result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step, formats=chosen,
-                          force=force, show_progress=not quiet)
+            fixes = read_corrections(corrections)  # a malformed file, or one that does not fit, fails before tracking
+        with one_line_warnings():
+            result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step,
+                              formats=chosen, force=force, show_progress=not quiet, corrections=fixes)
         review = None
         if corrections is not None and result.exit_code == EXIT_OK:
             from annotator.review import apply_corrections

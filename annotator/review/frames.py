@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Iterator
 
@@ -69,24 +70,36 @@ class SourceFrames:
                 yield position, frame
 
 
-def open_run_source(run: LoadedRun, *, verify_input: bool) -> FrameSource:
+def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None = None) -> FrameSource:
+    """Open the run's input over its recorded range and check it is the input the run saw.
+
+    ``input_path`` replaces the recorded path (the input was moved or copied);
+    its content hash must then equal the recorded one, whatever ``verify_input`` says.
+    """
     source_info, rng = run.info["input"], run.info["range"]
-    path = Path(source_info["path"])
+    moved = input_path is not None
+    path = Path(input_path) if moved else Path(source_info["path"])
     try:
         source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]))
     except FrameSourceError as exc:
-        raise ToolError(f"{exc} (the input recorded in {run.out_dir / RUN_JSON})", EXIT_INPUT) from None
+        where = "given with --input" if moved else (f"the input recorded in {run.out_dir / RUN_JSON}; if it moved, "
+                                                     "give its new path with --input PATH")
+        raise ToolError(f"{exc} ({where})", EXIT_INPUT) from None
     if (source.width, source.height, source.frame_count) != (run.video.width, run.video.height, run.video.frame_count):
         raise ToolError(f"{path} is now {source.width}x{source.height} with {source.frame_count} frames, the run had "
                         f"{run.video.width}x{run.video.height} with {run.video.frame_count}: the input changed - "
                         "re-run the annotation", EXIT_INPUT)
     if not np.array_equal(source.indices[: len(run.frame_indices)], run.frame_indices):
-        raise ToolError(f"{path}: the frames of the recorded range do not match flags.csv: re-run the annotation",
-                        EXIT_INPUT)
-    if verify_input and source_info.get("content_hash"):
+        raise ToolError(f"{path}: the frames of the recorded range do not match the run's track store: re-run the "
+                        "annotation", EXIT_INPUT)
+    if (verify_input or moved) and source_info.get("content_hash"):
         from annotator.annotate import content_hash
 
         if content_hash(path) != source_info["content_hash"]:
+            if moved:
+                raise ToolError(f"--input {path} is not the input of this run (its content hash differs from the one "
+                                f"recorded in {run.out_dir / RUN_JSON}): give the file or folder the run was made on",
+                                EXIT_INPUT)
             raise ToolError(f"{path} changed since the run (its content hash differs from run.json): corrections "
                             "refer to the frames the run saw - re-run the annotation on the new input", EXIT_INPUT)
     return source

@@ -47,6 +47,7 @@ frames only would suggest a difference that is not there.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import hashlib
 import json
@@ -124,6 +125,7 @@ def apply_corrections(
     show_progress: bool = True,
     verify_input: bool = True,
     rewrite_unchanged: bool = False,
+    input_path: str | os.PathLike | None = None,
 ) -> ReviewResult:
     """Apply a corrections file to the run in ``out_dir``, re-track what they affect, rewrite every output.
 
@@ -143,6 +145,10 @@ def apply_corrections(
     rewrite_unchanged : bool
         Rewrite the outputs even when no correction is new (they come out
         the same; for tests and to regenerate a deleted output).
+    input_path : path-like, optional
+        Where the input is now, when it moved since the run; checked against
+        the content hash in run.json, and recorded there once the re-track
+        is written.
 
     Returns
     -------
@@ -161,7 +167,11 @@ def apply_corrections(
     run = load_run(out_dir)
     resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
-    source = open_run_source(run, verify_input=verify_input)
+    source = open_run_source(run, verify_input=verify_input, input_path=input_path)
+    if input_path is not None:
+        moved = str(Path(input_path).resolve())
+        run.info["input"] = {**run.info["input"], "path": moved}
+        run.store = dataclasses.replace(run.store, video=dataclasses.replace(run.store.video, path=moved))
     provider = SourceFrames(source, run.frame_indices)
     bar: list[Progress] = []
 
