@@ -1,0 +1,196 @@
+"""CVAT for video 1.1 (``cvat.xml``): the tracks as CVAT interpolation tracks, for review in CVAT.
+
+The layout is the one CVAT itself dumps as "CVAT for video 1.1" (its
+``dump_as_cvat_interpolation``), so that "Upload annotations" in CVAT and
+datumaro's ``cvat`` importer load the file unchanged:
+
+* ``<meta><task>`` holds ``size`` (processed frames), ``mode`` =
+  ``interpolation``, ``start_frame``, ``stop_frame`` (the last processed
+  frame, inclusive as in CVAT), ``frame_filter`` (``step=N``, empty for
+  step 1), the labels with the review-score attribute, ``original_size``
+  (the frame size) and ``source`` (the video's file name).
+* **Frame numbers are source frame indices**, not positions in the
+  processed range: CVAT writes ``abs_frame_id`` in its dumps and converts
+  with ``(frame - start_frame) // step`` on upload. So the file lines up with
+  a CVAT task created from the same video with the run's start, stop and
+  step (or the whole video when those are the defaults); ``start_frame``
+  and ``frame_filter`` map a frame back, and the importer checks them.
+* One ``<track id label source="auto">`` per track, ids 0.. in the order
+  given (CVAT renumbers tracks from 0 on every dump), and one ``<box>`` per
+  processed frame of the track with 0-based corners ``xtl ytl xbr ybr``
+  (2 decimals, as CVAT dumps), ``occluded`` and ``z_order`` 0.
+* ``keyframe="1"`` on the first frame, on human corrections, at the start of
+  each flagged span and wherever the object leaves or comes back: the frames
+  a reviewer should check; CVAT interpolates between keyframes.
+* A frame whose object is absent (``outside``) or has no estimate (NaN) is a
+  box with ``outside="1"`` at the last known coordinates, as CVAT needs a
+  box element to know when an object leaves. A track that ends before the
+  processed range does gets one more ``outside="1"`` box at the next
+  processed frame, or CVAT would show its last box until the end.
+* Every box carries ``<attribute name="confidence">`` (see
+  :mod:`annotator.exports._review` for the name and when it changes).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+from xml.sax.saxutils import escape, quoteattr
+
+import numpy as np
+
+from annotator.atomic import write_text_atomic
+from annotator.exports._review import (
+    REVIEW_SCORE_DECIMALS,
+    REVIEW_SCORE_NAME,
+    check_frame_range,
+    labels_in_order,
+    number,
+    review_keyframes,
+    review_scores,
+    visible,
+)
+from annotator.tracks import TrackResult, VideoInfo
+
+__all__ = ["CVAT_VERSION", "build_cvat_xml", "write_cvat_xml"]
+
+CVAT_VERSION = "1.1"
+_COORD_DECIMALS = 2  # CVAT dumps "{:.2f}"; more would not survive a round trip through CVAT anyway
+
+
+def _score_attribute_spec() -> list[str]:
+    """The ``<attribute>`` declaration of the review score inside a label (CVAT number: min, max, step)."""
+    step = number(10.0 ** -REVIEW_SCORE_DECIMALS, REVIEW_SCORE_DECIMALS)
+    return [
+        "<attribute>",
+        f"  <name>{escape(REVIEW_SCORE_NAME)}</name>",
+        "  <mutable>True</mutable>",
+        "  <input_type>number</input_type>",
+        "  <default_value>0</default_value>",
+        f"  <values>0\n1\n{step}</values>",
+        "</attribute>",
+    ]
+
+
+def _meta(video: VideoInfo, frames: range, labels: list[str]) -> list[str]:
+    lines = [
+        "<meta>",
+        "  <task>",
+        "    <id>0</id>",
+        f"    <name>{escape(video.name)}</name>",
+        f"    <size>{len(frames)}</size>",
+        "    <mode>interpolation</mode>",
+        "    <overlap>0</overlap>",
+        "    <bugtracker></bugtracker>",
+        "    <flipped>False</flipped>",
+        f"    <start_frame>{frames.start}</start_frame>",
+        f"    <stop_frame>{frames[-1]}</stop_frame>",
+        f"    <frame_filter>{'' if frames.step == 1 else f'step={frames.step}'}</frame_filter>",
+        "    <labels>",
+    ]
+    for label in labels:
+        lines += ["      <label>", f"        <name>{escape(label)}</name>", "        <type>rectangle</type>",
+                  "        <attributes>"]
+        lines += ["          " + line for line in _score_attribute_spec()]  # the values' newlines stay unindented
+        lines += ["        </attributes>", "      </label>"]
+    lines += [
+        "    </labels>",
+        "    <segments>",
+        "      <segment>",
+        "        <id>0</id>",
+        "        <start>0</start>",
+        f"        <stop>{len(frames) - 1}</stop>",
+        "        <url></url>",
+        "      </segment>",
+        "    </segments>",
+        "    <original_size>",
+        f"      <width>{video.width}</width>",
+        f"      <height>{video.height}</height>",
+        "    </original_size>",
+        "  </task>",
+        f"  <source>{escape(Path(video.path).name)}</source>",
+        "</meta>",
+    ]
+    return lines
+
+
+def _box_element(frame: int, box_xywh: np.ndarray, *, outside: bool, occluded: bool, keyframe: bool,
+                 score: float | None) -> list[str]:
+    x, y, w, h = (float(v) for v in box_xywh)
+    attrs = (
+        f'frame="{frame}" xtl="{x:.{_COORD_DECIMALS}f}" ytl="{y:.{_COORD_DECIMALS}f}" '
+        f'xbr="{x + w:.{_COORD_DECIMALS}f}" ybr="{y + h:.{_COORD_DECIMALS}f}" outside="{int(outside)}" '
+        f'occluded="{int(occluded)}" keyframe="{int(keyframe)}" z_order="0"'
+    )
+    if score is None:
+        return [f"<box {attrs}>", "</box>"]
+    return [f"<box {attrs}>",
+            f'  <attribute name={quoteattr(REVIEW_SCORE_NAME)}>{number(score, REVIEW_SCORE_DECIMALS)}</attribute>',
+            "</box>"]
+
+
+def _track_elements(number_: int, track: TrackResult, frames: range) -> list[str]:
+    shown = visible(track)
+    if not shown.any():
+        return []  # no box anywhere: CVAT has nothing to draw, and a track needs coordinates
+    # Absent rows reuse the last known box (the next one before the first): CVAT wants coordinates on every box.
+    known = np.flatnonzero(shown)
+    source_row = np.maximum.accumulate(np.where(shown, np.arange(len(track)), -1))
+    source_row[source_row < 0] = known[0]
+    keys = review_keyframes(track)
+    changes = np.concatenate([[True], shown[1:] != shown[:-1]])  # object leaves or comes back
+    scores = review_scores(track)
+    lines = [f"<track id=\"{number_}\" label={quoteattr(track.label)} source=\"auto\">"]
+    for i, frame in enumerate(track.frame_indices):
+        lines += ["  " + s for s in _box_element(
+            int(frame), track.boxes_xywh[source_row[i]], outside=not shown[i],
+            occluded=bool(track.occluded[i] and shown[i]), keyframe=bool(keys[i] or changes[i]),
+            score=float(scores[i]))]
+    last = int(track.frame_indices[-1])
+    if shown[-1] and last != frames[-1]:
+        # Without this CVAT would keep showing the last box to the end of the task.
+        lines += ["  " + s for s in _box_element(
+            last + frames.step, track.boxes_xywh[source_row[-1]], outside=True, occluded=False, keyframe=True,
+            score=float(scores[-1]))]
+    lines.append("</track>")
+    return lines
+
+
+def build_cvat_xml(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: range | None = None) -> str:
+    """The CVAT for video 1.1 XML of one video's tracks (layout in the module docstring).
+
+    Parameters
+    ----------
+    video : VideoInfo
+        Name, path (for ``<source>``) and frame size.
+    tracks : sequence of TrackResult
+        The run's tracks; ids are written 0.. in this order. A track never
+        seen (every row absent or NaN) is left out: CVAT cannot hold a track
+        without a box, and the importer skips it the same way.
+    frames : range or None
+        The processed range ``range(start, stop, step)`` of source frame
+        indices (``run.json``'s ``range``); None for the whole video.
+
+    Returns
+    -------
+    str
+        The XML document, ending with a newline.
+    """
+    tracks = list(tracks)
+    frames = check_frame_range(video, tracks, frames)
+    labels = labels_in_order(tracks) or ["object"]
+    lines = ['<?xml version="1.0" encoding="utf-8"?>', "<annotations>", f"  <version>{CVAT_VERSION}</version>"]
+    lines += ["  " + s for s in _meta(video, frames, labels)]
+    for n, track in enumerate(tracks):
+        lines += ["  " + s for s in _track_elements(n, track, frames)]
+    lines.append("</annotations>")
+    return "\n".join(lines) + "\n"
+
+
+def write_cvat_xml(path: str | os.PathLike, video: VideoInfo, tracks: Sequence[TrackResult], *,
+                   frames: range | None = None) -> Path:
+    """Write :func:`build_cvat_xml` to ``path`` (e.g. ``<out>/cvat.xml``) atomically; return the path."""
+    text = build_cvat_xml(video, tracks, frames=frames)
+    write_text_atomic(path, text)
+    return Path(path)

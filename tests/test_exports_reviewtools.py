@@ -1,0 +1,255 @@
+"""Review-tool exports (CVAT, MOT, Label Studio, YOLO): golden files, third-party readers, atomic writes.
+
+Golden files live in ``tests/golden/exports/review/``; regenerate them after an
+intended format change with ``UPDATE_GOLDEN=1 pytest tests/test_exports_reviewtools.py``
+and review the diff. Third-party readers (datumaro, motmetrics) run in
+``tests/_reader_env`` (see ``_reader_env.py`` for why not in the project's own environment).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from _reader_env import run_check
+from annotator import atomic
+from annotator.exports._review import REVIEW_SCORE_NAME
+from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
+from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
+from annotator.exports.mot import write_mot
+from annotator.exports.yolo import write_yolo
+from annotator.tracks import TrackResult, VideoInfo
+from test_exports import VIDEO, make_tracks
+
+GOLDEN = Path(__file__).parent / "golden" / "exports" / "review"
+UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
+FRAMES = range(0, 12, 2)  # make_tracks(): every other frame of the 12-frame video
+
+
+def check_golden(path: Path, golden_name: str) -> None:
+    golden = GOLDEN / golden_name
+    text = path.read_text(encoding="utf-8")
+    if UPDATE:
+        golden.parent.mkdir(parents=True, exist_ok=True)
+        golden.write_text(text, encoding="utf-8")
+    assert golden.exists(), f"missing golden file {golden}; create it with UPDATE_GOLDEN=1"
+    assert text == golden.read_text(encoding="utf-8"), f"{path.name} differs from {golden}; UPDATE_GOLDEN=1 if intended"
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.rglob(".*"))
+
+
+def shifted_track() -> TrackResult:
+    """One track on source frames 3, 5, 7, 9 (start 3, step 2), absent at 7, corrected at 9."""
+    return TrackResult(
+        track_id=4, label="person", frame_indices=np.array([3, 5, 7, 9]),
+        boxes_xywh=np.array([[10.0, 10.0, 20.0, 20.0], [12.0, 10.0, 20.0, 20.0], [14.0, 10.0, 20.0, 20.0],
+                             [16.0, 10.0, 20.0, 20.0]]),
+        confidence=np.array([1.0, 0.8, 0.2, 1.0]), log_likelihood=np.zeros(4),
+        accepted=np.array([True, True, False, True]), flagged=np.array([False, False, True, False]),
+        reasons=("", "", "object absent", ""), keyframe=np.array([True, False, False, True]),
+        outside=np.array([False, False, True, False]), seconds=np.zeros(4),
+    )
+
+
+SHIFTED = range(3, 10, 2)
+
+
+# --------------------------------------------------------------------------- CVAT
+
+
+def test_cvat_golden_and_datumaro(tmp_path):
+    path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, make_tracks(), frames=FRAMES)
+    check_golden(path, "cvat.xml")
+    text = path.read_text()
+    # Keyframes: first frame, the flagged span start (4), the absence (6), the correction (8); 2 and 10 interpolate.
+    walker = re.search(r'<track id="0".*?</track>', text, re.S).group(0)
+    assert re.findall(r'frame="(\d+)".*?keyframe="1"', walker) == ["0", "4", "6", "8"]
+    assert walker.count(f'<attribute name="{REVIEW_SCORE_NAME}">') == 6
+
+    seen = run_check("datumaro_cvat", path=str(path))
+    assert seen["labels"] == ["person", "car"]
+    assert [item["frame"] for item in seen["items"]] == list(FRAMES)
+    boxes = {(b["attributes"]["track_id"], item["frame"]): b for item in seen["items"] for b in item["boxes"]}
+    walker_track, car = make_tracks()
+    for i, frame in enumerate(walker_track.frame_indices):
+        box = boxes[(0, int(frame))]
+        assert box["label"] == "person" and box["attributes"]["outside"] == bool(walker_track.outside[i])
+        if not walker_track.outside[i]:
+            np.testing.assert_allclose(box["xywh"], walker_track.boxes_xywh[i])
+    assert boxes[(0, 6)]["xywh"] == boxes[(0, 4)]["xywh"]  # absent: last known box, outside=1
+    assert boxes[(1, 6)]["attributes"]["outside"] and boxes[(1, 10)]["attributes"]["outside"]  # NaN; track ended
+    assert boxes[(0, 2)]["attributes"][REVIEW_SCORE_NAME] == pytest.approx(0.9)
+
+
+def test_cvat_frames_are_source_indices_with_range_in_meta():
+    track = shifted_track()
+    text = build_cvat_xml(VIDEO, [track], frames=range(3, 10, 2))
+    assert "<size>4</size>" in text and "<start_frame>3</start_frame>" in text
+    assert "<stop_frame>9</stop_frame>" in text and "<frame_filter>step=2</frame_filter>" in text
+    assert re.findall(r'<box frame="(\d+)"', text) == ["3", "5", "7", "9"]
+    assert "<original_size>\n        <width>64</width>\n        <height>48</height>" in text
+
+
+# --------------------------------------------------------------------------- MOT
+
+
+def test_mot_golden_datumaro_and_motmetrics(tmp_path):
+    written = write_mot(tmp_path / "mot", VIDEO, make_tracks(), frames=FRAMES)
+    assert written == [tmp_path / "mot" / "gt" / "gt.txt", tmp_path / "mot" / "gt" / "labels.txt"]
+    check_golden(written[0], "mot/gt/gt.txt")
+    check_golden(written[1], "mot/gt/labels.txt")
+
+    walker, car = make_tracks()
+    expected = {}  # (1-based position, track id) -> 0-based xywh, absent and NaN rows left out
+    for track in (walker, car):
+        for i, frame in enumerate(track.frame_indices):
+            if not track.outside[i] and np.isfinite(track.boxes_xywh[i]).all():
+                expected[(FRAMES.index(int(frame)) + 1, track.track_id)] = track.boxes_xywh[i]
+
+    seen = run_check("datumaro_mot", path=str(tmp_path / "mot"))
+    assert seen["labels"] == ["person", "car"]
+    got = {(int(item["id"]), b["attributes"]["track_id"]): b for item in seen["items"] for b in item["boxes"]}
+    assert sorted(got) == sorted(expected)
+    for key, box in got.items():
+        np.testing.assert_allclose(box["xywh"], expected[key])
+        assert box["label"] == ("person" if key[1] == 1 else "car")
+
+    # motmetrics reads MOTChallenge files as 1-based and subtracts 1: origin=1 gives our 0-based boxes back.
+    write_mot(tmp_path / "mot1", VIDEO, make_tracks(), frames=FRAMES, origin=1)
+    rows = run_check("motmetrics", path=str(tmp_path / "mot1" / "gt" / "gt.txt"))["rows"]
+    assert sorted((f, t) for f, t, *_ in rows) == sorted(expected)
+    for f, t, x, y, w, h, _ in rows:
+        np.testing.assert_allclose([x, y, w, h], expected[(f, t)])
+
+
+# --------------------------------------------------------------------------- Label Studio
+
+
+def interpolate_labelstudio(sequence: list[dict], frame: int) -> tuple[list[float] | None, bool]:
+    """Label Studio's box at a 1-based frame (VideoRectangleRegion.getRectangle and isInLifespan)."""
+    previous = [k for k in sequence if k["frame"] <= frame]
+    if not previous:
+        return None, False
+    prev = previous[-1]
+    shown = prev["enabled"] or prev["frame"] == frame
+    following = [k for k in sequence if k["frame"] > frame]
+    keys = ("x", "y", "width", "height")
+    if prev["frame"] == frame or not following:
+        return [prev[k] for k in keys], shown
+    nxt = following[0]
+    r = (frame - prev["frame"]) / (nxt["frame"] - prev["frame"])
+    return [prev[k] + (nxt[k] - prev[k]) * r for k in keys], shown
+
+
+def test_labelstudio_golden_and_layout(tmp_path):
+    path = tmp_path / "labelstudio.json"
+    tasks = write_labelstudio(path, VIDEO, make_tracks(), frames=FRAMES, video_url="/data/local-files/?d=walk.mp4")
+    check_golden(path, "labelstudio.json")
+    assert json.loads(path.read_text()) == tasks
+    (task,) = tasks
+    assert task["data"]["video"] == "/data/local-files/?d=walk.mp4"
+    walker, car = task["predictions"][0]["result"]
+    assert walker["type"] == "videorectangle" and walker["value"]["labels"] == ["person"]
+    assert walker["value"]["framesCount"] == 12 and walker["value"]["duration"] == pytest.approx(12 / 25)
+    sequence = walker["value"]["sequence"]
+    # 1-based source frames; the object leaves after frame 4 (enabled: false there) and is back at the correction.
+    assert [(k["frame"], k["enabled"]) for k in sequence] == [(1, True), (3, True), (5, False), (9, True), (11, True)]
+    assert sequence[0] == {"frame": 1, "x": 15.625, "y": 25.0, "width": 31.25, "height": 62.5, "rotation": 0,
+                           "enabled": True, "time": 0.04}
+    assert sequence[2]["x"] == 0.0 and sequence[2]["width"] == 25.0  # clipped to the image
+    # The car is seen once (its other boxes are NaN or off the image) and its track ends early: enabled false.
+    assert [(k["frame"], k["enabled"]) for k in car["value"]["sequence"]] == [(5, False)]
+
+
+def smooth_track(n: int = 60) -> TrackResult:
+    t = np.arange(n, dtype=np.float64)
+    boxes = np.stack([100 + 80 * np.sin(t / 9), 60 + 0.5 * t, 40 + 5 * np.cos(t / 5), 30 + 0 * t], axis=1)
+    flagged = np.zeros(n, bool)
+    flagged[30:34] = True
+    outside = np.zeros(n, bool)
+    outside[40:45] = True
+    flagged[40:45] = True
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 45]] = True
+    return TrackResult(
+        track_id=3, label="object", frame_indices=np.arange(n), boxes_xywh=boxes, confidence=np.full(n, 0.8),
+        log_likelihood=np.zeros(n), accepted=~flagged, flagged=flagged,
+        reasons=tuple("check" if f else "" for f in flagged), keyframe=keyframe, outside=outside,
+        seconds=np.zeros(n),
+    )
+
+
+@pytest.mark.parametrize("max_error_px", [0.5, 2.0, 10.0])
+def test_labelstudio_interpolation_reproduces_the_track(max_error_px):
+    video = VideoInfo(path="v.mp4", name="v", width=320, height=240, fps=30.0, frame_count=60)
+    track = smooth_track()
+    (result,) = build_labelstudio_tasks(video, [track], max_error_px=max_error_px)[0]["predictions"][0]["result"]
+    sequence = result["value"]["sequence"]
+    assert len(sequence) < len(track)
+    for i, frame in enumerate(track.frame_indices):
+        box, shown = interpolate_labelstudio(sequence, int(frame) + 1)
+        assert shown == (not track.outside[i]), f"frame {frame}"
+        if shown and not track.flagged[i]:
+            pixels = np.array(box) * np.array([320, 240, 320, 240]) / 100
+            assert np.abs(pixels - track.boxes_xywh[i]).max() <= max_error_px + 1e-6, f"frame {frame}"
+
+
+# --------------------------------------------------------------------------- YOLO
+
+
+def test_yolo_golden_and_layout(tmp_path):
+    written = write_yolo(tmp_path / "yolo", VIDEO, make_tracks(), frames=FRAMES)
+    names = [p.relative_to(tmp_path / "yolo").as_posix() for p in written]
+    assert names == ["data.yaml", "frames.txt"] + [f"labels/{f:06d}.txt" for f in FRAMES]
+    for name in names:
+        check_golden(tmp_path / "yolo" / name, f"yolo/{name}")
+    data = yaml.safe_load((tmp_path / "yolo" / "data.yaml").read_text())
+    assert data == {"train": "frames.txt", "val": "frames.txt", "nc": 2, "names": {0: "person", 1: "car"}}
+    assert (tmp_path / "yolo" / "labels" / "000006.txt").read_text() == ""  # absent walker, NaN car
+    # Label stems are the COCO exporter's image names without folder and extension.
+    from annotator.exports import build_coco
+
+    coco_stems = [Path(image["file_name"]).stem for image in build_coco(VIDEO, make_tracks())["images"]]
+    assert coco_stems == [Path(n).stem for n in names[2:]]
+    for line in (tmp_path / "yolo" / "labels" / "000004.txt").read_text().splitlines():
+        cls, *values = line.split()
+        assert cls in ("0", "1") and all(0.0 <= float(v) <= 1.0 for v in values)
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+WRITERS = {
+    "cvat": lambda out: write_cvat_xml(out / "cvat.xml", VIDEO, make_tracks(), frames=FRAMES),
+    "mot": lambda out: write_mot(out / "mot", VIDEO, make_tracks(), frames=FRAMES),
+    "labelstudio": lambda out: write_labelstudio(out / "labelstudio.json", VIDEO, make_tracks(), frames=FRAMES),
+    "yolo": lambda out: write_yolo(out / "yolo", VIDEO, make_tracks(), frames=FRAMES),
+}
+TARGET = {"cvat": "cvat.xml", "mot": "mot/gt/gt.txt", "labelstudio": "labelstudio.json", "yolo": "yolo/data.yaml"}
+
+
+@pytest.mark.parametrize("fmt", sorted(WRITERS))
+def test_writers_never_leave_a_partial_file(tmp_path, monkeypatch, fmt):
+    target = tmp_path / TARGET[fmt]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("previous\n")
+    real_fsync = atomic.os.fsync
+
+    def failing_fsync(fd):  # the first file's data is written; only making it durable fails
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(atomic.os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="simulated"):
+        WRITERS[fmt](tmp_path)
+    assert target.read_text() == "previous\n" and leftovers(tmp_path) == []
+    monkeypatch.setattr(atomic.os, "fsync", real_fsync)
+    WRITERS[fmt](tmp_path)
+    assert target.read_text() != "previous\n" and leftovers(tmp_path) == []

@@ -1,0 +1,182 @@
+"""Reviewers' fixes read back from CVAT and Label Studio exports as correction records (annotator.review_imports).
+
+Round trips: export the run's file, change it as a reviewer would in the tool, read the corrections back.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from annotator.corrections import Correction, resolve_corrections
+from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
+from annotator.exports.labelstudio import build_labelstudio_tasks
+from annotator.review_imports import read_cvat_corrections, read_labelstudio_corrections
+from annotator.tracks import TrackResult, VideoInfo
+from test_exports import VIDEO
+from test_exports_reviewtools import SHIFTED, shifted_track
+
+
+# --------------------------------------------------------------------------- corrections from CVAT
+
+
+
+
+def edit_box(text: str, frame: int, **attrs: str) -> str:
+    """Change attributes of the <box> at ``frame`` in a CVAT XML (as a reviewer in CVAT would)."""
+    def replace(match: re.Match) -> str:
+        element = match.group(0)
+        for key, value in attrs.items():
+            element = re.sub(rf'{key}="[^"]*"', f'{key}="{value}"', element)
+        return element
+
+    edited, count = re.subn(rf'<box frame="{frame}"[^>]*>', replace, text)
+    assert count == 1
+    return edited
+
+
+def test_cvat_round_trip_gives_exactly_the_moved_box(tmp_path):
+    path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, [shifted_track()], frames=SHIFTED)
+    assert read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED) == []
+
+    # The reviewer moves the box of source frame 5 (an interpolated one): CVAT makes it a keyframe.
+    path.write_text(edit_box(path.read_text(), 5, xtl="20.50", ytl="11.00", xbr="44.50", ybr="31.00", keyframe="1"))
+    corrections = read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert len(corrections) == 1
+    (c,) = corrections
+    assert (c.frame, c.track_id) == (5, 4)
+    assert c.box_xywh == pytest.approx((20.5, 11.0, 24.0, 20.0))
+    line = int(c.where.rsplit(":", 1)[1])
+    assert '<box frame="5"' in path.read_text().splitlines()[line - 1]
+    resolved = resolve_corrections(corrections, frame_indices=np.array(list(SHIFTED)), track_ids=[4], width=64,
+                                   height=48)
+    assert resolved == {4: {1: ((20.5, 11.0, 24.0, 20.0), c.where)}}
+
+
+def test_cvat_outside_keyframe_is_an_absence_and_a_shown_box_a_return(tmp_path):
+    path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, [shifted_track()], frames=SHIFTED)
+    text = edit_box(path.read_text(), 5, outside="1", keyframe="1")  # hide the object from 5 on
+    text = edit_box(text, 7, outside="0", keyframe="1")  # ... and show it at 7, where the run had it absent
+    path.write_text(text)
+    corrections = read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert [(c.frame, c.box_xywh) for c in corrections] == [(5, None), (7, (12.0, 10.0, 20.0, 20.0))]
+
+
+def cvat_error(tmp_path, text: str) -> ToolError:
+    path = tmp_path / "edited.xml"
+    path.write_text(text)
+    with pytest.raises(ToolError) as info:
+        read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    message = str(info.value)
+    assert message.startswith(f"{path}:") and "\n" not in message
+    return info.value
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda t: t.replace("<size>4</size>", "<size>40</size>"), "belongs to another task (40 frames of 64x48"),
+    (lambda t: t.replace("<width>64</width>", "<width>640</width>"), "another task (4 frames of 640x48"),
+    (lambda t: t.replace("<frame_filter>step=2</frame_filter>", "<frame_filter></frame_filter>"), "every 1"),
+    (lambda t: t.replace("<start_frame>3</start_frame>", "<start_frame>0</start_frame>"), "from frame 0"),
+    (lambda t: t.replace('label="person" source', 'label="car" source'), "has label 'car'"),
+    (lambda t: t.replace("</annotations>", '<track id="9" label="person"></track>\n</annotations>'),
+     "the file has 2 tracks, the run 1"),
+    (lambda t: t.replace('xbr="30.00"', 'xbr="5.00"'), "zero or negative size"),
+])
+def test_cvat_rejects_other_tasks_and_bad_boxes(tmp_path, edit, needle):
+    text = build_cvat_xml(VIDEO, [shifted_track()], frames=SHIFTED)
+    error = cvat_error(tmp_path, edit(text))
+    assert needle in str(error) and error.exit_code == EXIT_VALUE
+
+
+def test_cvat_malformed_xml_names_the_line(tmp_path):
+    text = build_cvat_xml(VIDEO, [shifted_track()], frames=SHIFTED).replace("</box>", "</bx>", 1)
+    error = cvat_error(tmp_path, text)
+    bad_line = next(n for n, line in enumerate(text.splitlines(), 1) if "</bx>" in line)
+    assert str(error).startswith(f"{tmp_path / 'edited.xml'}:{bad_line}: not well-formed XML")
+
+
+def test_cvat_missing_file_is_an_input_error(tmp_path):
+    with pytest.raises(ToolError) as info:
+        read_cvat_corrections(tmp_path / "none.xml", video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert info.value.exit_code == EXIT_INPUT and "none.xml does not exist" in str(info.value)
+
+
+# --------------------------------------------------------------------------- corrections from Label Studio
+
+
+def reviewed_export(tasks: list[dict], edit) -> list[dict]:
+    """What Label Studio exports after a reviewer accepted the predictions and edited the regions."""
+    task = json.loads(json.dumps(tasks[0]))
+    result = json.loads(json.dumps(task["predictions"][0]["result"]))
+    for region in result:
+        region["origin"] = "prediction-changed"
+        edit(region["value"]["sequence"])
+    task.update(id=17, annotations=[{"id": 1, "was_cancelled": False, "result": result}])
+    return [task]
+
+
+def test_labelstudio_round_trip(tmp_path):
+    tasks = build_labelstudio_tasks(VIDEO, [shifted_track()], frames=SHIFTED)
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(reviewed_export(tasks, lambda seq: None)))
+    assert read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED) == []
+
+    def edit(sequence):
+        sequence[0].update(x=50.0, y=25.0)  # move the first box (source frame 3) to x=32 px, y=12 px
+
+    path.write_text(json.dumps(reviewed_export(tasks, edit), indent=2))
+    corrections = read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert [(c.frame, c.track_id) for c in corrections] == [(3, 4)]
+    assert corrections[0].box_xywh == pytest.approx((32.0, 12.0, 20.0, 20.0))
+
+
+def test_labelstudio_enabled_false_is_an_absence_from_the_next_processed_frame(tmp_path):
+    track = shifted_track().select(np.array([True, True, False, True]))  # the run saw the object at 3, 5, 9
+    track = TrackResult(**{**track.__dict__, "flagged": np.zeros(3, bool), "reasons": ("", "", ""),
+                           "outside": np.zeros(3, bool)})
+    tasks = build_labelstudio_tasks(VIDEO, [track], frames=SHIFTED)
+
+    def edit(sequence):
+        sequence[0]["enabled"] = False  # hide after source frame 3: absent from 5 until the next keyframe
+
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(reviewed_export(tasks, edit)))
+    corrections = read_labelstudio_corrections(path, video=VIDEO, tracks=[track], frames=SHIFTED)
+    assert [(c.frame, c.box_xywh) for c in corrections] == [(5, None)]
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("[{\"data\": {\"video\": \"v.mp4\"}, \"annotations\": [{\"result\": []}]}]", "no task with video rectangles"),
+    ("[{\"data\": {}}", "not valid JSON"),
+])
+def test_labelstudio_rejects_files_without_rectangles(tmp_path, content, needle):
+    path = tmp_path / "export.json"
+    path.write_text(content)
+    with pytest.raises(ToolError) as info:
+        read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert str(info.value).startswith(f"{path}:") and needle in str(info.value)
+    assert info.value.exit_code == EXIT_VALUE and "\n" not in str(info.value)
+
+
+def test_labelstudio_rejects_another_runs_task(tmp_path):
+    other = VideoInfo(path="b.mp4", name="b", width=64, height=48, fps=25.0, frame_count=30)
+    tasks = build_labelstudio_tasks(other, [shifted_track()], frames=SHIFTED)
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(reviewed_export(tasks, lambda seq: None), indent=2))
+    with pytest.raises(ToolError) as info:
+        read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    message = str(info.value)
+    assert "belongs to another run (video 'b'" in message and "30 frames" in message
+    line = int(message.split(":")[1])
+    assert '"sptpt"' in path.read_text().splitlines()[line - 1]
+
+
+def test_corrections_have_the_csv_record_type(tmp_path):
+    path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, [shifted_track()], frames=SHIFTED)
+    path.write_text(edit_box(path.read_text(), 9, xtl="1.00"))
+    (c,) = read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert type(c) is Correction and c.box_xywh == (1.0, 10.0, 35.0, 20.0) and not c.absent
