@@ -28,21 +28,22 @@ from annotator.config import RunConfig
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports import write_exports
+from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import Progress
 from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
 
-__all__ = ["ALL_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
 
-ALL_FORMATS = ("otb", "coco", "flags", "overlay", "report")
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
 #: kernels (about 15 s on 2 cores) and caches them beside the package.
 COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
 # Files whose presence means a folder already holds a run's results.
-RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html")
+RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html", "cvat.xml",
+                "labelstudio.json")
 
 
 @dataclass
@@ -145,7 +146,7 @@ def annotate(
     start: int = 0,
     stop: int | None = None,
     step: int = 1,
-    formats: Sequence[str] = ALL_FORMATS,
+    formats: Sequence[str] = DEFAULT_FORMATS,
     force: bool = False,
     show_progress: bool = True,
     corrections: Sequence[Correction] | None = None,

@@ -83,7 +83,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from annotator import __version__
-from annotator.annotate import ALL_FORMATS, RESULT_FILES, content_hash
+from annotator.annotate import ALL_FORMATS, DEFAULT_FORMATS, RESULT_FILES, content_hash
 from annotator.atomic import write_text_atomic
 from annotator.config import ConfigError, RunConfig, resolve_config
 from annotator.errors import (
@@ -290,7 +290,7 @@ def plan_batch(
     config_source: str = "config",
     preset: str | None = None,
     seed: int | None = None,
-    formats: Sequence[str] = ALL_FORMATS,
+    formats: Sequence[str] = DEFAULT_FORMATS,
     force: bool = False,
     start: int | None = None,
     stop: int | None = None,
@@ -788,7 +788,7 @@ def run_batch(
     config_source: str = "config",
     preset: str | None = None,
     seed: int | None = None,
-    formats: Sequence[str] = ALL_FORMATS,
+    formats: Sequence[str] = DEFAULT_FORMATS,
     force: bool = False,
     start: int | None = None,
     stop: int | None = None,

@@ -1,4 +1,4 @@
-"""Reviewers' fixes read back from CVAT and Label Studio exports as correction records (annotator.review_imports).
+"""Reviewers' fixes read back from CVAT and Label Studio exports as correction records (annotator.review.imports).
 
 Round trips: export the run's file, change it as a reviewer would in the tool, read the corrections back.
 """
@@ -15,7 +15,7 @@ from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_tasks
-from annotator.review_imports import read_cvat_corrections, read_labelstudio_corrections
+from annotator.review.imports import read_cvat_corrections, read_labelstudio_corrections
 from annotator.tracks import TrackResult, VideoInfo
 from test_exports import VIDEO
 from test_exports_reviewtools import SHIFTED, shifted_track

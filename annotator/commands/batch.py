@@ -7,6 +7,7 @@ from typing import Optional
 
 import typer
 
+from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
 
@@ -22,7 +23,7 @@ def batch_command(
     preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset for all items (item params override)."),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Base seed (default 0); each item's seed derives from it and the item id."),
-    formats: str = typer.Option("otb,coco,flags,overlay,report", "--formats", help="Comma-separated outputs per item: otb,coco,flags,overlay,report."),
+    formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats", help="Comma-separated outputs per item, as for a single video (otb, coco, flags, overlay, report, cvat, mot, labelstudio, yolo)."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay videos (faster)."),
     force: bool = typer.Option(False, "--force", help="Redo every item, finished ones included."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line."),

@@ -14,8 +14,9 @@ from annotator.errors import EXIT_INTERRUPTED, EXIT_VALUE, ToolError
 def retrack_command(
     output_dir: Path = typer.Argument(..., help="Output folder of an sptpt-annotate run (holds run.json and tracks.npz)."),
     corrections: Path = typer.Option(..., "--corrections", help="CSV frame,x,y,w,h[,track_id] (source frame index, "
-                                     "0-based pixels; empty x,y,w,h = absent until the next correction) or a COCO "
-                                     "file whose corrected annotations have attributes.keyframe = true."),
+                                     "0-based pixels; empty x,y,w,h = absent until the next correction), a COCO "
+                                     "file whose corrected annotations have attributes.keyframe = true, or the run's "
+                                     "cvat.xml / Label Studio export after review (boxes that differ from the run)."),
     merge: str = typer.Option("", "--merge", help="Where a forward and a backward pass meet: anchored (default: the "
                               "pass still near its human box, else the more confident), confidence, blend or "
                               "handover."),

@@ -7,6 +7,7 @@ from typing import List, Optional
 
 import typer
 
+from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
 from sptpt.params import PRESETS
@@ -27,7 +28,10 @@ def track_command(
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0): same seed, same boxes."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <input>_sptpt beside the input)."),
-    formats: str = typer.Option("otb,coco,flags,overlay,report", "--formats", help="Comma-separated outputs: otb,coco,flags,overlay,report."),
+    formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats",
+                                help="Comma-separated outputs: otb, coco, flags, overlay, report, and for review tools "
+                                     "cvat (cvat.xml), mot (mot/gt/), labelstudio (labelstudio.json), yolo (yolo/). "
+                                     "The track store tracks.npz is always written."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
     force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
     corrections: Optional[Path] = typer.Option(

@@ -13,8 +13,12 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 from annotator.exports.coco import write_coco
+from annotator.exports.cvat import write_cvat_xml
 from annotator.exports.flags import write_flags_csv
+from annotator.exports.labelstudio import write_labelstudio
+from annotator.exports.mot import write_mot
 from annotator.exports.otb import write_otb_results
+from annotator.exports.yolo import write_yolo
 from annotator.store import RunStore
 
 __all__ = ["FILE_EXPORTS", "write_exports"]
@@ -34,11 +38,36 @@ def _flags(out_dir: Path, store: RunStore) -> list[Path]:
     return [out_dir / "flags.csv"]
 
 
+def _frames(store: RunStore) -> range:
+    return range(store.start, store.stop, store.step)
+
+
+def _cvat(out_dir: Path, store: RunStore) -> list[Path]:
+    return [write_cvat_xml(out_dir / "cvat.xml", store.video, store.tracks, frames=_frames(store))]
+
+
+def _mot(out_dir: Path, store: RunStore) -> list[Path]:
+    return write_mot(out_dir / "mot", store.video, store.tracks, frames=_frames(store))
+
+
+def _labelstudio(out_dir: Path, store: RunStore) -> list[Path]:
+    write_labelstudio(out_dir / "labelstudio.json", store.video, store.tracks, frames=_frames(store))
+    return [out_dir / "labelstudio.json"]
+
+
+def _yolo(out_dir: Path, store: RunStore) -> list[Path]:
+    return write_yolo(out_dir / "yolo", store.video, store.tracks, frames=_frames(store))
+
+
 #: ``--formats`` value -> view writing its files into a folder and returning their paths.
 FILE_EXPORTS: Mapping[str, Callable[[Path, RunStore], list[Path]]] = {
     "otb": _otb,
     "coco": _coco,
     "flags": _flags,
+    "cvat": _cvat,
+    "mot": _mot,
+    "labelstudio": _labelstudio,
+    "yolo": _yolo,
 }
 
 

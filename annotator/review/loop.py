@@ -63,12 +63,13 @@ import numpy as np
 from annotator import __version__
 from annotator.annotate import json_default
 from annotator.atomic import write_text_atomic
-from annotator.corrections import read_corrections, resolve_corrections
+from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import write_exports
 from annotator.frames import DecodeError
 from annotator.progress import Progress
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, open_run_source
+from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
 from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import RUN_JSON, LoadedRun, load_run
@@ -135,7 +136,8 @@ def apply_corrections(
         Output folder of an ``sptpt-annotate`` run (holding run.json and flags.csv).
     corrections_path : path-like
         CSV ``frame,x,y,w,h[,track_id]`` or COCO with ``attributes.keyframe``
-        (:mod:`annotator.corrections`).
+        (:mod:`annotator.corrections`), or the run's ``cvat.xml`` or
+        ``labelstudio.json`` after review (:mod:`annotator.review.imports`).
     merge : str
         How the forward and backward passes combine (:data:`annotator.review.MERGES`).
     show_progress : bool
@@ -163,8 +165,9 @@ def apply_corrections(
     """
     out_dir = Path(out_dir)
     corrections_path = Path(corrections_path)
-    corrections = read_corrections(corrections_path)
     run = load_run(out_dir)
+    corrections = read_run_corrections(corrections_path, video=run.video, tracks=run.tracks,
+                                       frames=range(run.store.start, run.store.stop, run.store.step))
     resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
     source = open_run_source(run, verify_input=verify_input, input_path=input_path)

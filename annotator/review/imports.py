@@ -369,3 +369,36 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
                 if after is not None and (next_key is None or after < next_key) and run.absence_changed(after):
                     corrections.append(Correction(frame=after, box_xywh=None, track_id=track.track_id, where=where))
     return corrections
+
+
+def _looks_like_labelstudio(text: str) -> bool:
+    try:
+        data = json.loads(text)
+    except ValueError:
+        return False
+    if isinstance(data, dict):
+        return "data" in data and ("annotations" in data or "predictions" in data)
+    return isinstance(data, list)
+
+
+def read_run_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: Sequence[TrackResult],
+                         frames: range) -> list[Correction]:
+    """Corrections from any file a reviewer may bring back, by its content.
+
+    CVAT for video XML and Label Studio exports are compared with the run's
+    tracks (only what differs is a correction); a CSV or a COCO file holds
+    corrections only (:func:`annotator.corrections.read_corrections`).
+    """
+    from annotator.corrections import read_corrections
+
+    path = Path(path)
+    try:
+        head = path.read_text(encoding="utf-8-sig")[:4096] if path.is_file() else ""
+    except (OSError, UnicodeDecodeError):
+        head = ""
+    start = head.lstrip()
+    if start.startswith("<"):
+        return read_cvat_corrections(path, video=video, tracks=tracks, frames=frames)
+    if start.startswith("[") or (start.startswith("{") and _looks_like_labelstudio(_read_text(path, "Label Studio export"))):
+        return read_labelstudio_corrections(path, video=video, tracks=tracks, frames=frames)
+    return read_corrections(path)
