@@ -1,14 +1,15 @@
 """Run configuration: tracker preset and overrides, flag thresholds, seed.
 
 Precedence is defaults < config file < command-line flags. The YAML file has
-up to four top-level keys::
+up to five top-level keys::
 
     preset: fast          # a tracker preset name
     seed: 0
     tracker:              # any TrackerParams field
       n_particles: 400
     flags:                # any FlagParams field
-      drop: 0.4
+      threshold: 0.6
+    failure_model: my_model.json   # a refitted failure model (default: the one shipped)
 
 An unknown key anywhere is an error naming the closest valid key.
 """
@@ -32,7 +33,7 @@ __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "re
 #: The tracker preset of a run that names none.
 DEFAULT_PRESET = "paper"
 
-_TOP_LEVEL = ("preset", "seed", "tracker", "flags")
+_TOP_LEVEL = ("preset", "seed", "tracker", "flags", "failure_model")
 
 
 class ConfigError(ValueError):
@@ -55,6 +56,7 @@ class RunConfig:
     tracker: TrackerParams
     flags: FlagParams
     seed: int
+    failure_model: str | None = None  # path of a failure-model JSON; None: the one shipped with the package
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -62,6 +64,7 @@ class RunConfig:
             "seed": self.seed,
             "tracker": self.tracker.to_dict(),
             "flags": dataclasses.asdict(self.flags),
+            "failure_model": self.failure_model,
         }
 
 
@@ -101,6 +104,7 @@ def resolve_config(
     seed: int | None = None,
     tracker_overrides: Mapping[str, Any] | None = None,
     flag_overrides: Mapping[str, Any] | None = None,
+    failure_model: str | Path | None = None,
 ) -> RunConfig:
     """Combine defaults, a config file's values and command-line values (highest precedence)."""
     file_values = dict(file_values or {})
@@ -123,12 +127,23 @@ def resolve_config(
     for key in flag_values:
         if key not in valid:
             raise _unknown("flag parameter", key, valid, source)
-    defaults = FlagParams(accept_threshold=tracker.accept_threshold)
+    defaults = FlagParams()
     try:
         flags = dataclasses.replace(defaults, **{k: _like(getattr(defaults, k), v, k, source) for k, v in flag_values.items()})
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return RunConfig(preset=str(preset_name), tracker=tracker, flags=flags, seed=int(seed_value))
+    model_path = failure_model if failure_model is not None else file_values.get("failure_model")
+    if model_path is not None:
+        from annotator.failure.model import FailureModelError, load_model
+
+        model_path = str(Path(model_path).resolve())
+        try:
+            load_model(model_path)  # a bad file fails now, not after tracking
+        except FailureModelError as exc:
+            missing = not Path(model_path).is_file()
+            raise ConfigError(str(exc), EXIT_INPUT if missing else EXIT_VALUE) from None
+    return RunConfig(preset=str(preset_name), tracker=tracker, flags=flags, seed=int(seed_value),
+                     failure_model=model_path)
 
 
 def _check_tracker_accepts(params: TrackerParams) -> None:
@@ -148,6 +163,8 @@ def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
 
 
 def _like(default: Any, value: Any, name: str, source: str) -> Any:
+    if value is None and default is None:  # an optional setting left unset (run.json records it as null)
+        return None
     if isinstance(default, bool) or isinstance(value, bool):
         raise ConfigError(f"{source}: flag parameter {name}={value!r} is invalid: expected a number")
     if isinstance(default, int):

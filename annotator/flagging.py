@@ -1,65 +1,77 @@
-"""Which frames a human should review: the tracker's own doubt, turned into spans.
+"""Which frames a human should review: the frames whose failure probability is high, as spans.
 
-The starting point is the paper's test: a frame whose best candidate has
-``RE- - RE+ <= Phi`` is one the model refuses to learn from. On its own that
-test is noisy frame to frame and blind to slow drift, so three additions make
-the flags useful to a reviewer:
+A frame is *doubtful* when its failure probability ``p_fail``
+(:mod:`annotator.failure`) exceeds a threshold; boxes a person gave
+(keyframes) never are. Doubtful frames a few frames apart are merged into one
+span, and spans shorter than a minimum are dropped, so the reviewer gets a
+handful of stretches rather than a confetti of single frames. Frames where
+the object is absent (``outside``) are always flagged, with that reason.
 
-- a *drop* test against the recent running level of the log-likelihood
-  (a robust median over the last accepted frames), which catches the moment
-  the tracker slides onto the background even while the score stays positive;
-- *hysteresis*: once flagged, a track stays flagged until the score climbs
-  back to the running level, because a tracker that lost its target rarely
-  finds it again by itself;
-- *spans*: flags a few frames apart are merged, and spans shorter than a
-  minimum length are dropped, so the reviewer gets a handful of stretches
-  rather than a confetti of single frames.
+With a review budget the rule is different: the given percentage of each
+track's frames, the most doubtful first, is flagged, with no merging (a
+person with a fixed amount of time gets exactly that many frames).
+
+Reasons (the ``reason`` column of flags.csv, ``+``-joined)
+----------------------------------------------------------
+See :data:`REASONS`, the one place they are explained; the README and the
+report show the same text.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
-__all__ = ["FlagParams", "FlagResult", "OnlineFlagger", "flag_frames", "spans_from_mask"]
+__all__ = ["REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail", "spans_from_mask"]
+
+#: Every reason a user can see, with what it means. ``doubt:<group>`` names the group of signals that
+#: raised the failure probability most (annotator.failure.model.FEATURE_GROUPS).
+REASONS: Mapping[str, str] = {
+    "doubt:score": "the tracker's own score is low or fell below its recent level",
+    "doubt:candidates": "many candidate boxes scored alike: the tracker cannot tell the object from its surroundings",
+    "doubt:motion": "the box jumped or changed size more than the object plausibly moves",
+    "doubt:drift": "the box's size or shape drifted from the first frame's, or it is far from the last human box",
+    "doubt:flow": "optical flow moved the previous box somewhere else, or could not follow its points",
+    "doubt:appearance": "the image under the box no longer looks like the object in the first frame",
+    "span": "between two doubtful frames a few frames apart: flagged so the span is reviewed in one go",
+    "budget": "among the most doubtful frames of the track (--review-budget)",
+    "outside": "the object is marked absent from this frame (a correction said so)",
+}
 
 
 @dataclass(frozen=True)
 class FlagParams:
-    """Thresholds of the flagging rules (all configurable from the CLI's config file)."""
+    """How failure probabilities become flags (all configurable from the CLI's config file)."""
 
-    accept_threshold: float = 0.0
-    """Phi: a subspace-scored frame with log-likelihood <= Phi is flagged ('rejected'). [paper]"""
-    margin: float = 2.0
-    """Also flag ('low_likelihood') frames the model accepted by less than this: ``Phi < l <= Phi + margin``.
-    On ../shared/otb a tracker that has slid onto the background often keeps a small positive score. [ours]"""
-    window: int = 100
-    """Frames in the running level of the log-likelihood (median of the last trusted frames). [ours]"""
-    drop: float = 0.3
-    """Flag ('drop') when the log-likelihood falls below ``level * (1 - drop)`` for positive levels. [ours]"""
-    recover: float = 0.95
-    """Hysteresis: a flagged track clears once the score is back above ``level * recover``. [ours]"""
-    min_confidence: float = 0.0
-    """Also flag frames whose confidence is below this ('low_confidence'); 0 disables. [ours]"""
+    threshold: float | None = None
+    """Flag frames with ``p_fail`` above this; ``None`` takes the failure model's, chosen by leave-one-sequence-out
+    cross-validation on ../shared/otb (benchmarks/failure_model.py). [ours]"""
+    review_budget: float | None = None
+    """Percent of each track's frames to flag, the most doubtful first, instead of the threshold. [ours]"""
     merge_gap: int = 5
-    """Flagged frames at most this many frames apart form one span. [ours]"""
+    """Doubtful frames at most this many frames apart form one span. [ours]"""
     min_span: int = 3
     """Spans shorter than this many frames are not flagged. [ours]"""
 
     def __post_init__(self) -> None:
         checks = [
-            (self.margin >= 0.0, "margin", "a number >= 0"),
-            (self.window >= 1, "window", "an integer >= 1"),
-            (0.0 <= self.drop <= 1.0, "drop", "a number in [0, 1]"),
-            (0.0 <= self.recover <= 1.0, "recover", "a number in [0, 1]"),
-            (0.0 <= self.min_confidence <= 1.0, "min_confidence", "a number in [0, 1]"),
+            (self.threshold is None or 0.0 < self.threshold < 1.0, "threshold", "a probability in (0, 1)"),
+            (self.review_budget is None or 0.0 < self.review_budget <= 100.0, "review_budget",
+             "a percentage in (0, 100]"),
             (self.merge_gap >= 0, "merge_gap", "an integer >= 0"),
             (self.min_span >= 1, "min_span", "an integer >= 1"),
         ]
         for ok, name, expected in checks:
             if not ok:
                 raise ValueError(f"flag parameter {name}={getattr(self, name)!r} is invalid: expected {expected}")
+
+    @property
+    def lag(self) -> int:
+        """Frames after a doubtful decision until its flag is final (span merging looks this far ahead)."""
+        return self.merge_gap + self.min_span
 
 
 @dataclass(frozen=True)
@@ -70,9 +82,7 @@ class FlagResult:
     ----------
     flagged : (F,) bool ndarray
     reasons : tuple of str
-        ``''`` for unflagged frames, else ``'+'``-joined reasons among
-        ``rejected``, ``low_likelihood``, ``drop``, ``low_confidence``, ``held`` (hysteresis) and
-        ``span`` (merged into a span from a gap).
+        ``''`` for unflagged frames, else ``'+'``-joined :data:`REASONS`.
     spans : (S, 2) int64 ndarray
         ``[start, stop)`` positions of flagged spans in the processed frame list.
     """
@@ -89,62 +99,32 @@ def spans_from_mask(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2).astype(np.int64)
 
 
-class OnlineFlagger:
-    """Flags frames as they are tracked, each final after a bounded lag.
+class SpanFlagger:
+    """Turns per-frame doubtful decisions into flags, each final after a bounded lag.
 
-    The per-frame rules (Phi, drop, hysteresis, low confidence) are causal;
-    span merging and the minimum span length need a few frames of look-ahead.
-    A frame's flag is final once ``lag = merge_gap + min_span`` later frames
-    have been pushed, so the overlay can be rendered while tracking with a
-    frame buffer of constant size, and it shows exactly the flags of
-    ``flags.csv``.
-
-    Parameters
-    ----------
-    params : FlagParams, optional
+    Span merging and the minimum span length need a few frames of look-ahead:
+    a frame's flag is final once ``params.lag`` later frames have been pushed,
+    so the overlay can be drawn while tracking with a frame buffer of constant
+    size and show exactly the flags of flags.csv. Outside frames are always
+    flagged; keyframes never are, and no span merges across one.
     """
 
     def __init__(self, params: FlagParams | None = None) -> None:
         self.params = FlagParams() if params is None else params
-        self.lag = self.params.merge_gap + self.params.min_span
+        self.lag = self.params.lag
         self._raw: list[bool] = []
         self._keyframe: list[bool] = []
-        self._reasons: list[list[str]] = []
-        self._history: list[float] = []
-        self._holding = False
+        self._outside: list[bool] = []
+        self._reasons: list[str] = []
         self._emitted = 0
 
-    def push(self, log_likelihood: float, confidence: float, scoring: str, keyframe: bool = False) -> list[tuple[int, bool, str]]:
+    def push(self, doubtful: bool, reason: str, *, keyframe: bool = False,
+             outside: bool = False) -> list[tuple[int, bool, str]]:
         """Add the next frame; return the ``(position, flagged, reason)`` of frames that became final."""
-        p = self.params
-        reasons: list[str] = []
-        if keyframe:
-            self._holding = False
-        else:
-            if p.min_confidence > 0 and confidence < p.min_confidence:
-                reasons.append("low_confidence")
-            if scoring == "subspace":
-                level = float(np.median(self._history[-p.window :])) if self._history else np.nan
-                if not np.isfinite(log_likelihood) or log_likelihood <= p.accept_threshold:
-                    reasons.append("rejected")
-                elif log_likelihood <= p.accept_threshold + p.margin:
-                    reasons.append("low_likelihood")
-                elif np.isfinite(level) and level > 0 and log_likelihood < level * (1.0 - p.drop):
-                    reasons.append("drop")
-                if reasons:
-                    self._holding = True
-                elif self._holding:
-                    # With no running level yet there is nothing to climb back to: a good frame clears.
-                    if not np.isfinite(level) or log_likelihood >= level * p.recover:
-                        self._holding = False
-                    else:
-                        reasons.append("held")
-                # Only frames the tracker trusts define the running level.
-                if not reasons and log_likelihood > p.accept_threshold + p.margin:
-                    self._history.append(float(log_likelihood))
-        self._raw.append(bool(reasons))
+        self._raw.append(bool(doubtful) and not keyframe and not outside)
         self._keyframe.append(bool(keyframe))
-        self._reasons.append(reasons)
+        self._outside.append(bool(outside))
+        self._reasons.append(reason)
         return self._emit(len(self._raw) - self.lag)
 
     def finish(self) -> list[tuple[int, bool, str]]:
@@ -159,12 +139,12 @@ class OnlineFlagger:
         # before the first undecided frame decides it as the whole prefix would.
         lo = max(0, self._emitted - 2 * self.lag - 1)
         raw = np.array(self._raw[lo:], bool)
-        keyframe = np.array(self._keyframe[lo:], bool)
+        blocked = np.array(self._keyframe[lo:], bool) | np.array(self._outside[lo:], bool)
         merged = raw.copy()
         gap_frames: set[int] = set()
         for start, stop in spans_from_mask(~raw):
-            # A gap merges only between two flagged frames: it must not touch either end of what is known.
-            if start > 0 and stop < raw.shape[0] and stop - start <= p.merge_gap and not keyframe[start:stop].any():
+            # A gap merges only between two doubtful frames: it must not touch either end of what is known.
+            if start > 0 and stop < raw.shape[0] and stop - start <= p.merge_gap and not blocked[start:stop].any():
                 merged[start:stop] = True
                 gap_frames.update(range(lo + start, lo + stop))
         final = merged.copy()
@@ -174,55 +154,70 @@ class OnlineFlagger:
                 final[start:stop] = False
         out = []
         for t in range(self._emitted, until):
+            if self._outside[t]:
+                out.append((t, True, "outside"))
+                continue
             flagged = bool(final[t - lo])
-            reasons = self._reasons[t] + (["span"] if t in gap_frames else [])
-            out.append((t, flagged, "+".join(reasons) if flagged else ""))
+            reason = self._reasons[t] if self._raw[t] else ("span" if t in gap_frames else "")
+            out.append((t, flagged, (reason or "span") if flagged else ""))
         self._emitted = until
         return out
 
 
-def flag_frames(
-    log_likelihood: np.ndarray,
-    confidence: np.ndarray,
-    scoring: np.ndarray,
-    params: FlagParams | None = None,
-    *,
-    keyframe: np.ndarray | None = None,
-) -> FlagResult:
-    """Flag every frame of a finished track (the offline form of :class:`OnlineFlagger`).
+def _doubt_reason(group: str) -> str:
+    return f"doubt:{group}"
+
+
+def flag_p_fail(p_fail: np.ndarray, groups, threshold: float, params: FlagParams | None = None, *,
+                keyframe: np.ndarray | None = None, outside: np.ndarray | None = None) -> FlagResult:
+    """Flags of a whole track from its failure probabilities (the offline form of :class:`SpanFlagger`).
 
     Parameters
     ----------
-    log_likelihood : (F,) ndarray
-        ``RE- - RE+`` per processed frame (bootstrap score before the models exist).
-    confidence : (F,) ndarray
-        In [0, 1].
-    scoring : (F,) array of str
-        ``init``, ``bootstrap`` or ``subspace``: the rules that compare with
-        Phi and the running level apply to subspace-scored frames only, since
-        the bootstrap score is on another scale.
+    p_fail : (F,) ndarray
+        Failure probability per frame (NaN where there is no box).
+    groups : sequence of str, length F
+        The signal group behind each frame's probability (``doubt:<group>`` reasons).
+    threshold : float
+        Frames above it are doubtful.
     params : FlagParams, optional
-    keyframe : (F,) bool ndarray, optional
-        Frames set by a human (or the first frame); never flagged.
-
-    Returns
-    -------
-    FlagResult
+        Span merging; a ``review_budget`` selects :func:`budget_flags` instead.
+    keyframe, outside : (F,) bool ndarray, optional
     """
-    score = np.asarray(log_likelihood, dtype=np.float64)
-    confidence = np.asarray(confidence, dtype=np.float64)
-    scoring = np.asarray(scoring)
-    n = score.shape[0]
-    if confidence.shape != (n,) or scoring.shape != (n,):
-        raise ValueError(
-            "log_likelihood, confidence and scoring must have the same length, "
-            f"got {n}, {confidence.shape[0]}, {scoring.shape[0]}"
-        )
+    params = FlagParams() if params is None else params
+    p_fail = np.asarray(p_fail, dtype=np.float64)
+    n = p_fail.shape[0]
     keyframe = np.zeros(n, bool) if keyframe is None else np.asarray(keyframe, bool)
-    flagger = OnlineFlagger(params)
+    outside = np.zeros(n, bool) if outside is None else np.asarray(outside, bool)
+    if len(groups) != n or keyframe.shape != (n,) or outside.shape != (n,):
+        raise ValueError(f"p_fail, groups, keyframe and outside must have the same length, got {n}, {len(groups)}, "
+                         f"{keyframe.shape[0]}, {outside.shape[0]}")
+    if params.review_budget is not None:
+        return budget_flags(p_fail, groups, params.review_budget, keyframe=keyframe, outside=outside)
+    flagger = SpanFlagger(params)
     decided = []
     for t in range(n):
-        decided += flagger.push(float(score[t]), float(confidence[t]), str(scoring[t]), bool(keyframe[t]))
+        doubtful = bool(np.isfinite(p_fail[t]) and p_fail[t] > threshold)
+        decided += flagger.push(doubtful, _doubt_reason(groups[t]), keyframe=bool(keyframe[t]),
+                                outside=bool(outside[t]))
     decided += flagger.finish()
     flagged = np.array([f for _, f, _ in decided], dtype=bool)
     return FlagResult(flagged=flagged, reasons=tuple(r for _, _, r in decided), spans=spans_from_mask(flagged))
+
+
+def budget_flags(p_fail: np.ndarray, groups, percent: float, *, keyframe: np.ndarray,
+                 outside: np.ndarray) -> FlagResult:
+    """Flag the ``percent`` % most doubtful frames of a track (rounded up), plus every outside frame.
+
+    Keyframes and outside frames are not candidates; ties go to the earlier frame.
+    """
+    p_fail = np.asarray(p_fail, dtype=np.float64)
+    n = p_fail.shape[0]
+    candidates = np.flatnonzero(~keyframe & ~outside & np.isfinite(p_fail))
+    k = min(len(candidates), int(math.ceil(percent / 100.0 * n - 1e-9)))
+    order = candidates[np.lexsort((candidates, -p_fail[candidates]))]
+    flagged = np.asarray(outside, bool).copy()
+    flagged[order[:k]] = True
+    reasons = tuple("outside" if outside[t] else f"budget+{_doubt_reason(groups[t])}" if flagged[t] else ""
+                    for t in range(n))
+    return FlagResult(flagged=flagged, reasons=reasons, spans=spans_from_mask(flagged))

@@ -1,9 +1,12 @@
 """One video in, annotations out: the tracking loop behind ``sptpt-annotate VIDEO --box ...``.
 
 Frames are decoded once and streamed: each frame is tracked for every
-target, its flags are decided by an :class:`~annotator.flagging.OnlineFlagger`
-a few frames later, and the overlay frame is drawn and encoded as soon as its
-flags are final. Memory therefore depends on the frame size and the flag
+target, its failure signals are measured (:class:`~annotator.failure.SignalMeter`),
+its failure probability and flag are decided by a
+:class:`~annotator.failure.TrackDoubt` a few frames later, and the overlay
+frame is drawn and encoded as soon as they are final. With a review budget,
+which frames are flagged is known only at the end: the overlay then shows
+each box's failure probability but no review marks. Memory therefore depends on the frame size and the flag
 look-ahead, never on the video's length. If decoding fails part-way, every
 frame tracked so far is still written, validly.
 """
@@ -11,6 +14,7 @@ frame tracked so far is still written, validly.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import collections
 import contextlib
 import signal
@@ -24,7 +28,8 @@ import cv2
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.flagging import OnlineFlagger
+from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
+from annotator.flagging import FlagParams, flag_p_fail
 from annotator.frames import DecodeError, FrameSource
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter
@@ -147,7 +152,14 @@ def track_source(
     render = overlay_path is not None
     trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
     recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
-    flaggers = {t.track_id: OnlineFlagger(config.flags) for t in targets}
+    model = load_model(config.failure_model)
+    budget = config.flags.review_budget is not None
+    # In budget mode the online flags are only a way to get p_fail frame by frame; flags are made at the end.
+    online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
+                        min_span=config.flags.min_span)
+    flaggers = {t.track_id: TrackDoubt(model, online) for t in targets}
+    meters = {t.track_id: SignalMeter() for t in targets}
+    p_fails: dict[int, dict[int, float]] = {t.track_id: {} for t in targets}
     flags: dict[int, dict[int, tuple[bool, str]]] = {t.track_id: {} for t in targets}
     pending: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
     renderer = OverlayRenderer() if render else None
@@ -169,8 +181,10 @@ def track_source(
             items = []
             for tid, result in results.items():
                 flagged, _ = flags[tid].get(position, (False, ""))
+                p_fail = p_fails[tid].pop(position, 0.0)
                 items.append(OverlayItem.from_frame_result(
-                    result, track_id=tid, flagged=flagged, corrected=result.scoring == "init"))
+                    result, track_id=tid, flagged=flagged and not budget, corrected=result.scoring == "init",
+                    confidence=1.0 - p_fail))
             drawn = renderer.annotate(frame, items)
             writer.write(drawn)
             for tid in results:
@@ -179,19 +193,28 @@ def track_source(
                     thumbnails.append(SpanThumbnail(tid, position, frame_index, _thumbnail(drawn)))
                 in_span[tid] = flagged
 
-    def settle(tid: int, decided: list[tuple[int, bool, str]]) -> None:
-        """Store the flags the flagger has made final."""
-        for pos, flagged, reason in decided:
-            recorders[tid].set_flag(pos, flagged, reason)
+    def settle(tid: int, decided: list[tuple[int, float, bool, str]]) -> None:
+        """Store the failure probabilities and flags the flagger has made final."""
+        for pos, p_fail, flagged, reason in decided:
+            recorders[tid].set_failure(pos, p_fail)
+            recorders[tid].set_flag(pos, flagged and not budget, reason if not budget else "")
             flags[tid][pos] = (flagged, reason)
+            if render:
+                p_fails[tid][pos] = p_fail
 
-    def record(frame_index: int, tid: int, result: FrameResult, seconds: float) -> None:
+    def record(frame_index: int, frame: np.ndarray, tid: int, result: FrameResult, seconds: float) -> None:
+        first = result.scoring == "init"
+        if first:
+            signals = meters[tid].first(frame, result.box_xywh)
+        else:
+            signals = meters[tid].next(frame, result.box_xywh, log_likelihood=result.log_likelihood,
+                                       scoring=result.scoring, accepted=result.accepted,
+                                       particles_xywh=result.particles_xywh, particle_scores=result.particle_scores)
         recorders[tid].append(
             frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
-            accepted=result.accepted, seconds=seconds, keyframe=result.scoring == "init", scoring=result.scoring,
-            keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else "")
-        settle(tid, flaggers[tid].push(
-            result.log_likelihood, result.confidence, result.scoring, keyframe=result.scoring == "init"))
+            accepted=result.accepted, seconds=seconds, keyframe=first, scoring=result.scoring,
+            keyframe_source=KEYFRAME_GIVEN if first else "", signals=signals)
+        settle(tid, flaggers[tid].push(signals, keyframe=first))
 
     def run(writer: OverlayWriter | None) -> int:
         nonlocal tracking_seconds, decode_error, interrupted
@@ -211,7 +234,8 @@ def track_source(
                     if position == -1:
                         results[tid] = trackers[tid].init(frame, target.box_xywh)
                     else:
-                        results[tid] = trackers[tid].update(frame, details=render)
+                        # Details always: the candidates' scores are a failure signal.
+                        results[tid] = trackers[tid].update(frame, details=True)
                     times[tid] = time.perf_counter() - tic
             except StopIteration:
                 break
@@ -225,7 +249,7 @@ def track_source(
             position += 1
             for tid, result in results.items():
                 tracking_seconds += times[tid]
-                record(frame_index, tid, result, times[tid])
+                record(frame_index, frame, tid, result, times[tid])
             if writer is not None:
                 pending.append((position, frame_index, frame, results))
                 drain(writer)
@@ -252,9 +276,12 @@ def track_source(
             processed = run(None)
     if progress is not None:
         progress.close()
+    tracks = [recorders[t.track_id].to_result() for t in targets]
+    if budget:
+        tracks = [_budget_flags(track, config.flags, model) for track in tracks]
     return TrackingRun(
         video=info,
-        tracks=[recorders[t.track_id].to_result() for t in targets],
+        tracks=tracks,
         frames_processed=processed,
         seconds_tracking=tracking_seconds,
         seconds_total=time.perf_counter() - started,
@@ -263,3 +290,10 @@ def track_source(
         thumbnails=thumbnails,
         overlay_path=overlay_path if render else None,
     )
+
+
+def _budget_flags(track: TrackResult, params: FlagParams, model) -> TrackResult:
+    """The track flagged by review budget: its most doubtful frames (see :func:`annotator.flagging.budget_flags`)."""
+    p_fail, groups = score_track(track.signals, track.keyframe, track.outside, model)
+    result = flag_p_fail(p_fail, groups, 0.5, params, keyframe=track.keyframe, outside=track.outside)
+    return dataclasses.replace(track, flagged=result.flagged, reasons=result.reasons)

@@ -116,12 +116,14 @@ class OverlayItem:
             object.__setattr__(self, "superpixel_origin_xy", origin.astype(np.int64))
 
     @classmethod
-    def from_frame_result(cls, result, *, track_id: int, flagged: bool = False, corrected: bool = False) -> OverlayItem:
-        """Item from a :class:`sptpt.results.FrameResult` (particles and superpixels when it has them)."""
+    def from_frame_result(cls, result, *, track_id: int, flagged: bool = False, corrected: bool = False,
+                          confidence: float | None = None) -> OverlayItem:
+        """Item from a :class:`sptpt.results.FrameResult` (particles and superpixels when it has them);
+        ``confidence`` replaces the tracker's (the tool shows ``1 - p_fail``)."""
         return cls(
             box_xywh=result.box_xywh,
             track_id=track_id,
-            confidence=result.confidence,
+            confidence=result.confidence if confidence is None else confidence,
             flagged=flagged,
             corrected=corrected,
             particles_xywh=result.particles_xywh,

@@ -12,6 +12,7 @@ and calls :meth:`TrackRecorder.to_result` at the end, or after a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping, Sequence
@@ -309,6 +310,7 @@ class TrackRecorder:
         self.track_id = track_id
         self.label = label
         self._rows: list[tuple] = []
+        self._signals: dict[str, list[float]] = {}
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -329,11 +331,16 @@ class TrackRecorder:
         occluded: bool = False,
         scoring: str | None = None,
         keyframe_source: str | None = None,
+        signals: Mapping[str, float] | None = None,
     ) -> None:
         """Add one processed frame. Validation happens in :meth:`to_result`.
 
-        ``scoring`` and ``keyframe_source`` default as in :class:`TrackResult`.
+        ``scoring`` and ``keyframe_source`` default as in :class:`TrackResult`;
+        ``signals`` must name the same signals on every row (missing ones are NaN).
         """
+        for name, value in (signals or {}).items():
+            column = self._signals.setdefault(name, [math.nan] * len(self._rows))
+            column.append(float(value))
         box = np.asarray(box_xywh, dtype=np.float64).reshape(4)
         if scoring is None:
             scoring = "none" if outside else "init" if keyframe else "subspace"
@@ -344,16 +351,26 @@ class TrackRecorder:
              str(reason), bool(keyframe), bool(outside), float(seconds), bool(occluded), str(scoring),
              str(keyframe_source))
         )  # fmt: skip
+        for column in self._signals.values():
+            if len(column) < len(self._rows):
+                column.append(math.nan)
 
     def set_flag(self, position: int, flagged: bool, reason: str) -> None:
         """Set the flag of the row at ``position`` (0-based in append order) once it is final.
 
-        :class:`annotator.flagging.OnlineFlagger` decides a frame's flag a few
-        frames after it was tracked, and reports it by that position.
+        The tracking loop decides a frame's flag a few frames after it was
+        tracked (:class:`annotator.failure.TrackDoubt`), and reports it by that position.
         """
         row = list(self._rows[position])
         row[5], row[6] = bool(flagged), str(reason)
         self._rows[position] = tuple(row)
+
+    def set_failure(self, position: int, p_fail: float) -> None:
+        """Record the row's failure probability: signal ``p_fail``, and confidence ``1 - p_fail``."""
+        row = list(self._rows[position])
+        row[2] = 1.0 - float(p_fail)
+        self._rows[position] = tuple(row)
+        self._signals.setdefault("p_fail", [math.nan] * len(self._rows))[position] = float(p_fail)
 
     def to_result(self) -> TrackResult:
         rows = self._rows
@@ -374,4 +391,5 @@ class TrackRecorder:
             occluded=np.asarray(col[10], dtype=bool),
             scoring=tuple(col[11]),
             keyframe_source=tuple(col[12]),
+            signals={name: np.asarray(values, dtype=np.float64) for name, values in self._signals.items()},
         )

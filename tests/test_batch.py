@@ -181,7 +181,7 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     assert reuse(formats=["otb", "coco"]) == {"v0": False, "v1": False, "v2": False}
     assert reuse(config={"tracker": {"n_particles": 61, "n_negatives": 20}})["v0"] is False
     edited = [*items]
-    edited[1] = type(items[1])(**{**items[1].__dict__, "params": {"flags": {"drop": 0.6}}})
+    edited[1] = type(items[1])(**{**items[1].__dict__, "params": {"flags": {"merge_gap": 2}}})
     plans = plan_batch(edited, out_dir=out1, config_values=config)
     assert [p.reuse for p in plans] == [True, False, True]
     job: ItemJob = plans[0].job

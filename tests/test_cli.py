@@ -127,7 +127,7 @@ def config_file(work) -> Path:
 def strict_config_file(work) -> Path:
     """The small tracker, and flags on every frame under 0.99 confidence, so that the report has spans to list."""
     path = work / "strict.yaml"
-    path.write_text(TRACKER_YAML + "flags:\n  min_confidence: 0.99\n  merge_gap: 0\n  min_span: 1\n", encoding="utf-8")
+    path.write_text(TRACKER_YAML + "flags:\n  threshold: 0.001\n  merge_gap: 0\n  min_span: 1\n", encoding="utf-8")
     return path
 
 
@@ -251,7 +251,7 @@ def test_main_run_json(main_run, clip):
     config = info["config"]
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
-    assert config["flags"]["min_confidence"] == 0.99 and config["flags"]["window"] == FlagParams().window  # file, then defaults
+    assert config["flags"]["threshold"] == 0.001 and config["flags"]["review_budget"] == FlagParams().review_budget  # file, then defaults
     assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "paper"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}

@@ -42,24 +42,24 @@ def test_precedence_defaults_file_flags(file_values, flags, expected):
 
 def test_file_values_are_read_from_yaml(tmp_path):
     path = write_yaml(tmp_path, "preset: paper\nseed: 3\ntracker:\n  n_particles: 60\n  motion_sigma: [4, 4, 0.01, 0, 0, 0]\n"
-                                "flags:\n  drop: 0.25\n  min_span: 2\n")
+                                "flags:\n  threshold: 0.25\n  min_span: 2\n")
     config = resolve_config(load_config_file(path), source=str(path), seed=None)
     assert config.seed == 3 and config.preset == "paper"
     assert config.tracker.n_particles == 60 and config.tracker.motion_sigma == (4.0, 4.0, 0.01, 0.0, 0.0, 0.0)
-    assert config.flags.drop == 0.25 and config.flags.min_span == 2
+    assert config.flags.threshold == 0.25 and config.flags.min_span == 2
     # Everything not named keeps its default.
-    assert config.tracker.n_negatives == get_preset("paper").n_negatives and config.flags.window == FlagParams().window
+    assert config.tracker.n_negatives == get_preset("paper").n_negatives and config.flags.merge_gap == FlagParams().merge_gap
 
 
-def test_flag_threshold_follows_the_tracker_phi_unless_set():
-    assert resolve_config({"tracker": {"accept_threshold": 0.5}}).flags.accept_threshold == 0.5
-    both = resolve_config({"tracker": {"accept_threshold": 0.5}, "flags": {"accept_threshold": -1}})
-    assert both.tracker.accept_threshold == 0.5 and both.flags.accept_threshold == -1.0
+def test_flag_threshold_and_budget_default_to_none_and_take_numbers():
+    assert resolve_config().flags.threshold is None and resolve_config().flags.review_budget is None
+    both = resolve_config({"flags": {"threshold": 0.4, "review_budget": 5}})
+    assert both.flags.threshold == 0.4 and both.flags.review_budget == 5.0
 
 
 def test_recorded_config_reproduces_the_run():
     """run.json records ``RunConfig.to_dict()``; fed back as a config file it gives the same configuration."""
-    config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]}, "flags": {"drop": 0.3}})
+    config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]}, "flags": {"threshold": 0.3}})
     again = resolve_config(yaml.safe_load(yaml.safe_dump(config.to_dict())))
     assert again == config
 
@@ -96,10 +96,11 @@ BAD_VALUES = [
     ({"tracker": {"n_particles": "many"}}, "n_particles='many' is invalid"),
     ({"tracker": {"n_particles": 0}}, "n_particles=0 is invalid"),
     ({"tracker": {"ranks": [40, 30, 40]}}, "ranks=(40, 30, 40) is invalid: the superpixel rank 30 exceeds"),
-    ({"flags": {"drop": 1.5}}, "drop=1.5 is invalid"),
+    ({"flags": {"threshold": 1.5}}, "threshold=1.5 is invalid"),
+    ({"flags": {"review_budget": 0}}, "review_budget=0.0 is invalid: expected a percentage in (0, 100]"),
     ({"flags": {"merge_gap": 1.5}}, "merge_gap=1.5 is invalid: expected an integer"),
     ({"flags": {"min_span": "3"}}, "min_span='3' is invalid"),
-    ({"flags": {"window": True}}, "window=True is invalid"),
+    ({"flags": {"min_span": True}}, "min_span=True is invalid"),
 ]
 
 

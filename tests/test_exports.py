@@ -259,8 +259,8 @@ def leftovers(folder: Path) -> list[str]:
 def test_flags_writer_failing_midway_leaves_no_file(tmp_path, monkeypatch):
     real_rows = flags_module._rows
 
-    def failing_rows(tracks):
-        for n, row in enumerate(real_rows(tracks)):
+    def failing_rows(*args):
+        for n, row in enumerate(real_rows(*args)):
             if n == 3:
                 raise OSError("disk full (simulated)")
             yield row

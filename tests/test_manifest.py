@@ -40,14 +40,14 @@ SAME_ITEMS = {
     "m.csv": (
         "video,box,boxes,label,start,stop,id,params\n"
         "clips/a.mp4,\"10,20,30,40\",,,,,,\n"
-        "b.mp4,,\"1,2,3,4|5,6,7,8\",cat|dog,2,9,bee,\"{n_particles: 60, drop: 0.4}\"\n"
+        "b.mp4,,\"1,2,3,4|5,6,7,8\",cat|dog,2,9,bee,\"{n_particles: 60, threshold: 0.4}\"\n"
         "other/a.mp4,\"1.5,2.5,3,4\",,,,,,\n"
     ),
     "m.jsonl": (
         '{"video": "clips/a.mp4", "box": "10,20,30,40"}\n'
         "\n"
         '{"video": "b.mp4", "boxes": ["1,2,3,4", [5, 6, 7, 8]], "label": "cat|dog", "start": 2, "stop": 9, '
-        '"id": "bee", "params": {"n_particles": 60, "flags": {"drop": 0.4}}}\n'
+        '"id": "bee", "params": {"n_particles": 60, "flags": {"threshold": 0.4}}}\n'
         '{"video": "other/a.mp4", "box": [1.5, 2.5, 3, 4]}\n'
     ),
     "m.yaml": (
@@ -61,7 +61,7 @@ SAME_ITEMS = {
         "    start: 2\n"
         "    stop: 9\n"
         "    id: bee\n"
-        "    params: {tracker: {n_particles: 60}, drop: 0.4}\n"
+        "    params: {tracker: {n_particles: 60}, threshold: 0.4}\n"
         "  - {video: other/a.mp4, box: [1.5, 2.5, 3, 4]}\n"
     ),
 }
@@ -80,7 +80,7 @@ def test_three_formats_give_the_same_items(tmp_path, name):
     assert (a.start, a.stop, a.step, a.params) == (None, None, None, {})
     assert bee.targets == (Target((1.0, 2.0, 3.0, 4.0), 1, "cat"), Target((5.0, 6.0, 7.0, 8.0), 2, "dog"))
     assert (bee.start, bee.stop) == (2, 9)
-    assert bee.params == {"tracker": {"n_particles": 60}, "flags": {"drop": 0.4}}
+    assert bee.params == {"tracker": {"n_particles": 60}, "flags": {"threshold": 0.4}}
     assert a2.input_path == tmp_path / "other" / "a.mp4"
     assert a2.targets[0].box_xywh == (1.5, 2.5, 3.0, 4.0)
 
@@ -94,9 +94,9 @@ def test_minimal_items_are_the_same_in_every_format(tmp_path):
 
 
 def test_csv_params_columns_and_track_ids(tmp_path):
-    path = write(tmp_path, "p.csv", "video,box,params.n_particles,params.drop\na.mp4,\"1,2,3,4\",80,0.3\nb.mp4,\"1,2,3,4\",,\n")
+    path = write(tmp_path, "p.csv", "video,box,params.n_particles,params.threshold\na.mp4,\"1,2,3,4\",80,0.3\nb.mp4,\"1,2,3,4\",,\n")
     a, b = read_manifest(path)
-    assert a.params == {"tracker": {"n_particles": 80}, "flags": {"drop": 0.3}}
+    assert a.params == {"tracker": {"n_particles": 80}, "flags": {"threshold": 0.3}}
     assert b.params == {}
     items = read_manifest(write(tmp_path, "t.yaml", "- video: v.mp4\n  boxes:\n    - {box: '1,2,3,4', track_id: 7}\n"
                                                      "    - '5,6,7,8'\n"))

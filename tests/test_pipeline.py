@@ -123,7 +123,9 @@ def scripted():
         yield ScriptedTracker
 
 
-CONFIG = resolve_config({"seed": 4, "flags": {"merge_gap": 2, "min_span": 3}})
+# A failure model that reads the tracker's score only: the scripted scores decide p_fail, and so the flags.
+SCORE_ONLY_MODEL = Path(__file__).parent / "data" / "score_only_failure_model.json"
+CONFIG = resolve_config({"seed": 4, "flags": {"merge_gap": 2, "min_span": 3}, "failure_model": str(SCORE_ONLY_MODEL)})
 TARGETS = [Target((20.0, 70.0, 20.0, 20.0), track_id=1, label="car"), Target((60.0, 60.0, 16.0, 16.0), 2, "sign")]
 START, STOP, STEP = 1, 29, 2
 INDICES = list(range(START, STOP, STEP))  # 14 processed frames: 1, 3, ..., 27
@@ -200,7 +202,8 @@ def test_flags_csv_holds_the_scripted_span(run):
     assert one.frame.tolist() == INDICES and two.frame.tolist() == INDICES
     # 11, 13 and 17 are rejected; 15 between them joins the span; 27 alone is shorter than min_span.
     assert one.frame[one.flagged].tolist() == [11, 13, 15, 17]
-    assert [one.reason[i] for i in np.flatnonzero(one.flagged)] == ["rejected", "rejected", "span", "rejected"]
+    assert [one.reason[i] for i in np.flatnonzero(one.flagged)] == ["doubt:score", "doubt:score", "span",
+                                                                      "doubt:score"]
     assert not one.accepted[one.frame.tolist().index(27)] and not one.flagged[-1]
     assert not two.flagged.any()
     assert [bool(t.flagged.any()) for t in result.run.tracks] == [True, False]
@@ -225,7 +228,7 @@ def test_report_lists_the_spans_of_flags_csv_with_thumbnails(run):
     assert [(s.track_id, s.first_frame, s.last_frame) for s in spans] == [(1, 11, 17)]
     assert len(parsed.rows) == 1
     row = parsed.rows[0]
-    assert row["cells"][:3] == ["1", "11\u201317", "4"] and row["cells"][4] == "rejected, span"
+    assert row["cells"][:3] == ["1", "11\u201317", "4"] and row["cells"][4] == "doubt:score, span"
     assert shows_frame(seek_seconds(row["seek"]), INDICES.index(11), FPS)
     assert row["img"] and row["img"].startswith("data:image/jpeg;base64,")
     assert [v["src"] for v in parsed.videos] == ["overlay.mp4"]

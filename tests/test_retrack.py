@@ -9,6 +9,8 @@ module (copied per test) because tracking is the slow part.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import shutil
 from pathlib import Path
@@ -25,6 +27,7 @@ from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
 from annotator.frames import open_frames
+from annotator.flagging import FlagParams
 from annotator.otb import read_otb_boxes
 from annotator.pipeline import Target, track_source
 from annotator.review import (
@@ -119,18 +122,22 @@ def test_same_box_compares_after_clipping():
 
 
 def test_reflag_never_flags_anchors_and_always_flags_absences():
+    from annotator.failure import SIGNALS
+
     n = 12
-    ll = np.full(n, -1.0)  # every subspace frame rejected
-    scoring = np.array(["init"] + ["subspace"] * (n - 1), dtype=object)
+    bad = {"log_likelihood": -50.0, "flow_iou": 0.0, "ncc_first": -1.0, "ncc_prev": -1.0, "flow_kept": 0.0}
+    signals = {name: np.full(n, bad.get(name, 0.0)) for name in SIGNALS}
     keyframe = np.zeros(n, bool)
     keyframe[[0, 6]] = True
     outside = np.zeros(n, bool)
     outside[9:] = True
-    flagged, reasons = reflag(ll, np.full(n, 0.2), scoring, keyframe, outside, CONFIG)
-    assert not flagged[[0, 6]].any()
-    assert flagged[1:6].all() and flagged[9:].all()
-    assert all(r == "outside" for r in reasons[9:])
-    assert all("rejected" in r for r in reasons[1:6])
+    # Any frame the model doubts at all is flagged: the test holds whatever the fitted model's weights.
+    config = dataclasses.replace(CONFIG, flags=FlagParams(threshold=1e-9, merge_gap=0, min_span=1))
+    flagged, reasons, p_fail = reflag(signals, keyframe, outside, config)
+    assert not flagged[[0, 6]].any() and (p_fail[[0, 6]] == 0).all()
+    assert flagged[1:6].all() and flagged[7:].all()
+    assert all(r == "outside" for r in reasons[9:]) and np.isnan(p_fail[9:]).all()
+    assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
 # --------------------------------------------------------------------------- the algorithm

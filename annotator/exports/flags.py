@@ -13,6 +13,12 @@ Columns (header always present, in this order)::
 * ``accepted``, ``flagged``: ``1`` or ``0``.
 * ``reason``: why the frame is flagged, empty when it is not; absences
   (``outside``) are flagged frames with their reason, as FORMATS.md asks.
+  Every reason is explained in :data:`annotator.flagging.REASONS`.
+
+Then one column per signal the tracks carry (:attr:`TrackResult.signals`):
+``p_fail``, the failure probability (``confidence`` is ``1 - p_fail``), first,
+then the failure signals of :data:`annotator.failure.SIGNALS` in that order,
+6 significant digits; empty where a track has no such value.
 
 Rows are sorted by frame, then track. Fields are quoted only when needed
 (RFC 4180, a reason holding a comma).
@@ -77,7 +83,22 @@ class FlagTable:
         )
 
 
-def _rows(tracks: Sequence[TrackResult]):
+def signal_columns(tracks: Sequence[TrackResult]) -> list[str]:
+    """The signal columns of a flags file: ``p_fail``, then the failure signals in their order, then any other."""
+    from annotator.failure.signals import SIGNALS
+
+    names = {name for t in tracks for name in t.signals}
+    known = [n for n in ("p_fail", *SIGNALS) if n in names]
+    return known + sorted(names - set(known))
+
+
+def _value(values, i: int) -> str:
+    if values is None or not np.isfinite(values[i]):
+        return ""
+    return f"{values[i]:.6g}"
+
+
+def _rows(tracks: Sequence[TrackResult], columns: Sequence[str]):
     order = sorted((int(f), t.track_id, n, i) for n, t in enumerate(tracks) for i, f in enumerate(t.frame_indices))
     for frame, track_id, n, i in order:
         t = tracks[n]
@@ -89,6 +110,7 @@ def _rows(tracks: Sequence[TrackResult]):
             int(t.accepted[i]),
             int(t.flagged[i]),
             t.reasons[i],
+            *(_value(t.signals.get(name), i) for name in columns),
         )
 
 
@@ -98,10 +120,11 @@ def write_flags_csv(path: str | os.PathLike, tracks: Sequence[TrackResult]) -> N
     ids = [t.track_id for t in tracks]
     if len(set(ids)) != len(ids):
         raise ValueError(f"track ids must be unique in a flags file, got {ids}")
+    columns = signal_columns(tracks)
     with atomic_open(path, "w", encoding="utf-8", newline="") as handle:
         writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(FLAGS_HEADER)
-        for row in _rows(tracks):
+        writer.writerow((*FLAGS_HEADER, *columns))
+        for row in _rows(tracks, columns):
             writer.writerow(row)
 
 
@@ -132,7 +155,7 @@ def read_flags_csv(path: str | os.PathLike) -> FlagTable:
     with open(path, encoding="utf-8-sig", newline="") as handle:
         reader = csv.reader(handle)
         header = next(reader, None)
-        if header is None or tuple(h.strip() for h in header) != FLAGS_HEADER:
+        if header is None or tuple(h.strip() for h in header[: len(FLAGS_HEADER)]) != FLAGS_HEADER:
             raise FlagsFormatError(
                 f"{path}:1: expected the header {','.join(FLAGS_HEADER)!r}, got {','.join(header or [])!r}; "
                 f"is this a flags file written by sptpt-annotate?"
@@ -141,8 +164,8 @@ def read_flags_csv(path: str | os.PathLike) -> FlagTable:
             where = f"{path}:{reader.line_num}"
             if not row:
                 continue
-            if len(row) != len(FLAGS_HEADER):
-                raise FlagsFormatError(f"{where}: expected {len(FLAGS_HEADER)} fields, got {len(row)} in {row!r}")
+            if len(row) != len(header):
+                raise FlagsFormatError(f"{where}: expected {len(header)} fields, got {len(row)} in {row!r}")
             try:
                 frames.append(int(row[0]))
                 tracks.append(int(row[1]))

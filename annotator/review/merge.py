@@ -8,11 +8,14 @@ whole tracks from each row's stored scores (:func:`reflag`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.flagging import flag_frames
+from annotator.failure import SIGNALS, load_model, score_track
+from annotator.failure.signals import NEUTRAL
+from annotator.flagging import flag_p_fail
 
 __all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PassResult", "merge_passes", "reflag"]
 
@@ -36,6 +39,7 @@ DEFAULT_MERGE = "anchored"
 NO_SCORING = "none"
 
 
+
 @dataclass
 class PassResult:
     """One tracker pass over a segment's interior, rows in increasing position order."""
@@ -46,6 +50,12 @@ class PassResult:
     accepted: np.ndarray
     scoring: np.ndarray
     seconds: np.ndarray
+    #: (n, len(SIGNALS)) failure signals of the pass's rows (annotator.failure.SIGNALS order), NaN where not run.
+    signals: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.signals is None:
+            self.signals = np.full((len(self.confidence), len(SIGNALS)), np.nan)
 
     @classmethod
     def empty(cls, n: int) -> PassResult:
@@ -57,7 +67,9 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
 
     ``bwd=None`` returns the forward pass. Per row the result keeps the
     log-likelihood, acceptance and scoring stage of the pass whose box (or
-    whose larger weight, for ``blend``) it takes; ``seconds`` is the sum of both.
+    whose larger weight, for ``blend``) it takes, and that pass's failure
+    signals (measured along that pass: "previous frame" is the pass's);
+    ``seconds`` is the sum of both.
     """
     if method not in MERGES:
         raise ValueError(f"merge method {method!r} is not known: choose from {', '.join(MERGES)}")
@@ -84,26 +96,29 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         accepted=pick(fwd.accepted, bwd.accepted),
         scoring=pick(fwd.scoring, bwd.scoring),
         seconds=fwd.seconds + bwd.seconds,
+        signals=pick(fwd.signals, bwd.signals),
     )
     if method == "blend":
         total = cf + cb
         w = np.where(total > 0, cf / np.where(total > 0, total, 1.0), 0.5)
         out.boxes_xywh = w[:, None] * fwd.boxes_xywh + (1 - w[:, None]) * bwd.boxes_xywh
         out.confidence = np.clip(w * cf + (1 - w) * cb, 0.0, 1.0)
+        out.signals = np.where((w >= 0.5)[:, None], fwd.signals, bwd.signals)
     return out
 
-def reflag(log_likelihood: np.ndarray, confidence: np.ndarray, scoring: np.ndarray, keyframe: np.ndarray,
-           outside: np.ndarray, config: RunConfig) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Flags of a whole track: :func:`flag_frames` with anchors and ``outside`` rows exempt, then absences flagged.
+def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
+           config: RunConfig) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """Failure probabilities and flags of a whole track from its signals: ``(flagged, reasons, p_fail)``.
 
-    ``outside`` rows are passed to the flagger as keyframes: they have no
-    tracker score, must not hold a span open, and must not bridge two flagged
-    stretches; afterwards they are flagged with reason ``outside`` (FORMATS.md:
-    absences are recorded in the flags file), human-marked absences included.
+    Anchors are never flagged and have ``p_fail`` 0; ``outside`` rows are
+    flagged with reason ``outside`` (FORMATS.md: absences are recorded in the
+    flags file), have no ``p_fail`` (NaN), and neither hold a span open nor
+    bridge two flagged stretches.
     """
-    outside = np.asarray(outside, bool)
-    result = flag_frames(log_likelihood, confidence, np.asarray(scoring, dtype=str), config.flags,
-                         keyframe=np.asarray(keyframe, bool) | outside)
-    flagged = result.flagged | outside
-    reasons = tuple("outside" if outside[i] else r for i, r in enumerate(result.reasons))
-    return flagged, reasons
+    keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
+    model = load_model(config.failure_model)
+    filled = {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
+    p_fail, groups = score_track(filled, keyframe | outside, outside, model)
+    threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
+    result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)
+    return result.flagged, result.reasons, p_fail

@@ -14,6 +14,7 @@ from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 
+from annotator.failure import SIGNALS, SignalMeter
 from annotator.pipeline import seed_for_track
 from annotator.review.merge import PassResult
 from annotator.review.segments import Box, Segment
@@ -77,7 +78,7 @@ class _CachedPass:
 
 def _take(result: PassResult, index) -> PassResult:
     return PassResult(*(np.asarray(getattr(result, f))[index].copy() for f in
-                        ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds")))
+                        ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
 
 class _SegmentRun:
@@ -103,6 +104,7 @@ class _SegmentRun:
         self.deferred = self.bwd_todo and not self.buffered
         self._buffer: list[np.ndarray] = []
         self._tracker: Tracker | None = None
+        self._meter: SignalMeter | None = None
 
     def _key(self, direction: int) -> tuple:
         s = self.segment
@@ -161,16 +163,18 @@ class _SegmentRun:
             tic = time.perf_counter()
             result = self._tracker.init(frame, self.box_start)
             self.start_row = (result.log_likelihood, time.perf_counter() - tic)
+            self._meter = SignalMeter()
+            self._meter.first(frame, self.box_start)
             self.calls += 1
         elif s.start < position < s.stop:
             if self.fwd_todo:
                 tic = time.perf_counter()
-                result = self._tracker.update(frame)
-                self._store(self.fwd, position - s.start - 1, result, time.perf_counter() - tic)
+                result = self._tracker.update(frame, details=True)
+                self._store(self.fwd, position - s.start - 1, result, time.perf_counter() - tic, self._meter, frame)
             if self.buffered:
                 self._buffer.append(frame)
         if position == s.stop - 1 and self.fwd_todo:
-            self._tracker = None
+            self._tracker, self._meter = None, None
             self.fwd_todo = False
             self._remember(0, self.fwd, self.start_row)
         if position == s.stop and self.buffered:
@@ -182,42 +186,50 @@ class _SegmentRun:
         """The backward pass of a long segment: chunks of ``chunk`` frames, last chunk first."""
         s = self.segment
         hi = s.stop + 1
-        tracker = None
+        backward = None
         while hi > s.start + 1:
             lo = max(s.start + 1, hi - chunk)
             frames = [f for _, f in provider.frames(lo, hi)]
-            if tracker is None:
-                tracker = self._backward(frames[-1], reversed(frames[:-1]), hi - 2, remember=False)
+            if backward is None:
+                backward = self._backward(frames[-1], reversed(frames[:-1]), hi - 2, remember=False)
             else:
-                self._backward_continue(tracker, reversed(frames), hi - 1)
+                self._backward_continue(*backward, reversed(frames), hi - 1)
             hi = lo
         self.deferred = False
         self._remember(1, self.bwd, (float("nan"), 0.0))
 
-    def _backward(self, anchor_frame: np.ndarray, frames, first_position: int, *, remember: bool = True) -> Tracker:
+    def _backward(self, anchor_frame: np.ndarray, frames, first_position: int, *,
+                  remember: bool = True) -> tuple[Tracker, SignalMeter]:
         tracker = self._tracker_for(self.segment.stop, 1)
         tracker.init(anchor_frame, self.box_stop)
+        meter = SignalMeter()
+        meter.first(anchor_frame, self.box_stop)
         self.calls += 1
-        self._backward_continue(tracker, frames, first_position)
+        self._backward_continue(tracker, meter, frames, first_position)
         if remember:
             self._remember(1, self.bwd, (float("nan"), 0.0))
-        return tracker
+        return tracker, meter
 
-    def _backward_continue(self, tracker: Tracker, frames, first_position: int) -> None:
+    def _backward_continue(self, tracker: Tracker, meter: SignalMeter, frames, first_position: int) -> None:
         position = first_position
         for frame in frames:
             tic = time.perf_counter()
-            result = tracker.update(frame)
-            self._store(self.bwd, position - self.segment.start - 1, result, time.perf_counter() - tic)
+            result = tracker.update(frame, details=True)
+            self._store(self.bwd, position - self.segment.start - 1, result, time.perf_counter() - tic, meter, frame)
             position -= 1
 
-    def _store(self, target: PassResult, row: int, result, seconds: float) -> None:
+    def _store(self, target: PassResult, row: int, result, seconds: float, meter: SignalMeter,
+               frame: np.ndarray) -> None:
         target.boxes_xywh[row] = result.box_xywh
         target.confidence[row] = result.confidence
         target.log_likelihood[row] = result.log_likelihood
         target.accepted[row] = result.accepted
         target.scoring[row] = result.scoring
         target.seconds[row] = seconds
+        signals = meter.next(frame, result.box_xywh, log_likelihood=result.log_likelihood, scoring=result.scoring,
+                             accepted=result.accepted, particles_xywh=result.particles_xywh,
+                             particle_scores=result.particle_scores)
+        target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
 
 

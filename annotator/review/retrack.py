@@ -45,9 +45,10 @@ of the video head: the price of memory that does not grow with the span;
 spans between corrections are usually short, and the command line sizes
 the chunk from a byte budget, ``annotator.review.BUFFER_BYTES``).
 
-Flags are recomputed over whole tracks with :func:`annotator.flagging.flag_frames`
-(anchors are never flagged; ``outside`` frames are flagged ``outside``), from
-each row's stored log-likelihood, confidence and scoring stage.
+Failure probabilities and flags are recomputed over whole tracks
+(:func:`annotator.review.merge.reflag`) from each row's failure signals: the
+stored ones for kept rows, those of the chosen pass for re-tracked rows
+(anchors are never flagged; ``outside`` frames are flagged ``outside``).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from annotator.config import RunConfig
+from annotator.failure import SIGNALS
 from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PassResult, merge_passes, reflag
 from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
 from annotator.review.segments import (
@@ -241,6 +243,8 @@ def retrack_tracks(
             scoring = prev.scoring.copy()
             sources = list(t.keyframe_source)
             label = t.label
+            signals = np.stack([np.asarray(t.signals.get(name, np.full(n, np.nan)), dtype=np.float64)
+                                for name in SIGNALS], axis=1)
         else:
             boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
             accepted, seconds = np.zeros(n, bool), np.zeros(n)
@@ -248,6 +252,7 @@ def retrack_tracks(
             scoring = np.full(n, NO_SCORING, dtype=object)
             sources = [""] * n
             label = (labels or {}).get(tid, "object")
+            signals = np.full((n, len(SIGNALS)), np.nan)
         for change in anchor_changes:
             if change.track_id == tid:
                 sources[change.position] = change.where or KEYFRAME_GIVEN
@@ -260,6 +265,7 @@ def retrack_tracks(
                 box = current[seg.start]
                 keyframe[seg.start] = True
                 occluded[seg.start] = False
+                signals[seg.start] = np.nan  # a person's box: nothing measured, nothing doubtful
                 if box is None:
                     boxes[seg.start], conf[seg.start], ll[seg.start] = np.nan, 0.0, np.nan
                     accepted[seg.start], seconds[seg.start] = False, 0.0
@@ -277,18 +283,22 @@ def retrack_tracks(
                 merged = merge_passes(run.fwd, run.bwd, merge)
                 boxes[rows], conf[rows], ll[rows] = merged.boxes_xywh, merged.confidence, merged.log_likelihood
                 accepted[rows], scoring[rows], seconds[rows] = merged.accepted, merged.scoring, merged.seconds
+                signals[rows] = merged.signals
                 outside[rows] = False
             else:
                 boxes[rows], conf[rows], ll[rows] = np.nan, 0.0, np.nan
                 accepted[rows], scoring[rows], seconds[rows] = False, NO_SCORING, 0.0
+                signals[rows] = np.nan
                 outside[rows] = True
         # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
-        flagged, reasons = reflag(ll, conf, scoring, keyframe, outside, config)
+        by_name = {name: signals[:, k] for k, name in enumerate(SIGNALS)}
+        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config)
+        conf = np.where(outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
         track = TrackResult(
             track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
             log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,
             outside=outside, seconds=seconds, occluded=occluded, scoring=tuple(str(v) for v in scoring),
-            keyframe_source=tuple(sources),
+            keyframe_source=tuple(sources), signals={**by_name, "p_fail": p_fail},
         )
         results.append(track)
         scorings[tid] = scoring

@@ -83,7 +83,8 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
     try:
         cfg = info["config"]
         config = RunConfig(preset=str(cfg["preset"]), tracker=params_from_mapping(cfg["tracker"]),
-                           flags=FlagParams(**cfg["flags"]), seed=int(cfg["seed"]))
+                           flags=FlagParams(**cfg["flags"]), seed=int(cfg["seed"]),
+                           failure_model=cfg.get("failure_model"))
         targets = {int(t["track_id"]): t for t in info["targets"]}
         formats = list(info.get("formats") or [])
     except (KeyError, TypeError, ValueError) as exc:

@@ -1,0 +1,272 @@
+"""The failure probability: ``p_fail = P(IoU < 0.5)`` per frame, from the signals of a track.
+
+Features
+--------
+:func:`feature_matrix` turns a track's :data:`~annotator.failure.signals.SIGNALS`
+into one row of :data:`FEATURES` per frame. Besides the signals themselves:
+
+* ``ll_subspace``: the log-likelihood where the subspace models score (0 in
+  bootstrap, whose score is on another scale);
+* ``ll_drop``: how far it fell below its running level, the median of the
+  last :data:`LEVEL_WINDOW` frames the tracker trusted (subspace-scored, above
+  :data:`TRUSTED_MARGIN`), as a share of that level;
+* ``since_anchor``: ``log(1 + frames since the last human box)``: drift grows
+  with distance from the last box a person gave;
+* ``*_w5``: the mean of a signal over the five frames centred on this one.
+  The tool has the whole video, so a frame may be judged by the two after it;
+  a frame's probability is final :data:`LOOKAHEAD` frames later, which is the
+  look-ahead of online flagging (:class:`OnlineFailure`).
+
+Model
+-----
+A logistic regression on standardised features, fitted on ../shared/otb with
+leave-one-sequence-out cross-validation by ``benchmarks/failure_model.py``,
+which writes :data:`MODEL_PATH`: a small JSON file (feature names, means,
+scales, coefficients, intercept, default threshold, and how it was fitted).
+No pickles: the file is read with ``json`` and checked field by field.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections import deque
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from annotator.failure.signals import SIGNALS
+
+__all__ = [
+    "FEATURES",
+    "FEATURE_GROUPS",
+    "LOOKAHEAD",
+    "MODEL_FORMAT",
+    "MODEL_VERSION",
+    "FailureModel",
+    "FailureModelError",
+    "OnlineFailure",
+    "feature_matrix",
+    "load_model",
+]
+
+MODEL_FORMAT = "sptpt-annotate failure model"
+MODEL_VERSION = 1
+#: The shipped model, inside the package.
+MODEL_PATH = "data/failure_model.json"
+
+LOOKAHEAD = 2  # frames after a frame that its features read
+LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
+TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
+_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace")
+
+FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED))
+
+#: Feature -> the group named in a flag's reason (the group of the feature that raised p_fail most).
+FEATURE_GROUPS: Mapping[str, str] = {
+    "log_likelihood": "score", "bootstrap": "score", "accepted": "score", "ll_subspace": "score",
+    "ll_drop": "score", "ll_subspace_w5": "score",
+    "score_gap": "candidates", "particle_spread": "candidates",
+    "jump": "motion", "scale_change": "motion",
+    "scale_drift": "drift", "aspect_drift": "drift", "since_anchor": "drift",
+    "flow_iou": "flow", "flow_fb": "flow", "flow_kept": "flow", "flow_iou_w5": "flow",
+    "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance",
+}
+
+
+class FailureModelError(ValueError):
+    """A failure-model file that cannot be used; the message names the file and says what is wrong."""
+
+
+class _Causal:
+    """The causal part of the features: running level of the log-likelihood, frames since an anchor."""
+
+    def __init__(self) -> None:
+        self._trusted: deque[float] = deque(maxlen=LEVEL_WINDOW)
+        self._since = 0
+
+    def step(self, signals: Mapping[str, float], keyframe: bool) -> tuple[float, float, float]:
+        ll = float(signals["log_likelihood"])
+        subspace = signals["bootstrap"] == 0.0
+        ll_subspace = ll if subspace and not keyframe else 0.0
+        drop = 0.0
+        if subspace and not keyframe and self._trusted:
+            level = float(np.median(self._trusted))
+            drop = float(np.clip((level - ll) / max(abs(level), 1.0), -5.0, 5.0))
+        self._since = 0 if keyframe else self._since + 1
+        if subspace and not keyframe and ll > TRUSTED_MARGIN:
+            self._trusted.append(ll)
+        return ll_subspace, drop, math.log1p(self._since)
+
+
+def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -> np.ndarray:
+    """One feature row: raw signals, causal features, and the centred means over ``window`` (<= 5 rows)."""
+    smoothed = [window[:, k].mean() for k in range(window.shape[1])]
+    return np.concatenate([raw, causal, smoothed])
+
+
+def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:
+    names = list(SIGNALS)
+    cols = [raw[:, names.index("flow_iou")], raw[:, names.index("ncc_first")], causal[:, 0]]
+    return np.stack(cols, axis=1)
+
+
+def feature_matrix(signals: Mapping[str, np.ndarray], keyframe: np.ndarray) -> np.ndarray:
+    """``(F, len(FEATURES))`` features of a whole track from its ``(F,)`` signal arrays (see module docstring).
+
+    Equal, row for row, to what :class:`OnlineFailure` computes frame by frame.
+    """
+    keyframe = np.asarray(keyframe, dtype=bool)
+    n = keyframe.shape[0]
+    missing = [name for name in SIGNALS if name not in signals]
+    if missing:
+        raise ValueError(f"signals lack {', '.join(missing)}; expected every name of annotator.failure.SIGNALS")
+    raw = np.stack([np.asarray(signals[name], dtype=np.float64) for name in SIGNALS], axis=1) if n else \
+        np.zeros((0, len(SIGNALS)))
+    if raw.shape != (n, len(SIGNALS)):
+        raise ValueError(f"every signal must have shape ({n},) like keyframe")
+    state = _Causal()
+    causal = np.array([state.step(dict(zip(SIGNALS, raw[t])), bool(keyframe[t])) for t in range(n)]).reshape(n, 3)
+    smooth = _smoothing_columns(raw, causal)
+    rows = [_row(raw[t], causal[t], smooth[max(0, t - LOOKAHEAD): t + LOOKAHEAD + 1], t) for t in range(n)]
+    return np.array(rows).reshape(n, len(FEATURES))
+
+
+@dataclass(frozen=True)
+class FailureModel:
+    """A logistic regression on standardised :data:`FEATURES`, read from its JSON file."""
+
+    features: tuple[str, ...]
+    mean: np.ndarray
+    scale: np.ndarray
+    coef: np.ndarray
+    intercept: float
+    threshold: float
+    info: Mapping[str, Any]
+
+    def p_fail(self, features: np.ndarray) -> np.ndarray:
+        """``(F,)`` failure probabilities of ``(F, len(FEATURES))`` feature rows."""
+        z = self.intercept + ((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) @ self.coef
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+
+    def main_group(self, features: np.ndarray) -> list[str]:
+        """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most."""
+        contrib = ((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) * self.coef
+        groups = sorted(set(FEATURE_GROUPS.values()))
+        by_group = np.stack([contrib[:, [i for i, f in enumerate(self.features) if FEATURE_GROUPS[f] == g]].sum(axis=1)
+                             for g in groups], axis=1)
+        return [groups[int(k)] for k in np.argmax(by_group, axis=1)]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),
+                "mean": self.mean.tolist(), "scale": self.scale.tolist(), "coef": self.coef.tolist(),
+                "intercept": self.intercept, "threshold": self.threshold, "info": dict(self.info)}
+
+    @classmethod
+    def from_json(cls, data: Any, where: str) -> FailureModel:
+        if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT:
+            raise FailureModelError(f"{where} is not a {MODEL_FORMAT} (its 'format' field is "
+                                    f"{data.get('format') if isinstance(data, dict) else None!r}); give a file "
+                                    "written by benchmarks/failure_model.py")
+        if data.get("version") != MODEL_VERSION:
+            raise FailureModelError(f"{where} has version {data.get('version')!r}, this sptpt-annotate reads "
+                                    f"version {MODEL_VERSION}: refit it with benchmarks/failure_model.py")
+        try:
+            features = tuple(str(f) for f in data["features"])
+            arrays = {k: np.asarray(data[k], dtype=np.float64) for k in ("mean", "scale", "coef")}
+            intercept, threshold = float(data["intercept"]), float(data["threshold"])
+            info = dict(data.get("info") or {})
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FailureModelError(f"{where} lacks or garbles a field ({type(exc).__name__}: {exc}); refit it "
+                                    "with benchmarks/failure_model.py") from None
+        if features != FEATURES:
+            raise FailureModelError(f"{where} is for features {list(features)[:4]}..., this version computes "
+                                    f"{list(FEATURES)[:4]}... ({len(FEATURES)}): refit it with "
+                                    "benchmarks/failure_model.py")
+        for key, values in arrays.items():
+            if values.shape != (len(FEATURES),) or not np.all(np.isfinite(values)):
+                raise FailureModelError(f"{where}: {key} must be {len(FEATURES)} finite numbers")
+        if np.any(arrays["scale"] <= 0) or not (math.isfinite(intercept) and 0.0 < threshold < 1.0):
+            raise FailureModelError(f"{where}: scales must be > 0, the intercept finite and the threshold in (0, 1)")
+        return cls(features=features, intercept=intercept, threshold=threshold, info=info, **arrays)
+
+
+def load_model(path: str | os.PathLike | None = None) -> FailureModel:
+    """The failure model in ``path``, or the one shipped with the package."""
+    if path is None:
+        where = f"the package's {MODEL_PATH}"
+        try:
+            text = resources.files("annotator").joinpath(MODEL_PATH).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise FailureModelError(f"{where} cannot be read ({exc}); reinstall sptpt-annotate") from None
+    else:
+        where = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise FailureModelError(f"failure model {path} cannot be read ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FailureModelError(f"{where}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+    return FailureModel.from_json(data, where)
+
+
+class OnlineFailure:
+    """Failure probabilities frame by frame, each final :data:`LOOKAHEAD` frames later.
+
+    ``push`` takes a frame's signals (and whether a person gave its box) and
+    returns the ``(position, p_fail, group)`` of frames that became final;
+    ``finish`` the rest at the end of the track. The numbers equal
+    ``model.p_fail(feature_matrix(...))`` on the whole track.
+    """
+
+    def __init__(self, model: FailureModel) -> None:
+        self.model = model
+        self._causal = _Causal()
+        self._raw: deque[np.ndarray] = deque()
+        self._causal_rows: deque[np.ndarray] = deque()
+        self._first = 0  # position of the oldest buffered row
+        self._emitted = 0
+        self._n = 0
+
+    def push(self, signals: Mapping[str, float], keyframe: bool) -> list[tuple[int, float, str]]:
+        raw = np.array([float(signals[name]) for name in SIGNALS])
+        self._raw.append(raw)
+        self._causal_rows.append(np.array(self._causal.step(signals, keyframe)))
+        self._n += 1
+        return self._emit(self._n - LOOKAHEAD)
+
+    def finish(self) -> list[tuple[int, float, str]]:
+        return self._emit(self._n)
+
+    def _emit(self, until: int) -> list[tuple[int, float, str]]:
+        out = []
+        while self._emitted < until:
+            t = self._emitted
+            raw, causal = np.array(self._raw), np.array(self._causal_rows)
+            smooth = _smoothing_columns(raw, causal)
+            lo = max(0, t - LOOKAHEAD) - self._first
+            row = _row(raw[t - self._first], causal[t - self._first], smooth[lo: t - self._first + LOOKAHEAD + 1], t)
+            p = float(self.model.p_fail(row[None])[0])
+            out.append((t, p, self.model.main_group(row[None])[0]))
+            self._emitted += 1
+            # Keep only what later rows' windows still read.
+            while self._first < self._emitted - LOOKAHEAD:
+                self._raw.popleft()
+                self._causal_rows.popleft()
+                self._first += 1
+        return out
+
+
+def model_from_fit(features: Sequence[str], mean, scale, coef, intercept: float, threshold: float,
+                   info: Mapping[str, Any]) -> FailureModel:
+    """A model from fitted numbers (benchmarks/failure_model.py), validated as if read from its file."""
+    data = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(features),
+            "mean": list(map(float, mean)), "scale": list(map(float, scale)), "coef": list(map(float, coef)),
+            "intercept": float(intercept), "threshold": float(threshold), "info": dict(info)}
+    return FailureModel.from_json(data, "the fitted model")

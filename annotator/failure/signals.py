@@ -1,0 +1,202 @@
+"""Per-frame signals of tracking failure, measured while tracking (or re-tracking), one frame at a time.
+
+Each signal is a number per processed frame, computed from what is known at
+that frame: the tracker's own scores, the box against earlier boxes, and two
+checks independent of SPTPT's model, both from OpenCV:
+
+* **flow**: pyramidal Lucas-Kanade "median flow" (Kalal et al., ICPR 2010)
+  moves the previous box to this frame from points tracked forward and back;
+  ``flow_iou`` is its agreement with the tracker's box, ``flow_fb`` the
+  median forward-backward error of the points (a classic failure cue),
+  ``flow_kept`` the share of points that survived.
+* **appearance**: normalised cross-correlation of the grey patch under the
+  box with the first frame's (``ncc_first``) and the previous frame's
+  (``ncc_prev``).
+
+The rest come from the tracker: its log-likelihood and scoring stage, the
+gap between its best candidate and the next best ones (a flat posterior
+cannot tell the target from its surroundings), the spatial spread of its best
+candidates, and jumps of position, scale and aspect ratio.
+
+Signals are the raw material; :mod:`annotator.failure.model` turns them into
+features (running levels, short windows) and a failure probability. Every
+signal is finite; where one cannot be measured (the first frame, a box
+outside the image) it takes its "nothing wrong" value, documented per name
+in :data:`SIGNALS`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import cv2
+import numpy as np
+
+__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
+
+#: Signal name -> what it measures (and its value where it cannot be measured).
+SIGNALS: Mapping[str, str] = {
+    "log_likelihood": "the tracker's score RE- - RE+ (bootstrap: intersection with the first frame's codes), "
+                      "clipped to [-50, 50]",
+    "bootstrap": "1 while the tracker scores by the bootstrap intersection (before its subspaces exist), else 0",
+    "accepted": "1 when the frame updated the appearance model, else 0",
+    "score_gap": "best candidate's score minus the mean of the best 5%: small when many candidates look alike "
+                 "(0 without candidates)",
+    "particle_spread": "spread of the best 5% candidates' centres, in box sizes (0 without candidates)",
+    "jump": "centre displacement from the previous frame, in box sizes (0 on the first frame)",
+    "scale_change": "|log| of the box area ratio to the previous frame (0 on the first frame)",
+    "scale_drift": "|log| of the box area ratio to the first frame",
+    "aspect_drift": "|log| of the aspect ratio (h/w) ratio to the first frame",
+    "flow_iou": "IoU of the tracker's box with the previous box moved by median optical flow (1 when no flow)",
+    "flow_fb": "median forward-backward error of the flow points, in box sizes (0 when no flow)",
+    "flow_kept": "share of flow points whose forward-backward error was small (1 when no flow)",
+    "ncc_first": "normalised cross-correlation of the box's grey patch with the first frame's, in [-1, 1]",
+    "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
+}
+
+#: Each signal's value where nothing is wrong: a first frame, a box a person gave.
+NEUTRAL: Mapping[str, float] = {
+    "log_likelihood": 0.0, "bootstrap": 0.0, "accepted": 1.0, "score_gap": 0.0, "particle_spread": 0.0, "jump": 0.0,
+    "scale_change": 0.0, "scale_drift": 0.0, "aspect_drift": 0.0, "flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0,
+    "ncc_first": 1.0, "ncc_prev": 1.0,
+}
+
+_PATCH = 32  # side of the grey patches compared by NCC, px
+_GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
+_LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+_TOP_SHARE = 0.05
+
+
+def _grey(frame_rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2GRAY)
+
+
+def _patch(grey: np.ndarray, box: np.ndarray) -> np.ndarray | None:
+    """The box's grey patch resized to 32x32, zero-mean and unit-norm; None if the box misses the image."""
+    height, width = grey.shape
+    x, y, w, h = box
+    x0, y0 = max(int(math.floor(x)), 0), max(int(math.floor(y)), 0)
+    x1, y1 = min(int(math.ceil(x + w)), width), min(int(math.ceil(y + h)), height)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    patch = cv2.resize(grey[y0:y1, x0:x1], (_PATCH, _PATCH), interpolation=cv2.INTER_AREA).astype(np.float64)
+    patch -= patch.mean()
+    norm = np.linalg.norm(patch)
+    return patch / norm if norm > 1e-9 else None
+
+
+def _ncc(a: np.ndarray | None, b: np.ndarray | None) -> float:
+    return float(np.clip(np.sum(a * b), -1.0, 1.0)) if a is not None and b is not None else 0.0
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = a[2] * a[3] + b[2] * b[3] - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None, box: np.ndarray) -> tuple[float, float]:
+    """``(score_gap, particle_spread)`` of a frame's candidates (see :data:`SIGNALS`)."""
+    if particles_xywh is None or scores is None or len(scores) < 2:
+        return 0.0, 0.0
+    scores = np.asarray(scores, dtype=np.float64)
+    finite = np.isfinite(scores)
+    if finite.sum() < 2:
+        return 0.0, 0.0
+    scores, particles = scores[finite], np.asarray(particles_xywh, dtype=np.float64)[finite]
+    k = max(2, int(math.ceil(_TOP_SHARE * len(scores))))
+    top = np.argpartition(-scores, k - 1)[:k]
+    gap = float(scores.max() - scores[top].mean())
+    centres = particles[top, :2] + particles[top, 2:] / 2
+    size = math.sqrt(max(box[2] * box[3], 1e-9))
+    spread = float(np.sqrt(centres.var(axis=0).sum()) / size)
+    return float(np.clip(gap, 0.0, 50.0)), float(min(spread, 10.0))
+
+
+class SignalMeter:
+    """Measures :data:`SIGNALS` frame by frame along one pass of one track.
+
+    Call :meth:`first` with the frame that holds the given (or corrected) box,
+    then :meth:`next` with each following frame in pass order (forward or
+    backward: "previous" means the previous frame of the pass).
+    """
+
+    def __init__(self) -> None:
+        self._first_patch: np.ndarray | None = None
+        self._first_box: np.ndarray | None = None
+        self._prev_grey: np.ndarray | None = None
+        self._prev_box: np.ndarray | None = None
+        self._prev_patch: np.ndarray | None = None
+
+    def first(self, frame_rgb: np.ndarray, box_xywh) -> dict[str, float]:
+        grey = _grey(frame_rgb)
+        box = np.asarray(box_xywh, dtype=np.float64)
+        self._first_box, self._first_patch = box, _patch(grey, box)
+        self._prev_grey, self._prev_box, self._prev_patch = grey, box, self._first_patch
+        return {**NEUTRAL, "ncc_first": 1.0 if self._first_patch is not None else 0.0}
+
+    def next(self, frame_rgb: np.ndarray, box_xywh, *, log_likelihood: float, scoring: str, accepted: bool,
+             particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None) -> dict[str, float]:
+        if self._prev_grey is None:
+            raise RuntimeError("SignalMeter.next() before first(): start the pass with first(frame, box)")
+        grey = _grey(frame_rgb)
+        box = np.asarray(box_xywh, dtype=np.float64)
+        prev, first = self._prev_box, self._first_box
+        size = math.sqrt(max(prev[2] * prev[3], 1e-9))
+        jump = math.hypot(box[0] + box[2] / 2 - prev[0] - prev[2] / 2, box[1] + box[3] / 2 - prev[1] - prev[3] / 2)
+        area = max(box[2] * box[3], 1e-9)
+        flow_iou, flow_fb, flow_kept = self._flow(grey, prev, box)
+        patch = _patch(grey, box)
+        gap, spread = particle_stats(particles_xywh, particle_scores, box)
+        ll = float(log_likelihood) if np.isfinite(log_likelihood) else -50.0
+        signals = {
+            "log_likelihood": float(np.clip(ll, -50.0, 50.0)),
+            "bootstrap": 1.0 if scoring == "bootstrap" else 0.0,
+            "accepted": 1.0 if accepted else 0.0,
+            "score_gap": gap,
+            "particle_spread": spread,
+            "jump": float(min(jump / size, 10.0)),
+            "scale_change": float(min(abs(math.log(area / max(prev[2] * prev[3], 1e-9))), 5.0)),
+            "scale_drift": float(min(abs(math.log(area / max(first[2] * first[3], 1e-9))), 5.0)),
+            "aspect_drift": float(min(abs(math.log((box[3] / max(box[2], 1e-9))
+                                                   / (first[3] / max(first[2], 1e-9)))), 5.0)),
+            "flow_iou": flow_iou,
+            "flow_fb": flow_fb,
+            "flow_kept": flow_kept,
+            "ncc_first": _ncc(patch, self._first_patch),
+            "ncc_prev": _ncc(patch, self._prev_patch),
+        }
+        self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
+        return signals
+
+    def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray) -> tuple[float, float, float]:
+        """Median flow of a point grid in the previous box: (IoU with ``box``, FB error, share kept)."""
+        height, width = grey.shape
+        x, y, w, h = prev
+        xs = np.clip(x + (np.arange(_GRID) + 0.5) * w / _GRID, 0, width - 1)
+        ys = np.clip(y + (np.arange(_GRID) + 0.5) * h / _GRID, 0, height - 1)
+        if w < 2 or h < 2 or x >= width or y >= height or x + w <= 0 or y + h <= 0:
+            return 1.0, 0.0, 1.0
+        points = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2).astype(np.float32)
+        forward, ok_f, _ = cv2.calcOpticalFlowPyrLK(self._prev_grey, grey, points, None, **_LK)
+        back, ok_b, _ = cv2.calcOpticalFlowPyrLK(grey, self._prev_grey, forward, None, **_LK)
+        ok = (ok_f.ravel() == 1) & (ok_b.ravel() == 1)
+        if ok.sum() < 4:
+            return 0.0, 1.0, float(ok.mean())
+        fb = np.linalg.norm((points - back).reshape(-1, 2), axis=1)
+        median_fb = float(np.median(fb[ok]))
+        kept = ok & (fb <= median_fb)
+        p0, p1 = points.reshape(-1, 2)[kept].astype(np.float64), forward.reshape(-1, 2)[kept].astype(np.float64)
+        dx, dy = np.median(p1 - p0, axis=0)
+        i, j = np.triu_indices(len(p0), 1)
+        d0 = np.linalg.norm(p0[i] - p0[j], axis=1)
+        d1 = np.linalg.norm(p1[i] - p1[j], axis=1)
+        valid = d0 > 1e-6
+        scale = float(np.median(d1[valid] / d0[valid])) if valid.any() else 1.0
+        cx, cy = x + w / 2 + dx, y + h / 2 + dy
+        moved = np.array([cx - w * scale / 2, cy - h * scale / 2, w * scale, h * scale])
+        size = math.sqrt(max(w * h, 1e-9))
+        return _iou(moved, box), float(min(median_fb / size, 10.0)), float(kept.mean())
