@@ -1,0 +1,228 @@
+"""Where items execute: :func:`run_item` and what runs inside a worker process around it.
+
+Failures
+    An item fails alone: a missing, corrupt or unreadable input, a box
+    outside the frame, a range beyond the video, even an unexpected
+    exception, become an :class:`ItemOutcome` with the exit code the
+    single-video command would have given (and from it a row of
+    ``failures.jsonl`` and of the summary). Worker processes that die are
+    handled by the executor (:mod:`annotator.batch.executors`).
+
+Progress events
+    A worker sends ``("start", id, pid, total_frames)`` and ``("frames", id,
+    done)`` (at most every 0.5 s per item) through whatever ``send`` it is
+    given: a ``multiprocessing`` queue handed to the pool's initializer, or a
+    ``distributed.Queue`` named for the run. The frame count is read by
+    wrapping the :class:`~annotator.progress.Progress` that ``annotate``
+    creates (see :func:`_install_frame_hook`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from annotator.annotate import RESULT_FILES
+from annotator.batch.plan import ItemJob
+from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
+from annotator.progress import Progress
+
+_EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item
+
+
+@dataclass
+class ItemOutcome:
+    """How one item ended in a worker."""
+
+    item_id: str
+    status: str  # "done", "partial" (decode error part-way, outputs written) or "failed"
+    exit_code: int = EXIT_OK
+    error: str | None = None
+    traceback: str | None = None
+    frames: int = 0
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0  # user + system time of the worker process during the item
+    pid: int = 0
+    host: str = ""
+    peak_rss_mb: float | None = None
+
+
+
+_THREAD = threading.local()  # .reporter: the current item's event sender in this thread
+_ITEM_LOCK = threading.Lock()  # one item at a time per process (numba parallel regions are not re-entrant)
+_POOL_EVENTS: Any = None  # the multiprocessing queue of a pool worker
+
+
+class _Reporter:
+    """Sends ``start`` / ``frames`` events of one item, at most every ``_EVENT_INTERVAL`` seconds."""
+
+    def __init__(self, item_id: str, send: Callable[[tuple], None]) -> None:
+        self.item_id = item_id
+        self._send = send
+        self._last = 0.0
+        self.total = 0
+
+    def emit(self, event: tuple) -> None:
+        with contextlib.suppress(Exception):  # progress must never fail an item
+            self._send(event)
+
+    def start(self, total: int) -> None:
+        self.total = total
+        self.emit(("start", self.item_id, os.getpid(), total))
+
+    def frames(self, done: int) -> None:
+        now = time.monotonic()
+        if now - self._last >= _EVENT_INTERVAL or done >= self.total:
+            self._last = now
+            self.emit(("frames", self.item_id, done))
+
+
+class _ReportingProgress(Progress):
+    """``annotate``'s per-item Progress, forwarding frame counts to the thread's reporter (if any)."""
+
+    def __init__(self, total: int, **kwargs: Any) -> None:
+        super().__init__(total, **kwargs)
+        self._reporter: _Reporter | None = getattr(_THREAD, "reporter", None)
+        if self._reporter is not None:
+            self._reporter.start(self.total)
+
+    def advance(self, steps: int = 1) -> None:
+        super().advance(steps)
+        if self._reporter is not None:
+            self._reporter.frames(self.done)
+
+
+def _install_frame_hook() -> None:
+    """Let ``annotate`` report frames: replace the Progress class it looks up by the reporting subclass.
+
+    ``annotate()`` takes no progress callback; it builds ``Progress(n,
+    enabled=...)`` from its module globals. The subclass behaves exactly
+    like Progress unless the calling thread has a reporter, so other callers
+    in the same process are unaffected. Done once per process, and only
+    while the name still refers to the original class.
+    """
+    import annotator.annotate as annotate_module
+
+    if annotate_module.Progress is Progress:
+        annotate_module.Progress = _ReportingProgress
+
+
+def _peak_rss_mb() -> float | None:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 1024.0 if sys.platform != "darwin" else peak / (1024.0 * 1024.0)
+
+
+def _clear_item_folder(folder: Path) -> None:
+    """Remove a previous run's outputs: run.json first, so a half-redone folder never looks finished."""
+    for name in ("run.json", *[n for n in RESULT_FILES if n != "run.json"]):
+        with contextlib.suppress(FileNotFoundError):
+            (folder / name).unlink()
+    for pattern in ("*.txt", "times/*.txt", ".*.tmp*", "times/.*.tmp*"):
+        for path in folder.glob(pattern):
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+                path.unlink()
+
+
+def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemOutcome:
+    """Run one item: clear its folder, annotate, and report how it ended; never raises for the item's faults.
+
+    Parameters
+    ----------
+    job : ItemJob
+    send : callable, optional
+        Receives progress events ``("start", id, pid, total_frames)`` and
+        ``("frames", id, done)``.
+    """
+    from annotator.annotate import annotate
+
+    with _ITEM_LOCK:
+        _install_frame_hook()
+        if job.threads is not None:
+            import numba
+
+            numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
+        outcome = ItemOutcome(item_id=job.item_id, status="failed", pid=os.getpid(), host=_hostname())
+        started, cpu_started = time.perf_counter(), os.times()
+        _THREAD.reporter = _Reporter(job.item_id, send) if send is not None else None
+        folder = Path(job.folder)
+        try:
+            if folder.is_dir():
+                _clear_item_folder(folder)
+            result = annotate(job.input_path, job.targets, job.config, out_dir=folder, start=job.start,
+                              stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False)
+            outcome.frames = result.run.frames_processed
+            if result.exit_code == EXIT_OK:
+                outcome.status = "done"
+            else:
+                outcome.status, outcome.exit_code, outcome.error = "partial", result.exit_code, result.message
+        except ToolError as exc:
+            outcome.exit_code, outcome.error = exc.exit_code, str(exc)
+        except OSError as exc:
+            outcome.exit_code = EXIT_OUTPUT
+            outcome.error = f"{exc.filename or job.folder}: {exc.strerror or exc}: check the output folder"
+        except Exception as exc:  # noqa: BLE001 - a bug on one item must not stop the others
+            outcome.exit_code = EXIT_INTERNAL
+            outcome.error = f"internal error: {type(exc).__name__}: {exc} (see traceback in failures.jsonl)"
+            outcome.traceback = traceback.format_exc()
+        finally:
+            _THREAD.reporter = None
+        if outcome.status == "failed":
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only if the item left nothing: no empty folders for items that never started
+        outcome.seconds = time.perf_counter() - started
+        cpu = os.times()
+        outcome.cpu_seconds = (cpu.user - cpu_started.user) + (cpu.system - cpu_started.system)
+        outcome.peak_rss_mb = _peak_rss_mb()
+        return outcome
+
+
+def _hostname() -> str:
+    import socket
+
+    return socket.gethostname()
+
+
+def pool_initializer(events: Any) -> None:
+    """Worker start-up: keep the event queue; leave Ctrl-C to the parent; die with the parent (Linux)."""
+    import signal
+
+    global _POOL_EVENTS
+    _POOL_EVENTS = events
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: no orphan keeps writing after the batch dies
+            if os.getppid() == 1:
+                os._exit(1)
+
+
+def pool_run_item(job: ItemJob) -> ItemOutcome:
+    """A process-pool task: one item, its progress sent to the queue that :func:`pool_initializer` kept."""
+    events = _POOL_EVENTS
+    return run_item(job, events.put if events is not None else None)
+
+
+def dask_run_item(job: ItemJob, queue_name: str) -> ItemOutcome:
+    """A Dask task: one item, its progress sent to the run's ``distributed.Queue`` named ``queue_name``."""
+    from distributed import Queue, get_client
+
+    try:
+        events = Queue(queue_name, client=get_client())
+        send = events.put
+    except Exception:  # noqa: BLE001 - no progress rather than no result
+        send = None
+    return run_item(job, send)
