@@ -18,6 +18,13 @@ Where things are
     :mod:`~annotator.batch.run`
         The entry point :func:`run_batch`, which holds the output folder's
         lock and ties the above together.
+
+Killing a run
+    Whatever ends the main process, ``kill -9`` included, leaves no work
+    running: its local workers, their fork server and multiprocessing's
+    resource tracker stop within moments (how: "When the main process dies"
+    in :mod:`~annotator.batch.executors`). Finished items keep their
+    outputs, and a rerun redoes only the rest (the resume rule).
 """
 
 from __future__ import annotations

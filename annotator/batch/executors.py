@@ -16,6 +16,19 @@ Worker deaths
     A worker process that dies (out of memory, killed) is replaced and its
     items retried once; an item in flight when a worker dies twice fails
     with that reason. On a Dask cluster the scheduler does the retrying.
+
+When the main process dies
+    Local workers and their fork server stop within moments of the batch's
+    main process, whatever ends it (``kill -9`` included): no orphan keeps
+    tracking, writing or holding memory and cores that a rerun needs. Each
+    worker watches a pipe whose write end only the main process holds and
+    exits at its end of file (see
+    :func:`annotator.batch.workers._exit_when_main_process_dies`); the fork
+    server, whose "alive" pipe the workers hold, then sees its end of file
+    and exits too, as does multiprocessing's resource tracker. On a Dask
+    cluster the workers belong to the cluster: when the client disconnects
+    the scheduler releases the run's items, and one already running on a
+    worker runs to its end there.
 """
 
 from __future__ import annotations
@@ -85,8 +98,10 @@ class _PoolBackend:
 
     def _start(self) -> None:
         self.events = self._context.Queue()
+        # Only this process holds the write end; each worker gets a copy of the read end and exits at its EOF.
+        self._main_alive_reader, self._main_alive_writer = self._context.Pipe(duplex=False)
         self.pool = cf.ProcessPoolExecutor(self.workers, mp_context=self._context, initializer=pool_initializer,
-                                           initargs=(self.events,))
+                                           initargs=(self.events, self._main_alive_reader))
 
     def submit(self, job: ItemJob, priority: int = 0) -> cf.Future:
         return self.pool.submit(pool_run_item, job)
@@ -121,6 +136,9 @@ class _PoolBackend:
         with contextlib.suppress(Exception):
             self.events.close()
             self.events.cancel_join_thread()
+        # After the shutdown above: closing earlier would end workers still finishing their items.
+        self._main_alive_writer.close()
+        self._main_alive_reader.close()
 
     def close(self, *, cancel: bool = False) -> None:
         self._drop(cancel=cancel)

@@ -15,6 +15,11 @@ Progress events
     ``distributed.Queue`` named for the run. The frame count is read by
     wrapping the :class:`~annotator.progress.Progress` that ``annotate``
     creates (see :func:`_install_frame_hook`).
+
+Lifetime of a pool worker
+    A pool worker ends within moments of the batch's main process, however
+    that process ends (``kill -9`` included): see
+    :func:`_exit_when_main_process_dies`.
 """
 
 from __future__ import annotations
@@ -193,21 +198,58 @@ def _hostname() -> str:
     return socket.gethostname()
 
 
-def pool_initializer(events: Any) -> None:
-    """Worker start-up: keep the event queue; leave Ctrl-C to the parent; die with the parent (Linux)."""
+def pool_initializer(events: Any, main_alive: Any = None) -> None:
+    """Worker start-up: keep the event queue; leave Ctrl-C to the parent; end with the batch's main process.
+
+    Parameters
+    ----------
+    events : multiprocessing queue
+        Where :func:`pool_run_item` sends progress events.
+    main_alive : multiprocessing.connection.Connection, optional
+        The read end of a pipe whose write end only the batch's main process
+        holds (see ``_PoolBackend``); watched by
+        :func:`_exit_when_main_process_dies`.
+    """
     import signal
 
     global _POOL_EVENTS
     _POOL_EVENTS = events
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if main_alive is not None:
+        threading.Thread(target=_exit_when_main_process_dies, args=(main_alive,), name="sptpt-batch-main-watch",
+                         daemon=True).start()
     if sys.platform.startswith("linux"):
+        # Our parent is the fork server, not the main process: this only covers the fork server being killed.
         with contextlib.suppress(Exception):
             import ctypes
 
             libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: no orphan keeps writing after the batch dies
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
             if os.getppid() == 1:
                 os._exit(1)
+
+
+def _exit_when_main_process_dies(main_alive: Any) -> None:
+    """Block until the main process's end of the pipe closes, then end this worker at once.
+
+    The kernel closes the write end when the main process dies, whatever
+    kills it (``kill -9`` included), and nothing else holds it, so end of
+    file means exactly that. The parent-death signal cannot say it: a
+    worker's parent is the fork server, and the fork server outlives the
+    main process for as long as any worker holds its "alive" pipe, so
+    without this the workers would finish their queued items and then wait
+    for more forever, holding memory and cores. ``os._exit``: nothing of the
+    item in progress is worth saving (its folder has no ``run.json``, so a
+    rerun redoes it) and a clean shutdown could block on the dead parent's
+    queues. This thread needs the GIL to act: at the latest when the numba
+    kernel call in progress returns.
+    """
+    while True:
+        try:
+            main_alive.recv_bytes()  # the main process never sends: only end of file ends the wait
+        except (EOFError, OSError):
+            break
+    os._exit(1)
 
 
 def pool_run_item(job: ItemJob) -> ItemOutcome:
