@@ -18,8 +18,10 @@ Progress events
 
 Lifetime of a pool worker
     A pool worker ends within moments of the batch's main process, however
-    that process ends (``kill -9`` included): see
-    :func:`_exit_when_main_process_dies`.
+    that process ends (``kill -9`` included), and takes its ffmpeg
+    processes with it: see :func:`_exit_when_main_process_dies`. Its ffmpeg
+    processes share the run's process group, so a signal to the group
+    reaches them as well.
 """
 
 from __future__ import annotations
@@ -215,6 +217,10 @@ def pool_initializer(events: Any, main_alive: Any = None) -> None:
     global _POOL_EVENTS
     _POOL_EVENTS = events
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # imageio-ffmpeg puts each ffmpeg in a process group of its own (to spare it a terminal's Ctrl-C); in a
+    # worker it stays in the run's group instead, so that a signal to the whole run (kill -9 -PGID) reaches
+    # it too, and no orphaned encoder writes into an item folder that a rerun has just cleared.
+    os.environ["IMAGEIO_FFMPEG_NO_PREVENT_SIGINT"] = "1"
     if main_alive is not None:
         threading.Thread(target=_exit_when_main_process_dies, args=(main_alive,), name="sptpt-batch-main-watch",
                          daemon=True).start()
@@ -249,7 +255,29 @@ def _exit_when_main_process_dies(main_alive: Any) -> None:
             main_alive.recv_bytes()  # the main process never sends: only end of file ends the wait
         except (EOFError, OSError):
             break
+    _kill_child_processes()
     os._exit(1)
+
+
+def _kill_child_processes() -> None:
+    """SIGKILL this process's children: the item's ffmpeg readers and writers (Linux; elsewhere nothing).
+
+    Left alone, a writer would get end of file on its input when the worker
+    exits and go on to finish the item's temporary overlay file.
+    """
+    import signal
+
+    me = os.getpid()
+    with contextlib.suppress(OSError):
+        for entry in os.scandir("/proc"):
+            if not entry.name.isdigit():
+                continue
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                with open(f"/proc/{entry.name}/stat", "rb") as handle:
+                    stat = handle.read()
+                # "pid (comm) state ppid ...": comm may hold spaces and parentheses, so split after the last ")".
+                if int(stat.rsplit(b")", 1)[1].split()[1]) == me:
+                    os.kill(int(entry.name), signal.SIGKILL)
 
 
 def pool_run_item(job: ItemJob) -> ItemOutcome:
