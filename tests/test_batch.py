@@ -1,11 +1,13 @@
 """Batch runs on tiny synthetic videos: isolated failures, dataset outputs, resume after kill -9, worker
-deaths, the same outputs with 1 and 2 workers and through a Dask LocalCluster.
+deaths, no process left running after kill -9 of the main process, the same outputs with 1 and 2 workers and
+through a Dask LocalCluster.
 
 Items are 10-20 frames of 96x72 tracked with 60 particles, so that the whole file runs in well under a minute.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -202,9 +204,9 @@ def in_progress(out: Path) -> tuple[list[Path], list[Path]]:
     return finished, running
 
 
-def start_batch(manifest: Path, out: Path, config: Path) -> subprocess.Popen:
-    command = [sys.executable, "-m", "annotator.cli", "batch", str(manifest), "--out", str(out), "--workers", "1",
-               "--config", str(config), "--quiet"]
+def start_batch(manifest: Path, out: Path, config: Path, workers: int = 1) -> subprocess.Popen:
+    command = [sys.executable, "-m", "annotator.cli", "batch", str(manifest), "--out", str(out), "--workers",
+               str(workers), "--config", str(config), "--quiet"]
     return subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
 
@@ -287,6 +289,47 @@ def test_a_worker_killed_mid_item_is_replaced_and_its_item_retried(dataset, long
     row = next(r for r in summary["items"] if r["id"] == victim)
     assert row["status"] == "done" and row["worker_pid"] != worker.pid
     check_every_output_parses(out)
+
+
+def test_kill_9_of_the_main_process_alone_stops_its_workers_and_fork_server(dataset, longer):
+    psutil = pytest.importorskip("psutil")
+    out = dataset / "main-killed"
+    proc = start_batch(longer, out, dataset / "fast.yaml", workers=2)
+
+    def run_processes():
+        """Every descendant (fork server, resource tracker, workers, their ffmpeg), once a worker is mid-item."""
+        if not in_progress(out)[1]:
+            return None
+        try:
+            descendants = psutil.Process(proc.pid).children(recursive=True)
+            servers = [p for p in descendants if "forkserver" in " ".join(p.cmdline())]
+            return set(descendants) if any(s.children() for s in servers) else None
+        except psutil.Error:  # a process ended while being looked at: look again
+            return None
+
+    processes = wait_until(run_processes, proc)
+    os.kill(proc.pid, signal.SIGKILL)  # the main process only: the rest must follow it by themselves
+    proc.wait(10)
+
+    def alive():
+        running = []
+        for process in list(processes):
+            with contextlib.suppress(psutil.Error):
+                # A dead orphan may stay a zombie until init reaps it: it runs nothing and holds no memory.
+                if process.is_running() and process.status() != psutil.STATUS_ZOMBIE:
+                    running.append(process)
+                    processes.update(process.children())  # started after the first look
+        return running
+
+    deadline = time.monotonic() + 10.0
+    while alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = []
+    for process in alive():
+        with contextlib.suppress(psutil.Error):
+            left.append(f"{process.pid} {' '.join(process.cmdline())[:80]}")
+            process.kill()  # not left behind for the rest of the suite
+    assert not left, f"still running 10 s after the main process died: {left}"
 
 
 def test_dask_local_cluster_gives_the_same_outputs(first_run, dataset):

@@ -1,0 +1,209 @@
+"""Batch-level outputs: status rows, ``failures.jsonl``, the merged COCO file, ``summary.json`` and the index.
+
+Layout of the output folder ``OUT``::
+
+    OUT/<id>/...            each item's outputs, exactly as ``sptpt-annotate VIDEO`` writes them
+    OUT/annotations.json    COCO for the whole dataset (merge_coco: ids unique across videos)
+    OUT/summary.json        settings, counts and one row per item
+    OUT/failures.jsonl      one JSON object per failed item: id, input, manifest line, exit code, error
+    OUT/report.html         index: a sortable row per item, linking ``<id>/report.html``
+
+The batch-level files are rebuilt at the end of every run from all items'
+``run.json``, so a resumed run indexes old and new items alike; each is
+written atomically (write to a temporary file, rename). ``failures.jsonl``
+is also rewritten whenever an item fails, so a killed run still lists the
+failures so far.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from annotator import __version__
+from annotator.atomic import write_text_atomic
+from annotator.batch.plan import PlannedItem, normalised_json, read_run_json
+from annotator.batch.workers import ItemOutcome
+from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
+
+#: Batch-level outputs in ``OUT``.
+BATCH_FILES = ("annotations.json", "summary.json", "report.html", "failures.jsonl")
+BATCH_TEMPLATE = "batch_report.html.j2"
+
+
+@dataclass
+class BatchResult:
+    """What a batch run did."""
+
+    out_dir: Path
+    rows: list[dict[str, Any]]
+    exit_code: int
+    counts: dict[str, int]
+    frames_this_run: int
+    seconds: float
+    paths: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def failures(self) -> list[dict[str, Any]]:
+        return [r for r in self.rows if r["status"] in ("failed", "partial")]
+
+
+
+def _status_row(plan: PlannedItem, outcome: ItemOutcome | None, run: Mapping[str, Any] | None,
+                out_dir: Path) -> dict[str, Any]:
+    item, job = plan.item, plan.job
+    if plan.reuse:
+        status = "done"
+    elif outcome is None:
+        status = "pending"
+    else:
+        status = outcome.status
+    row: dict[str, Any] = {
+        "id": item.id,
+        "status": status,
+        "reused": plan.reuse,
+        "input": str(item.input_path),
+        "manifest": item.where,
+        "seed": job.config.seed,
+        "folder": item.id,
+        "report": None,
+        "frames": None,
+        "tracks": len(item.targets),
+        "flagged": None,
+        "flagged_share": None,
+        "longest_flagged_span": None,
+        "mean_confidence": None,
+        "seconds": None,
+        "frames_per_second": None,
+        "exit_code": outcome.exit_code if outcome is not None else EXIT_OK,
+        "error": outcome.error if outcome is not None else None,
+        "worker_cpu_seconds": outcome.cpu_seconds if outcome is not None else None,
+        "worker_pid": outcome.pid if outcome is not None else None,
+        "worker_host": outcome.host if outcome is not None else None,
+        "worker_peak_rss_mb": outcome.peak_rss_mb if outcome is not None else None,
+    }
+    if status == "pending":
+        row["error"] = "not run: the batch was interrupted; rerun to finish it"
+    if run is not None and status in ("done", "partial"):
+        tracks = run.get("tracks") or []
+        boxes = sum(int(t.get("frames", 0)) for t in tracks)
+        flagged = sum(int(t.get("flagged", 0)) for t in tracks)
+        timings = run.get("timings") or {}
+        confidences = [t.get("mean_confidence") for t in tracks if isinstance(t.get("mean_confidence"), (int, float))]
+        row.update({
+            "frames": run.get("frames_processed"),
+            "flagged": flagged,
+            "flagged_share": flagged / boxes if boxes else 0.0,
+            "longest_flagged_span": max((int(t.get("longest_span", 0)) for t in tracks), default=0),
+            "mean_confidence": sum(confidences) / len(confidences) if confidences else None,
+            "seconds": timings.get("seconds_total"),
+            "frames_per_second": timings.get("frames_per_second"),
+        })
+        if (out_dir / item.id / "report.html").is_file():
+            row["report"] = f"{item.id}/report.html"
+    return row
+
+
+def write_failures(out_dir: Path, planned: Sequence[PlannedItem], outcomes: Mapping[str, ItemOutcome]) -> Path:
+    """``OUT/failures.jsonl``: one object per item of this run that failed or was only partly decoded."""
+    lines = []
+    for plan in planned:
+        outcome = outcomes.get(plan.item.id)
+        if outcome is None or outcome.status == "done":
+            continue
+        record = {"id": plan.item.id, "status": outcome.status, "input": str(plan.item.input_path),
+                  "manifest": plan.item.where, "exit_code": outcome.exit_code, "error": outcome.error}
+        if outcome.traceback:
+            record["traceback"] = outcome.traceback
+        lines.append(json.dumps(record, ensure_ascii=False) + "\n")
+    path = out_dir / "failures.jsonl"
+    write_text_atomic(path, "".join(lines))
+    return path
+
+
+def _merged_coco(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """All items' COCO files in manifest order, each video renamed to its item id (unique), ids renumbered."""
+    from annotator.exports.coco import merge_coco
+
+    datasets = []
+    for row in rows:
+        path = out_dir / row["id"] / "annotations.json"
+        if row["status"] not in ("done", "partial") or not path.is_file():
+            continue
+        data = json.loads(path.read_text(encoding="utf-8"))
+        for video in data.get("videos", []):
+            old = video["name"]
+            if old != row["id"]:
+                video["name"] = row["id"]
+                prefix = f"{old}/"
+                for image in data.get("images", []):
+                    if image.get("video_id") == video["id"] and str(image.get("file_name", "")).startswith(prefix):
+                        image["file_name"] = f"{row['id']}/{image['file_name'][len(prefix):]}"
+        datasets.append(data)
+    if not datasets:
+        return {"info": {"description": "sptpt-annotate boxes for 0 videos", "contributor": "sptpt-annotate",
+                         "bbox_format": "xywh, 0-based pixels"},
+                "licenses": [], "categories": [], "videos": [], "images": [], "tracks": [], "annotations": []}
+    merged = merge_coco(datasets)
+    merged["info"]["description"] = f"sptpt-annotate boxes for {len(merged['videos'])} videos"
+    return merged
+
+
+def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
+    import jinja2
+
+    from annotator.report import templates_dir
+
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())),
+                             autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined)
+    page = env.get_template(BATCH_TEMPLATE).render(summary=summary, rows=summary["items"])
+    write_text_atomic(path, page)
+
+
+def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, ItemOutcome], *, out_dir: Path,
+                        seconds: float, manifest: str | None, formats: Sequence[str], seed: int | None,
+                        config_values: Mapping[str, Any] | None, preset: str | None, settings: Mapping[str, Any],
+                        interrupted: bool) -> BatchResult:
+    """Write every batch-level file from all planned items (reused ones included) and say what the run did."""
+    from annotator.exports.coco import save_coco
+
+    rows = [_status_row(plan, outcomes.get(plan.item.id), read_run_json(plan.job.folder), out_dir)
+            for plan in planned]
+    counts = {"items": len(rows)}
+    for status in ("done", "partial", "failed", "pending"):
+        counts[status] = sum(r["status"] == status for r in rows)
+    counts["reused"] = sum(r["reused"] for r in rows)
+    frames_this_run = sum(o.frames for o in outcomes.values())
+    frames_total = sum(int(r["frames"] or 0) for r in rows)
+    exit_code = EXIT_OK if counts["done"] == counts["items"] else EXIT_BATCH_FAILURES
+    base_seed = seed if seed is not None else int((config_values or {}).get("seed", 0) or 0)
+    summary = {
+        "tool": "sptpt-annotate batch",
+        "tool_version": __version__,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "manifest": manifest,
+        "out": str(out_dir.resolve()),
+        "settings": {"base_seed": base_seed, "preset": preset, "config": normalised_json(dict(config_values or {})),
+                     "formats": list(formats), **dict(settings)},
+        "counts": counts,
+        "exit_code": exit_code,
+        "interrupted": interrupted,
+        "frames": frames_total,
+        "frames_this_run": frames_this_run,
+        "wall_seconds": seconds,
+        "frames_per_second_this_run": frames_this_run / seconds if seconds > 0 and frames_this_run else None,
+        "items": rows,
+    }
+    paths = {"failures": write_failures(out_dir, planned, outcomes)}
+    if "coco" in formats:
+        save_coco(out_dir / "annotations.json", _merged_coco(out_dir, rows))
+        paths["coco"] = out_dir / "annotations.json"
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
+    paths["summary"] = out_dir / "summary.json"
+    _render_index(out_dir / "report.html", summary)
+    paths["report"] = out_dir / "report.html"
+    return BatchResult(out_dir=out_dir, rows=rows, exit_code=exit_code, counts=counts,
+                       frames_this_run=frames_this_run, seconds=seconds, paths=paths)

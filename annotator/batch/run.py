@@ -1,0 +1,179 @@
+"""The entry point :func:`run_batch`: plan, hold the output folder, execute, write the batch-level files.
+
+One run at a time per folder
+    A lock file (``OUT/.batch.lock``, ``flock``) stops two batch runs
+    writing to one folder at once; the kernel releases it when the holder
+    dies. Items are judged finished or not (the resume rule, in
+    :mod:`annotator.batch.plan`) only under the lock, and temporary files of
+    batch-level writes that a killed run left behind are removed first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence, TextIO
+
+from annotator.formats import DEFAULT_FORMATS
+from annotator.batch.executors import default_workers, execute_items, threads_per_worker, worker_context
+from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
+from annotator.batch.plan import is_item_finished, plan_batch, read_run_json
+from annotator.batch.progress import BatchProgress
+from annotator.batch.workers import ItemOutcome
+from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError
+from annotator.manifest import BatchItem
+
+LOCK_NAME = ".batch.lock"
+
+
+@contextlib.contextmanager
+def _exclusive(out_dir: Path):
+    """Hold ``OUT/.batch.lock`` for the run; the kernel releases it if the process dies."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock
+        yield
+        return
+    handle = open(out_dir / LOCK_NAME, "a+", encoding="utf-8")
+    try:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            raise ToolError(f"output folder {out_dir} is in use by another batch run ({holder}): wait for it to "
+                            "finish or choose another --out", EXIT_OUTPUT) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"pid {os.getpid()}\n")
+        handle.flush()
+        yield
+    finally:
+        handle.close()
+
+
+def _prepare_out_dir(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ToolError(f"output folder {out_dir} is a file: give --out a folder path", EXIT_OUTPUT)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ToolError(f"output folder {out_dir} cannot be written ({exc.strerror}): choose a writable --out folder",
+                        EXIT_OUTPUT) from None
+
+
+def _remove_stale_temporaries(out_dir: Path) -> None:
+    """Temporary files of batch-level writes that a killed run left behind (atomic_path names)."""
+    for name in BATCH_FILES:
+        for path in out_dir.glob(f".{name}.*.tmp*"):
+            with contextlib.suppress(OSError):
+                path.unlink()
+
+
+def run_batch(
+    items: Sequence[BatchItem],
+    *,
+    out_dir: str | os.PathLike,
+    config_values: Mapping[str, Any] | None = None,
+    config_source: str = "config",
+    preset: str | None = None,
+    seed: int | None = None,
+    formats: Sequence[str] = DEFAULT_FORMATS,
+    force: bool = False,
+    start: int | None = None,
+    stop: int | None = None,
+    step: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    show_progress: bool = True,
+    manifest: str | None = None,
+    stream: TextIO | None = None,
+) -> BatchResult:
+    """Run every item, skipping finished ones; write the batch-level files.
+
+    Parameters
+    ----------
+    items : sequence of BatchItem
+        From :func:`~annotator.manifest.read_manifest` or
+        :func:`~annotator.manifest.items_from_otb_root`.
+    out_dir : path-like
+        ``OUT``; each item writes to ``OUT/<id>/``.
+    config_values, config_source, preset, seed
+        The batch configuration as for ``sptpt-annotate VIDEO`` (a
+        ``--config`` file's mapping and its name, ``--preset``, ``--seed``);
+        item params override it; ``seed`` is the base seed.
+    formats : sequence of str
+        Outputs of each item (``otb, coco, flags, overlay, report``).
+    force : bool
+        Redo finished items too.
+    start, stop, step : int, optional
+        Frame range of items whose manifest row gives none.
+    workers : int, optional
+        Local worker processes (default: the number of cores).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler to send the items to instead.
+    show_progress : bool
+    manifest : str, optional
+        Where the items came from, recorded in ``summary.json``.
+
+    Returns
+    -------
+    BatchResult
+        ``exit_code`` 0 when every item is done, 7 (EXIT_BATCH_FAILURES)
+        when some failed or were only partly decoded.
+
+    Raises
+    ------
+    InvalidManifestError
+        An item's params do not resolve (before any work).
+    ToolError
+        Invalid batch settings, or an output folder that cannot be used.
+    KeyboardInterrupt
+        After stopping the workers and writing the batch files for what finished.
+    """
+    out_dir = Path(out_dir)
+    if workers is not None and workers < 1:
+        raise ToolError(f"--workers {workers} is invalid: give 1 or more worker processes", EXIT_VALUE)
+    if scheduler is not None and workers is not None:
+        raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
+                        "sends items to a Dask cluster; give one", EXIT_VALUE)
+    n_workers = workers or default_workers()
+    # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
+    planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,
+                         preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step)
+    _prepare_out_dir(out_dir)
+    started = time.perf_counter()
+    with _exclusive(out_dir):
+        _remove_stale_temporaries(out_dir)
+        for plan in planned:
+            plan.reuse = not force and is_item_finished(plan.job, read_run_json(plan.job.folder))
+        todo = sorted((p for p in planned if not p.reuse), key=lambda p: -p.estimate)
+        n_workers = min(n_workers, max(len(todo), 1))
+        threads = None if scheduler else threads_per_worker(n_workers)
+        for plan in todo:
+            plan.job = dataclasses.replace(plan.job, threads=threads)
+        progress = BatchProgress(len(todo), reused=len(planned) - len(todo), enabled=show_progress, stream=stream)
+        outcomes: dict[str, ItemOutcome] = {}
+        settings = {"workers": None if scheduler else n_workers, "scheduler": scheduler,
+                    "start_method": None if scheduler else worker_context().get_start_method(),
+                    "numba_threads_per_worker": threads}
+        interrupted = False
+        try:
+            if todo:
+                execute_items(todo, outcomes, progress, out_dir, planned, scheduler=scheduler, workers=n_workers)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            progress.close()
+        result = write_batch_outputs(planned, outcomes, out_dir=out_dir, seconds=time.perf_counter() - started,
+                                     manifest=manifest, formats=formats, seed=seed, config_values=config_values,
+                                     preset=preset, settings=settings, interrupted=interrupted)
+    if interrupted:
+        raise KeyboardInterrupt
+    return result
