@@ -169,8 +169,10 @@ def track_source(
             items = []
             for tid, result in results.items():
                 flagged, _ = flags[tid].get(position, (False, ""))
+                # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
                 items.append(OverlayItem.from_frame_result(
-                    result, track_id=tid, flagged=flagged, corrected=result.scoring == "init"))
+                    result, track_id=tid, flagged=flagged,
+                    keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else ""))
             drawn = renderer.annotate(frame, items)
             writer.write(drawn)
             for tid in results:

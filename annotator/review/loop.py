@@ -39,7 +39,7 @@ folder exactly as it was, and the temporary folder is removed.
 Overlay
 -------
 The overlay is re-rendered for the whole processed range from the tracks:
-boxes, labels, corrected (keyframe) boxes and review marks. Particle clouds
+boxes, labels, the given first-frame box and corrected boxes, and review marks. Particle clouds
 and superpixels are not redrawn, on any frame: the tracker state that drew
 them is gone for the kept frames, and a video that showed them on re-tracked
 frames only would suggest a difference that is not there.
