@@ -97,6 +97,7 @@ from annotator.errors import (
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
 from annotator.pipeline import Target
 from annotator.progress import Progress, format_clock
+from annotator.wording import plural
 
 __all__ = [
     "BATCH_FILES",
@@ -681,7 +682,7 @@ class BatchProgress:
         if self._tty:
             self.draw(force=True)
         else:
-            what = f"{outcome.frames} frames in {outcome.seconds:.1f} s" if outcome.status != "failed" else ""
+            what = f"{plural(outcome.frames, 'frame')} in {outcome.seconds:.1f} s" if outcome.status != "failed" else ""
             reason = f": {outcome.error}" if outcome.error else ""
             self.stream.write(f"[{self.items_done}/{self.n_items}] {item_id} {outcome.status}"
                               f"{' ' + what if what else ''}{reason}\n")

@@ -458,3 +458,17 @@ def test_video_input(tmp_path):
     coco = json.loads((tmp_path / "out" / "annotations.json").read_text())
     assert coco["categories"][0]["name"] == "ball"
     assert [a["attributes"]["keyframe"] for a in coco["annotations"]].count(True) == 3
+
+
+def test_report_shows_the_absolute_input_path_before_and_after_a_retrack(tmp_path, monkeypatch):
+    frames = _write_folder(tmp_path / "seq", 8)
+    monkeypatch.chdir(tmp_path)
+    truth = make_clip(8, size=(96, 72), object_size=(24, 20)).boxes_xywh
+    annotate(Path("seq"), [Target(tuple(truth[0]), 1)], CONFIG, out_dir=Path("out"), show_progress=False)
+    absolute = str(frames.resolve())
+    header = f'<div class="muted">{absolute} &middot;'
+    assert header in (tmp_path / "out" / "report.html").read_text()
+    fix = tmp_path / "fix.csv"
+    fix.write_text("frame,x,y,w,h\n" + csv_row(5, truth[5]))
+    assert apply_corrections(Path("out"), fix, show_progress=False).changed
+    assert header in (tmp_path / "out" / "report.html").read_text()

@@ -73,6 +73,7 @@ from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import RUN_JSON, LoadedRun, load_run
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from annotator.wording import plural
 
 __all__ = ["ReviewResult", "apply_corrections"]
 
@@ -98,9 +99,10 @@ class ReviewResult:
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
-        return (f"{len(r.anchors)} new or changed correction{'s' if len(r.anchors) != 1 else ''}; re-tracked "
-                f"{frames} frames in {len(r.segments)} span{'s' if len(r.segments) != 1 else ''} in {r.seconds:.1f} s; "
-                f"{self.flagged_after} frame boxes flagged for review (was {self.flagged_before}); "
+        return (f"{plural(len(r.anchors), 'new or changed correction')}; re-tracked "
+                f"{plural(frames, 'frame')} in {plural(len(r.segments), 'span')} in {r.seconds:.1f} s; "
+                f"{plural(self.flagged_after, 'frame box', 'frame boxes')} flagged for review "
+                f"(was {self.flagged_before}); "
                 f"outputs rewritten in {self.out_dir}")
 
 
