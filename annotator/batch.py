@@ -1037,7 +1037,13 @@ def _write_failures(out_dir: Path, planned: Sequence[PlannedItem], outcomes: Map
 
 
 def _merged_coco(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """All items' COCO files in manifest order, each video renamed to its item id (unique), ids renumbered."""
+    """All items' COCO files in manifest order, each video renamed to its item id (unique), ids renumbered.
+
+    A video item's frame-dump names (``<name>/<frame:06d>.jpg``) follow the
+    rename; an image-folder item's ``file_name`` is its real image path
+    relative to the sequence folder's parent and is kept as it is, so a
+    dataset whose sequences share a parent folder has one image root.
+    """
     from annotator.exports.coco import merge_coco
 
     datasets = []
@@ -1046,10 +1052,13 @@ def _merged_coco(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> dict[str, 
         if row["status"] not in ("done", "partial") or not path.is_file():
             continue
         data = json.loads(path.read_text(encoding="utf-8"))
+        real_images = Path(row["input"]).is_dir()
         for video in data.get("videos", []):
             old = video["name"]
             if old != row["id"]:
                 video["name"] = row["id"]
+                if real_images:
+                    continue
                 prefix = f"{old}/"
                 for image in data.get("images", []):
                     if image.get("video_id") == video["id"] and str(image.get("file_name", "")).startswith(prefix):

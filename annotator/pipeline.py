@@ -157,7 +157,8 @@ def track_source(
     decode_error: DecodeError | None = None
     interrupted = False
     info = VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
-                     fps=source.fps, frame_count=source.frame_count)
+                     fps=source.fps, frame_count=source.frame_count,
+                     frame_files=getattr(source, "frame_files", None))  # image folders only
 
     def drain(writer: OverlayWriter | None, *, final: bool = False) -> None:
         while pending:
