@@ -205,9 +205,16 @@ def _box_edges(out: np.ndarray, corners, colour: RGB, width: int, *, grow: int =
 
 
 def _text_colour(background: RGB) -> RGB:
-    # Rec. 601 luma: dark text on light labels, white on dark ones.
-    luma = 0.299 * background[0] + 0.587 * background[1] + 0.114 * background[2]
-    return (0, 0, 0) if luma > 150 else (255, 255, 255)
+    """Black or white, whichever contrasts more with ``background`` (WCAG 2 relative luminance).
+
+    A fixed luma threshold put white text on the bright corrected green,
+    which is hard to read at small sizes; the contrast ratio decides right.
+    """
+    channels = np.asarray(background, dtype=np.float64) / 255.0
+    linear = np.where(channels <= 0.04045, channels / 12.92, ((channels + 0.055) / 1.055) ** 2.4)
+    luminance = float(linear @ [0.2126, 0.7152, 0.0722])
+    # Contrast ratios (L1 + 0.05) / (L2 + 0.05) against white (L = 1) and black (L = 0).
+    return (0, 0, 0) if (luminance + 0.05) / 0.05 > 1.05 / (luminance + 0.05) else (255, 255, 255)
 
 
 #: Shorter frame side (pixels) at which marks have their base size (320x240); larger frames scale them.

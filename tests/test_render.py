@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from annotator.render import (
-    DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks, label_text,
+    DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, _text_colour, items_from_tracks, label_text,
 )  # fmt: skip
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.results import FrameResult
@@ -91,6 +91,15 @@ def test_given_box_keeps_the_track_colour_and_is_thicker():
     assert tuple(out[49, 35]) == DEFAULT_PALETTE[0]
     tracker = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 1.0)])
     assert np.count_nonzero(np.any(out != GRAY, axis=-1)) > np.count_nonzero(np.any(tracker != GRAY, axis=-1))
+
+
+@pytest.mark.parametrize(
+    ("background", "text"),
+    [((0, 220, 0), (0, 0, 0)), (DEFAULT_PALETTE[0], (255, 255, 255)), ((255, 127, 14), (0, 0, 0)),
+     ((0, 0, 0), (255, 255, 255)), ((255, 255, 255), (0, 0, 0))],
+)
+def test_label_text_colour_is_the_more_contrasting_of_black_and_white(background, text):
+    assert _text_colour(background) == text
 
 
 def test_keyframe_source_must_be_a_string():
