@@ -34,6 +34,7 @@ from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import Progress
 from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.wording import plural
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
 
@@ -196,10 +197,10 @@ def annotate(
         err = run.decode_error
         result.exit_code = EXIT_PARTIAL
         result.message = (f"{source.path}: decoding stopped after frame {err.last_good_index} ({err.reason}); "
-                          f"results for the {run.frames_processed} frames before it were written to {out_dir}")
+                          f"results for the {plural(run.frames_processed, 'frame')} before it were written to {out_dir}")
     elif run.interrupted:
         result.exit_code = EXIT_INTERRUPTED
-        result.message = (f"interrupted after {run.frames_processed} frames of {source.path}; "
+        result.message = (f"interrupted after {plural(run.frames_processed, 'frame')} of {source.path}; "
                           f"their results were written to {out_dir}")
     _write_outputs(result, source, targets, config, formats, input_path)
     return result

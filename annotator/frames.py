@@ -61,7 +61,7 @@ import re
 import subprocess
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import cv2
 import imageio_ffmpeg
@@ -261,6 +261,8 @@ class FrameSource(ABC):
     """
 
     kind: str = ""
+    #: Image folders: every frame's file relative to the sequence folder's parent (see VideoInfo.frame_files).
+    frame_files: tuple[str, ...] | None = None
 
     def __init__(
         self,
@@ -306,6 +308,7 @@ class FrameSource(ABC):
             height=self.height,
             fps=self.fps,
             frame_count=self.frame_count,
+            frame_files=self.frame_files,
         )
 
     def __len__(self) -> int:
@@ -443,6 +446,7 @@ class ImageFolderSource(FrameSource):
                     f"all frames of a sequence must have one size - resize or remove the odd ones"
                 )
         self.files = files
+        self.frame_files = _relative_frame_files(path, folder, files)
         if fps is None:
             fps = DEFAULT_FOLDER_FPS
         selection = _check_range(path, len(files), start, stop, step, None)
@@ -554,6 +558,23 @@ def _image_folder(path: Path) -> tuple[Path, str]:
     if path.name == "img":
         return path, path.resolve().parent.name
     return path, path.resolve().name
+
+
+def _relative_frame_files(path: Path, folder: Path, files: Sequence[Path]) -> tuple[str, ...]:
+    """Image paths relative to the parent of the sequence folder: ``Coke/img/0001.jpg``, ``seq/0001.png``.
+
+    The sequence folder is the one that names the sequence (``Coke`` for
+    ``Coke/`` and ``Coke/img/``), so a COCO reader pointed at its parent
+    finds the images. Paths are made absolute without resolving symlinks, so
+    a linked image keeps the name it has in the folder.
+    """
+    given = Path(os.path.abspath(path))
+    if Path(os.path.abspath(folder)) != given or given.name != "img":
+        root = given
+    else:
+        root = given.parent
+    base = root.parent
+    return tuple(Path(os.path.relpath(os.path.abspath(f), base)).as_posix() for f in files)
 
 
 def _image_size(file: Path) -> tuple[int, int]:

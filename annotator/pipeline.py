@@ -169,7 +169,8 @@ def track_source(
     decode_error: DecodeError | None = None
     interrupted = False
     info = VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
-                     fps=source.fps, frame_count=source.frame_count)
+                     fps=source.fps, frame_count=source.frame_count,
+                     frame_files=getattr(source, "frame_files", None))  # image folders only
 
     def drain(writer: OverlayWriter | None, *, final: bool = False) -> None:
         while pending:
@@ -182,9 +183,10 @@ def track_source(
             for tid, result in results.items():
                 flagged, _ = flags[tid].get(position, (False, ""))
                 p_fail = p_fails[tid].pop(position, 0.0)
+                # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
                 items.append(OverlayItem.from_frame_result(
-                    result, track_id=tid, flagged=flagged and not budget, corrected=result.scoring == "init",
-                    confidence=1.0 - p_fail))
+                    result, track_id=tid, flagged=flagged and not budget, confidence=1.0 - p_fail,
+                    keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else ""))
             drawn = renderer.annotate(frame, items)
             writer.write(drawn)
             for tid in results:

@@ -28,9 +28,9 @@ import imageio_ffmpeg
 import numpy as np
 
 from annotator.atomic import atomic_path
-from annotator.tracks import TrackResult
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 
-__all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks"]
+__all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks", "label_text"]
 
 RGB = tuple[int, int, int]
 
@@ -60,9 +60,12 @@ class OverlayItem:
         In [0, 1]; shown in the label.
     flagged : bool
         The frame needs review: draws the red border and ``REVIEW`` tag.
-    corrected : bool
-        The box is a human keyframe (first frame or a correction): drawn in
-        the corrected colour, thicker, labelled ``corrected``.
+    keyframe_source : str
+        Who gave the box, as in :attr:`TrackResult.keyframe_source`:
+        :data:`~annotator.tracks.KEYFRAME_GIVEN` for the user's first-frame
+        box (drawn thicker in the track colour, labelled ``given``),
+        ``FILE:LINE`` of a human correction (drawn thicker in the corrected
+        colour, labelled ``corrected``), ``""`` for a tracker box.
     particles_xywh : (N, 4) ndarray or None
         Candidate boxes; their centres are drawn as dots.
     particle_scores : (N,) ndarray or None
@@ -79,7 +82,7 @@ class OverlayItem:
     track_id: int
     confidence: float
     flagged: bool = False
-    corrected: bool = False
+    keyframe_source: str = ""
     particles_xywh: np.ndarray | None = None
     particle_scores: np.ndarray | None = None
     superpixel_labels: np.ndarray | None = None
@@ -90,6 +93,9 @@ class OverlayItem:
         if box.shape != (4,):
             raise ValueError(f"OverlayItem.box_xywh must have shape (4,), got {box.shape}")
         object.__setattr__(self, "box_xywh", box)
+        if not isinstance(self.keyframe_source, str):
+            raise ValueError(f"OverlayItem.keyframe_source must be a string ('{KEYFRAME_GIVEN}', 'FILE:LINE' or ''), "
+                             f"got {self.keyframe_source!r}")
         if (self.particles_xywh is None) != (self.particle_scores is None):
             raise ValueError("OverlayItem: particles_xywh and particle_scores come together or not at all")
         if self.particles_xywh is not None:
@@ -115,8 +121,18 @@ class OverlayItem:
             object.__setattr__(self, "superpixel_labels", labels)
             object.__setattr__(self, "superpixel_origin_xy", origin.astype(np.int64))
 
+    @property
+    def given(self) -> bool:
+        """The box is the user's first-frame box."""
+        return self.keyframe_source == KEYFRAME_GIVEN
+
+    @property
+    def corrected(self) -> bool:
+        """The box is a human correction (a keyframe other than the given first-frame box)."""
+        return self.keyframe_source not in ("", KEYFRAME_GIVEN)
+
     @classmethod
-    def from_frame_result(cls, result, *, track_id: int, flagged: bool = False, corrected: bool = False,
+    def from_frame_result(cls, result, *, track_id: int, flagged: bool = False, keyframe_source: str = "",
                           confidence: float | None = None) -> OverlayItem:
         """Item from a :class:`sptpt.results.FrameResult` (particles and superpixels when it has them);
         ``confidence`` replaces the tracker's (the tool shows ``1 - p_fail``)."""
@@ -125,7 +141,7 @@ class OverlayItem:
             track_id=track_id,
             confidence=result.confidence if confidence is None else confidence,
             flagged=flagged,
-            corrected=corrected,
+            keyframe_source=keyframe_source,
             particles_xywh=result.particles_xywh,
             particle_scores=result.particle_scores,
             superpixel_labels=result.superpixel_labels,
@@ -150,39 +166,107 @@ def items_from_tracks(tracks: Sequence[TrackResult], frame_index: int) -> list[O
                     track_id=track.track_id,
                     confidence=float(track.confidence[row]),
                     flagged=bool(track.flagged[row]),
-                    corrected=bool(track.keyframe[row]),
+                    keyframe_source=track.keyframe_source[row],
                 )
             )
     return items
 
 
+def label_text(item: OverlayItem) -> str:
+    """The text of an item's box label: ``id 1 0.87`` for a tracker box, ``id 1 given`` / ``id 1 corrected`` for a human one.
+
+    A human box has no tracker confidence worth showing (it is 1 by
+    definition), so its label names who gave it instead; short labels also
+    keep small frames readable.
+    """
+    if item.given:
+        return f"id {item.track_id} given"
+    if item.corrected:
+        return f"id {item.track_id} corrected"
+    return f"id {item.track_id} {item.confidence:.2f}"
+
+
+def _box_edges(out: np.ndarray, corners, colour: RGB, width: int, *, grow: int = 0) -> None:
+    """Draw a box's four edges exactly ``width + 2 * grow`` pixels wide, centred on its outermost pixels.
+
+    ``cv2.rectangle`` draws ``2 * (t // 2) + 1`` pixels for a thickness
+    ``t``, so even widths would silently become odd; filled strips give the
+    width asked for, with crisp axis-aligned pixels that show the box extent.
+    """
+    (x0, y0), (x1, y1) = corners
+    before, after = (width - 1) // 2 + grow, width // 2 + grow
+    for p0, p1 in (
+        ((x0 - before, y0 - before), (x1 + after, y0 + after)),  # top
+        ((x0 - before, y1 - before), (x1 + after, y1 + after)),  # bottom
+        ((x0 - before, y0 - before), (x0 + after, y1 + after)),  # left
+        ((x1 - before, y0 - before), (x1 + after, y1 + after)),  # right
+    ):
+        cv2.rectangle(out, p0, p1, colour, cv2.FILLED, cv2.LINE_8)
+
+
 def _text_colour(background: RGB) -> RGB:
-    # Rec. 601 luma: dark text on light labels, white on dark ones.
-    luma = 0.299 * background[0] + 0.587 * background[1] + 0.114 * background[2]
-    return (0, 0, 0) if luma > 150 else (255, 255, 255)
+    """Black or white, whichever contrasts more with ``background`` (WCAG 2 relative luminance).
+
+    A fixed luma threshold put white text on the bright corrected green,
+    which is hard to read at small sizes; the contrast ratio decides right.
+    """
+    channels = np.asarray(background, dtype=np.float64) / 255.0
+    linear = np.where(channels <= 0.04045, channels / 12.92, ((channels + 0.055) / 1.055) ** 2.4)
+    luminance = float(linear @ [0.2126, 0.7152, 0.0722])
+    # Contrast ratios (L1 + 0.05) / (L2 + 0.05) against white (L = 1) and black (L = 0).
+    return (0, 0, 0) if (luminance + 0.05) / 0.05 > 1.05 / (luminance + 0.05) else (255, 255, 255)
+
+
+#: Shorter frame side (pixels) at which marks have their base size (320x240); larger frames scale them.
+BASE_SIDE = 240
+
+
+@dataclass(frozen=True)
+class _Sizes:
+    """Mark sizes for one frame size (see :meth:`OverlayRenderer.sizes_for`)."""
+
+    thickness: int  # box line width, pixels
+    font_scale: float  # cv2 Hershey scale of label text
+    font_weight: int  # text stroke width, pixels
+    particle_radius: int  # dot radius, pixels (0 = one pixel)
 
 
 class OverlayRenderer:
     """Draws tracker output on RGB frames; stateless, configured in the constructor.
+
+    Sizes follow the frame: with ``s = min(H, W) / 240`` (1 for 320x240,
+    3 for 1280x720), boxes are ``round(s)`` pixels wide (at least 2, so a
+    box reads against a busy background at 320x240), label
+    text has scale ``max(0.4, 0.3 s)`` (0.4 is the smallest Hershey size
+    that stays readable) and particle dots have radius ``round((s - 1) / 2)``
+    (single pixels up to 480p), unless given explicitly. Drawing is
+    deterministic: the same frame and items give the same pixels.
 
     Parameters
     ----------
     palette : sequence of RGB tuples
         Box colours, chosen by ``track_id`` (cycled).
     corrected_color : RGB tuple
-        Colour of human-corrected (keyframe) boxes.
+        Colour of human-corrected boxes (the given first-frame box keeps its track colour).
     flag_color : RGB tuple
         Colour of the review border and tag.
+    outline_color : RGB tuple or None
+        A one-pixel line drawn on both sides of each box and around its label
+        so they stand out on any background; None draws none.
     superpixel_color : RGB tuple
         Colour of superpixel boundaries.
     superpixel_alpha : float
-        Opacity of superpixel boundaries in [0, 1].
+        Opacity of superpixel boundaries in [0, 1]; faint by default, so the
+        object stays visible under them.
     particle_colormap : int
         OpenCV colormap for particle dots (``cv2.COLORMAP_*``), dark = low score.
-    particle_radius : int
-        Dot radius in pixels (0 = single pixel).
+    particle_min_alpha : float
+        Opacity in [0, 1] of the worst particle on a frame; opacity rises
+        linearly to 1 for the best, so the cloud does not hide the object.
+    particle_radius : int or None
+        Dot radius in pixels (0 = single pixel); None scales with the frame.
     thickness : int or None
-        Box line width; None scales with the frame (``min(H, W) / 320``, at least 1).
+        Box line width; None scales with the frame. Human boxes are one pixel wider.
     font_scale : float or None
         Label text scale; None scales with the frame.
     draw_particles, draw_superpixels, draw_boxes, draw_labels, draw_flags : bool
@@ -195,10 +279,12 @@ class OverlayRenderer:
         palette: Sequence[RGB] = DEFAULT_PALETTE,
         corrected_color: RGB = (0, 220, 0),
         flag_color: RGB = (230, 25, 25),
+        outline_color: RGB | None = (0, 0, 0),
         superpixel_color: RGB = (255, 255, 255),
-        superpixel_alpha: float = 0.5,
+        superpixel_alpha: float = 0.3,
         particle_colormap: int = cv2.COLORMAP_VIRIDIS,
-        particle_radius: int = 1,
+        particle_min_alpha: float = 0.35,
+        particle_radius: int | None = None,
         thickness: int | None = None,
         font_scale: float | None = None,
         draw_particles: bool = True,
@@ -211,16 +297,22 @@ class OverlayRenderer:
             raise ValueError("palette must hold at least one RGB colour")
         if not 0.0 <= superpixel_alpha <= 1.0:
             raise ValueError(f"superpixel_alpha must lie in [0, 1], got {superpixel_alpha}")
-        if particle_radius < 0:
-            raise ValueError(f"particle_radius must be >= 0 pixels, got {particle_radius}")
+        if not 0.0 <= particle_min_alpha <= 1.0:
+            raise ValueError(f"particle_min_alpha must lie in [0, 1], got {particle_min_alpha}")
+        if particle_radius is not None and particle_radius < 0:
+            raise ValueError(f"particle_radius must be >= 0 pixels or None for automatic, got {particle_radius}")
         if thickness is not None and thickness < 1:
             raise ValueError(f"thickness must be >= 1 pixel or None for automatic, got {thickness}")
+        if font_scale is not None and not font_scale > 0:
+            raise ValueError(f"font_scale must be > 0 or None for automatic, got {font_scale}")
         self.palette = tuple(tuple(int(c) for c in colour) for colour in palette)
         self.corrected_color = tuple(int(c) for c in corrected_color)
         self.flag_color = tuple(int(c) for c in flag_color)
+        self.outline_color = None if outline_color is None else tuple(int(c) for c in outline_color)
         self.superpixel_color = np.asarray(superpixel_color, dtype=np.float32)
         self.superpixel_alpha = float(superpixel_alpha)
-        self.particle_radius = int(particle_radius)
+        self.particle_min_alpha = float(particle_min_alpha)
+        self.particle_radius = particle_radius
         self.thickness = thickness
         self.font_scale = font_scale
         self.draw_particles = draw_particles
@@ -230,15 +322,27 @@ class OverlayRenderer:
         self.draw_flags = draw_flags
         # 256-entry RGB lookup table; applyColorMap returns BGR.
         ramp = np.arange(256, dtype=np.uint8).reshape(-1, 1)
-        self._lut = cv2.applyColorMap(ramp, particle_colormap)[:, 0, ::-1].copy()
-        r = self.particle_radius
-        dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
-        disc = dx**2 + dy**2 <= r * r
-        self._dot_dx, self._dot_dy = dx[disc], dy[disc]
+        self._lut = cv2.applyColorMap(ramp, particle_colormap)[:, 0, ::-1].astype(np.float32)
 
     def color_for(self, track_id: int) -> RGB:
         """Box colour of a track."""
         return self.palette[(int(track_id) - 1) % len(self.palette)]
+
+    def box_color(self, item: OverlayItem) -> RGB:
+        """Colour of an item's box and label: the corrected colour for a correction, else the track's."""
+        return self.corrected_color if item.corrected else self.color_for(item.track_id)
+
+    def sizes_for(self, height: int, width: int) -> _Sizes:
+        """Line width, text scale and dot radius used on an ``height`` x ``width`` frame."""
+        unit = min(height, width) / BASE_SIDE
+        font_scale = self.font_scale or max(0.4, 0.3 * unit)
+        return _Sizes(
+            thickness=self.thickness or max(2, round(unit)),
+            font_scale=font_scale,
+            font_weight=max(1, round(font_scale * 2)),
+            particle_radius=(self.particle_radius if self.particle_radius is not None
+                             else max(0, round((unit - 1) / 2))),
+        )
 
     def annotate(self, frame_rgb: np.ndarray, items: Sequence[OverlayItem]) -> np.ndarray:
         """Draw ``items`` on a copy of ``frame_rgb``.
@@ -259,15 +363,13 @@ class OverlayRenderer:
         if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
             raise ValueError(f"frame_rgb must be an (H, W, 3) uint8 RGB array, got {frame.dtype} {frame.shape}")
         out = np.array(frame, dtype=np.uint8, order="C", copy=True)
-        height, width = out.shape[:2]
-        thickness = self.thickness or max(1, round(min(height, width) / 320))
-        font_scale = self.font_scale or max(0.4, min(height, width) / 900)
+        sizes = self.sizes_for(*out.shape[:2])
 
         # Layers from the back: particles, superpixels, boxes, labels, review mark.
         if self.draw_particles:
             for item in items:
                 if item.particles_xywh is not None and len(item.particles_xywh):
-                    self._particles(out, item.particles_xywh, item.particle_scores)
+                    self._particles(out, item.particles_xywh, item.particle_scores, sizes.particle_radius)
         if self.draw_superpixels:
             for item in items:
                 if item.superpixel_labels is not None:
@@ -276,21 +378,25 @@ class OverlayRenderer:
         if self.draw_boxes:
             for item, corners in boxes:
                 if corners is not None:
-                    colour = self.corrected_color if item.corrected else self.color_for(item.track_id)
-                    line = thickness + 1 if item.corrected else thickness
-                    # LINE_8: axis-aligned edges gain nothing from anti-aliasing, and crisp pixels show the box extent.
-                    cv2.rectangle(out, corners[0], corners[1], colour, line, cv2.LINE_8)
+                    line = self._line_width(item, sizes)
+                    if self.outline_color is not None:
+                        _box_edges(out, corners, self.outline_color, line, grow=1)
+                    _box_edges(out, corners, self.box_color(item), line)
         if self.draw_labels:
             for item, corners in boxes:
                 if corners is not None:
-                    self._label(out, item, corners, font_scale)
+                    self._label(out, item, corners, sizes)
         if self.draw_flags:
             flagged = [item.track_id for item in items if item.flagged]
             if flagged:
-                self._review_mark(out, flagged, font_scale)
+                self._review_mark(out, flagged, sizes.font_scale)
         return out
 
     # ------------------------------------------------------------------ layers
+
+    @staticmethod
+    def _line_width(item: OverlayItem, sizes: _Sizes) -> int:
+        return sizes.thickness + 1 if item.keyframe_source else sizes.thickness
 
     @staticmethod
     def _box_corners(box: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]] | None:
@@ -303,7 +409,7 @@ class OverlayRenderer:
         clamp = lambda v: int(min(max(v, -(1 << 15)), 1 << 15))  # noqa: E731
         return (clamp(x0), clamp(y0)), (clamp(max(x1, x0)), clamp(max(y1, y0)))
 
-    def _particles(self, out: np.ndarray, particles: np.ndarray, scores: np.ndarray) -> None:
+    def _particles(self, out: np.ndarray, particles: np.ndarray, scores: np.ndarray, radius: int) -> None:
         height, width = out.shape[:2]
         finite = np.isfinite(scores)
         shade = np.zeros(len(scores))
@@ -314,14 +420,26 @@ class OverlayRenderer:
         centres = particles[:, :2] + particles[:, 2:] / 2.0
         keep = np.all(np.isfinite(centres), axis=1)
         order = np.argsort(shade[keep], kind="stable")  # best last, so it is drawn on top
+        shade = shade[keep][order]
         cx = np.round(centres[keep, 0][order]).astype(np.int64)
         cy = np.round(centres[keep, 1][order]).astype(np.int64)
-        colours = self._lut[np.round(shade[keep][order] * 255).astype(np.int64)]
-        xs = (cx[:, None] + self._dot_dx[None, :]).ravel()
-        ys = (cy[:, None] + self._dot_dy[None, :]).ravel()
-        colours = np.repeat(colours, len(self._dot_dx), axis=0)
+        dy, dx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+        disc = dx**2 + dy**2 <= radius * radius
+        xs = (cx[:, None] + dx[disc][None, :]).ravel()
+        ys = (cy[:, None] + dy[disc][None, :]).ravel()
+        dot = np.repeat(np.arange(len(cx)), int(disc.sum()))
         inside = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)
-        out[ys[inside], xs[inside]] = colours[inside]
+        xs, ys, dot = xs[inside], ys[inside], dot[inside]
+        # Where dots overlap, the best one alone is blended (the last in draw order), so the result
+        # does not depend on how numpy orders repeated writes.
+        flat = ys * width + xs
+        _, last = np.unique(flat[::-1], return_index=True)
+        pick = len(flat) - 1 - last
+        xs, ys, dot = xs[pick], ys[pick], dot[pick]
+        alpha = (self.particle_min_alpha + (1.0 - self.particle_min_alpha) * shade[dot])[:, None]
+        colours = self._lut[np.round(shade[dot] * 255).astype(np.int64)]
+        blended = out[ys, xs].astype(np.float32) * (1.0 - alpha) + colours * alpha
+        out[ys, xs] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
 
     def _superpixels(self, out: np.ndarray, labels: np.ndarray, origin_xy: np.ndarray) -> None:
         height, width = out.shape[:2]
@@ -342,26 +460,32 @@ class OverlayRenderer:
         blended = pixels * (1.0 - self.superpixel_alpha) + self.superpixel_color * self.superpixel_alpha
         region[mask] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
 
-    def _label(self, out: np.ndarray, item: OverlayItem, corners, font_scale: float) -> None:
-        text = f"id {item.track_id}  {item.confidence:.2f}"
-        if item.corrected:
-            text += "  corrected"
-        colour = self.corrected_color if item.corrected else self.color_for(item.track_id)
+    def _label(self, out: np.ndarray, item: OverlayItem, corners, sizes: _Sizes) -> None:
+        text = label_text(item)
+        colour = self.box_color(item)
         font = cv2.FONT_HERSHEY_SIMPLEX
-        weight = max(1, round(font_scale * 1.5))
-        (tw, th), baseline = cv2.getTextSize(text, font, font_scale, weight)
+        (tw, th), baseline = cv2.getTextSize(text, font, sizes.font_scale, sizes.font_weight)
         pad = max(2, th // 4)
-        (x0, y0), _ = corners
+        (x0, y0), (_, y1) = corners
         height, width = out.shape[:2]
         box_w, box_h = tw + 2 * pad, th + baseline + 2 * pad
-        x0 = min(max(x0, 0), max(width - box_w, 0))
-        # Above the box when there is room, else just inside its top edge.
-        top = y0 - box_h
+        # How far the drawn edges reach outside the box's top and bottom rows (see _box_edges).
+        line, grow = self._line_width(item, sizes), (1 if self.outline_color is not None else 0)
+        reach_up, reach_down = (line - 1) // 2 + grow, line // 2 + grow
+        left = min(max(x0 - reach_up, 0), max(width - box_w, 0))
+        # Above the box when there is room, else below it, else just inside its top edge:
+        # never over the object when it can be helped.
+        top = y0 - reach_up - box_h
         if top < 0:
-            top = max(y0, 0)
+            top = y1 + reach_down + 1
+            if top + box_h > height:
+                top = max(y0 + reach_down + 1, 0)
         top = min(top, max(height - box_h, 0))
-        cv2.rectangle(out, (x0, top), (x0 + box_w - 1, top + box_h - 1), colour, cv2.FILLED)
-        cv2.putText(out, text, (x0 + pad, top + pad + th), font, font_scale, _text_colour(colour), weight, cv2.LINE_AA)
+        if self.outline_color is not None:
+            cv2.rectangle(out, (left - 1, top - 1), (left + box_w, top + box_h), self.outline_color, 1, cv2.LINE_8)
+        cv2.rectangle(out, (left, top), (left + box_w - 1, top + box_h - 1), colour, cv2.FILLED)
+        cv2.putText(out, text, (left + pad, top + pad + th), font, sizes.font_scale, _text_colour(colour),
+                    sizes.font_weight, cv2.LINE_AA)
 
     def _review_mark(self, out: np.ndarray, track_ids: list[int], font_scale: float) -> None:
         height, width = out.shape[:2]

@@ -15,6 +15,7 @@ from annotator.atomic import write_text_atomic
 from annotator.flagging import spans_from_mask
 from annotator.pipeline import SpanThumbnail
 from annotator.tracks import TrackResult
+from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "flagged_spans", "track_summary", "render_report", "templates_dir"]
 
@@ -91,31 +92,63 @@ def _seek_seconds(position: int, fps: float) -> float:
     return (position + 0.5) / fps
 
 
-def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: int = 120) -> str:
-    """Confidence over the processed frames as an inline SVG; flagged spans shaded and clickable."""
+def _tick_step(span: float, target: int = 8) -> int:
+    """A 1, 2 or 5 times power-of-ten frame step giving at most about ``target`` ticks over ``span`` frames."""
+    raw = max(span / target, 1.0)
+    magnitude = 10 ** int(np.floor(np.log10(raw)))
+    return next(m * magnitude for m in (1, 2, 5, 10) if m * magnitude >= raw)
+
+
+def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: int = 150) -> str:
+    """Confidence over the processed frames as an inline SVG; flagged spans shaded and clickable.
+
+    The x axis is ticked with source frame numbers (at 1, 2, 5 x 10^k steps,
+    placed by interpolation so a ``--step`` run is ticked right), the y axis
+    at confidence 0, 0.5 and 1. The SVG scales uniformly, so its text is
+    never stretched.
+    """
     n = len(track.confidence)
     if n == 0:
         return ""
-    pad = 4
-    x = lambda i: pad + (width - 2 * pad) * (i / max(n - 1, 1))  # noqa: E731
-    y = lambda c: pad + (height - 2 * pad) * (1.0 - float(np.clip(c, 0, 1)))  # noqa: E731
-    parts = [f'<svg class="timeline" viewBox="0 0 {width} {height}" preserveAspectRatio="none" role="img" '
-             f'aria-label="confidence of track {track.track_id} per frame">']
+    left, right, top, bottom = 52, 10, 8, 36  # plot margins: room for tick labels and axis titles
+    plot_w, plot_h = width - left - right, height - top - bottom
+    x = lambda i: left + plot_w * (i / max(n - 1, 1))  # noqa: E731
+    y = lambda c: top + plot_h * (1.0 - float(np.clip(c, 0, 1)))  # noqa: E731
+    parts = [f'<svg class="timeline" viewBox="0 0 {width} {height}" role="img" '
+             f'aria-label="confidence of track {track.track_id} per frame">',
+             f'<rect class="plot" x="{left}" y="{top}" width="{plot_w}" height="{plot_h}"/>']
     for span in flagged_spans(track):
         x0, x1 = x(span.start) - 1, x(span.stop - 1) + 1
-        parts.append(f'<rect class="flag" x="{x0:.1f}" y="0" width="{max(x1 - x0, 2):.1f}" height="{height}" '
+        parts.append(f'<rect class="flag" x="{x0:.1f}" y="{top}" width="{max(x1 - x0, 2):.1f}" height="{plot_h}" '
                      f'onclick="seekTo({_seek_seconds(span.start, fps):.3f})"><title>frames {span.first_frame}-'
                      f'{span.last_frame} flagged</title></rect>')
-    parts.append(f'<line class="threshold" x1="0" x2="{width}" y1="{y(0.5):.1f}" y2="{y(0.5):.1f}"/>')
+    parts.append(f'<line class="threshold" x1="{left}" x2="{left + plot_w}" y1="{y(0.5):.1f}" y2="{y(0.5):.1f}"/>')
     # Human corrections (keyframes after the first frame, which every run has) as green ticks.
     for i in np.flatnonzero(track.keyframe[1:]) + 1:
-        parts.append(f'<line class="corrected" x1="{x(i):.1f}" x2="{x(i):.1f}" y1="0" y2="{height}" '
-                     'stroke="#00b400" stroke-width="2" vector-effect="non-scaling-stroke" style="cursor: pointer" '
+        parts.append(f'<line class="corrected" x1="{x(i):.1f}" x2="{x(i):.1f}" y1="{top}" y2="{top + plot_h}" '
+                     'stroke="#00b400" stroke-width="2" style="cursor: pointer" '
                      f'onclick="seekTo({_seek_seconds(int(i), fps):.3f})"><title>frame {int(track.frame_indices[i])} '
                      f'corrected</title></line>')
     step = max(1, n // 2000)
     points = " ".join(f"{x(i):.1f},{y(track.confidence[i]):.1f}" for i in range(0, n, step))
     parts.append(f'<polyline class="confidence" points="{points}"/>')
+    # Axes: frame-number ticks below the plot, confidence ticks on its left.
+    frames = track.frame_indices.astype(np.float64)
+    first, last = int(frames[0]), int(frames[-1])
+    tick = _tick_step(last - first)
+    bottom_y = top + plot_h
+    for frame in range(-(-first // tick) * tick, last + 1, tick):
+        tx = x(float(np.interp(frame, frames, np.arange(n))))
+        parts.append(f'<g class="tick x"><line x1="{tx:.1f}" x2="{tx:.1f}" y1="{bottom_y}" y2="{bottom_y + 4}"/>'
+                     f'<text x="{tx:.1f}" y="{bottom_y + 16}" text-anchor="middle">{frame}</text></g>')
+    for value in (0.0, 0.5, 1.0):
+        ty = y(value)
+        parts.append(f'<g class="tick y"><line x1="{left - 4}" x2="{left}" y1="{ty:.1f}" y2="{ty:.1f}"/>'
+                     f'<text x="{left - 6}" y="{ty + 4:.1f}" text-anchor="end">{value:g}</text></g>')
+    parts.append(f'<text class="axis-label" x="{left + plot_w / 2:.1f}" y="{height - 4}" text-anchor="middle">'
+                 'source frame</text>')
+    parts.append(f'<text class="axis-label" x="12" y="{top + plot_h / 2:.1f}" text-anchor="middle" '
+                 f'transform="rotate(-90 12 {top + plot_h / 2:.1f})">confidence</text>')
     parts.append("</svg>")
     return "".join(parts)
 
@@ -138,18 +171,25 @@ def render_report(
     adds the Corrections section after a re-track (built by
     :mod:`annotator.review`: the corrections in force and what the last
     re-track changed).
+
+    The input path shown is the absolute one recorded in run.json
+    (``run_info["input"]["path"]``), the same before and after a re-track;
+    ``video.path`` (as given on the command line) only when there is none.
     """
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(templates_dir())),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
         undefined=jinja2.StrictUndefined,
     )
+    env.filters["plural"] = plural
     thumbs = {(t.track_id, t.position): t.jpeg_base64 for t in thumbnails}
     spans = [s for track in tracks for s in flagged_spans(track)]
     spans.sort(key=lambda s: (s.start, s.track_id))
     fps = float(video.fps)
+    input_path = (run_info.get("input") or {}).get("path") or video.path
     page = env.get_template(REPORT_TEMPLATE).render(
         video=video,
+        input_path=input_path,
         summaries=[track_summary(t) for t in tracks],
         timelines=[(t.track_id, Markup(_timeline_svg(t, fps))) for t in tracks],
         spans=[{"span": s, "seconds": _seek_seconds(s.start, fps), "thumbnail": thumbs.get((s.track_id, s.start))}

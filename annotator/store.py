@@ -33,9 +33,12 @@ Members::
     t<id>.signal.<name>        (F,) float64  further per-frame numbers, by name
 
 ``header`` holds ``{"format": "sptpt-annotate track store", "schema_version": 1,
-"video": {path, name, width, height, fps, frame_count}, "range": {start, stop,
-step}, "tracks": [{"track_id", "label", "signals": [...]}, ...]}``. A reader
-refuses a schema version it does not know rather than guess.
+"video": {path, name, width, height, fps, frame_count, frame_files}, "range":
+{start, stop, step}, "tracks": [{"track_id", "label", "signals": [...]}, ...]}``.
+``frame_files`` (image folders: each frame's image path, see
+:class:`~annotator.tracks.VideoInfo`; null for videos) may be missing from
+stores written before it existed and reads as null. A reader refuses a schema
+version it does not know rather than guess.
 """
 
 from __future__ import annotations
@@ -117,7 +120,8 @@ def _header(store: RunStore) -> dict:
         "format": STORE_FORMAT,
         "schema_version": SCHEMA_VERSION,
         "video": {"path": v.path, "name": v.name, "width": v.width, "height": v.height, "fps": v.fps,
-                  "frame_count": v.frame_count},
+                  "frame_count": v.frame_count,
+                  "frame_files": None if v.frame_files is None else list(v.frame_files)},
         "range": {"start": store.start, "stop": store.stop, "step": store.step},
         "tracks": [{"track_id": t.track_id, "label": t.label, "signals": sorted(t.signals)} for t in store.tracks],
     }
@@ -183,7 +187,7 @@ def read_store(path: str | os.PathLike) -> RunStore:
     try:
         v, r = header["video"], header["range"]
         video = VideoInfo(path=v["path"], name=v["name"], width=v["width"], height=v["height"], fps=v["fps"],
-                          frame_count=v["frame_count"])
+                          frame_count=v["frame_count"], frame_files=v.get("frame_files"))  # optional: older stores
         tracks = []
         for entry in header["tracks"]:
             tid = int(entry["track_id"])

@@ -44,6 +44,11 @@ class VideoInfo:
         Frames per second (nominal for videos, 30 by default for image folders).
     frame_count : int
         Frames of the whole source as decoded, not only the processed ones.
+    frame_files : tuple of str, length frame_count, optional
+        Image folders only: each source frame's image file, relative to the
+        parent of the sequence folder (the folder ``name`` comes from), with
+        ``/`` separators, e.g. ``Coke/img/0001.jpg``; None for videos.
+        Exporters name images with it without touching the files.
     """
 
     path: str
@@ -52,6 +57,7 @@ class VideoInfo:
     height: int
     fps: float
     frame_count: int
+    frame_files: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "path", str(self.path))
@@ -65,6 +71,12 @@ class VideoInfo:
         object.__setattr__(self, "fps", float(self.fps))
         if not self.name or any(c in self.name for c in "/\\\0"):
             raise ValueError(f"VideoInfo.name must be a non-empty file-name-safe string, got {self.name!r}")
+        if self.frame_files is not None:
+            files = tuple(self.frame_files)
+            if len(files) != self.frame_count or not all(isinstance(f, str) and f for f in files):
+                raise ValueError(f"VideoInfo.frame_files must be {self.frame_count} non-empty strings (one per source "
+                                 f"frame) or None, got {len(files)} entries")
+            object.__setattr__(self, "frame_files", files)
 
 
 def _frozen(values: np.ndarray) -> np.ndarray:

@@ -431,3 +431,32 @@ def test_an_otb_root_is_a_batch_that_eval_scores(tmp_path, capsys):
     assert info.value.code in (None, 0)
     table = capsys.readouterr().out
     assert "Alpha" in table and "Beta" in table
+
+
+def test_merged_coco_from_the_stores_keeps_real_image_paths_and_renames_frame_dumps(tmp_path):
+    from annotator.batch.outputs import _item_stores, _merged_coco
+    from annotator.store import STORE_NAME, RunStore, write_store
+    from annotator.tracks import TrackRecorder, VideoInfo
+
+    recorder = TrackRecorder(1, "object")
+    for k in range(2):
+        recorder.append(k, [1.0, 2.0, 3.0, 4.0], confidence=0.9, log_likelihood=0.0, accepted=True, seconds=0.0)
+    track = recorder.to_result()
+    folder = tmp_path / "data" / "Coke"
+    (folder / "img").mkdir(parents=True)
+    videos = {
+        "item-a": (VideoInfo(path=str(folder), name="Coke", width=8, height=8, fps=30.0, frame_count=2,
+                             frame_files=("Coke/img/0001.jpg", "Coke/img/0002.jpg")), str(folder)),
+        "item-b": (VideoInfo(path="clip.mp4", name="clip", width=8, height=8, fps=30.0, frame_count=2),
+                   str(tmp_path / "clip.mp4")),
+    }
+    rows = []
+    for item, (video, source) in videos.items():
+        (tmp_path / "out" / item).mkdir(parents=True)
+        write_store(tmp_path / "out" / item / STORE_NAME, RunStore(video=video, start=0, stop=2, step=1,
+                                                                  tracks=[track]))
+        rows.append({"id": item, "status": "done", "input": source})
+    merged = _merged_coco(_item_stores(tmp_path / "out", rows))
+    assert [v["name"] for v in merged["videos"]] == ["item-a", "item-b"]
+    assert [im["file_name"] for im in merged["images"]] == [
+        "Coke/img/0001.jpg", "Coke/img/0002.jpg", "item-b/000000.jpg", "item-b/000001.jpg"]

@@ -339,3 +339,24 @@ def test_track_result_is_read_only():
     walker = make_tracks()[0]
     with pytest.raises(ValueError):
         walker.boxes_xywh[0, 0] = 5.0
+
+
+def test_coco_file_name_of_an_image_folder_is_the_real_image_path(tmp_path):
+    from pycocotools.coco import COCO
+
+    files = tuple(f"walk/img/{k + 1:04d}.jpg" for k in range(VIDEO.frame_count))
+    video = VideoInfo(**{**VIDEO.__dict__, "frame_files": files})
+    path = tmp_path / "annotations.json"
+    dataset = write_coco(path, video, make_tracks())
+    assert [im["file_name"] for im in dataset["images"]] == [files[f] for f in (0, 2, 4, 6, 8, 10)]
+    coco = COCO(str(path))
+    assert coco.loadImgs(coco.getImgIds())[1]["file_name"] == "walk/img/0003.jpg"
+    # Everything else is as for a video.
+    plain = write_coco(tmp_path / "video.json", VIDEO, make_tracks())
+    assert {**dataset, "images": []} == {**plain, "images": []}
+    assert [{**im, "file_name": ""} for im in dataset["images"]] == [{**im, "file_name": ""} for im in plain["images"]]
+
+
+def test_video_info_frame_files_must_cover_every_frame():
+    with pytest.raises(ValueError, match="frame_files"):
+        VideoInfo(**{**VIDEO.__dict__, "frame_files": ("a.jpg",)})

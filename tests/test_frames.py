@@ -8,6 +8,7 @@ it got.
 from __future__ import annotations
 
 import subprocess
+from pathlib import Path
 
 import cv2
 import imageio_ffmpeg
@@ -223,6 +224,24 @@ def test_otb_sequence_folder_and_grayscale_images(tmp_path):
             assert frame.shape == (HEIGHT, WIDTH, 3)
             assert np.array_equal(frame[..., 0], frame[..., 1]) and np.array_equal(frame[..., 1], frame[..., 2])
             assert read_index(frame) == index
+        # Image paths relative to the sequence folder's parent, whichever of the two folders was given.
+        assert source.frame_files == ("Basketball/img/0001.jpg", "Basketball/img/0002.jpg", "Basketball/img/0003.jpg")
+        assert source.info.frame_files == source.frame_files
+
+
+def test_folder_frame_files_are_relative_to_its_parent(folder, monkeypatch):
+    source = open_frames(folder)
+    assert source.frame_files == tuple(f"seq/{f.name}" for f in source.files)
+    assert all((folder.parent / name).is_file() for name in source.frame_files)
+    monkeypatch.chdir(folder)
+    assert open_frames(Path(".")).frame_files == source.frame_files
+
+
+def test_video_has_no_frame_files(tmp_path):
+    path = tmp_path / "clip.mp4"
+    write_video(path, n=3)
+    source = open_frames(path)
+    assert source.frame_files is None and source.info.frame_files is None
 
 
 @given(st.lists(st.integers(min_value=0, max_value=10**6), min_size=1, max_size=30, unique=True))

@@ -8,8 +8,10 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from annotator.render import DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
-from annotator.tracks import TrackResult
+from annotator.render import (
+    DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, _text_colour, items_from_tracks, label_text,
+)  # fmt: skip
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.results import FrameResult
 
 H, W = 60, 80
@@ -39,28 +41,107 @@ def test_annotate_returns_a_new_frame_and_leaves_the_input():
 
 def test_all_layers_off_draws_nothing():
     frame = gray_frame()
-    item = OverlayItem(box_xywh=[10, 10, 30, 20], track_id=1, confidence=0.5, flagged=True, corrected=True)
+    item = OverlayItem(box_xywh=[10, 10, 30, 20], track_id=1, confidence=0.5, flagged=True, keyframe_source="c.txt:3")
     assert np.array_equal(plain().annotate(frame, [item]), frame)
     assert np.array_equal(OverlayRenderer().annotate(frame, []), frame)
 
 
 def test_box_is_drawn_on_its_edges_in_the_track_colour():
-    out = plain(draw_boxes=True, thickness=1).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 1, 0.9)])
+    out = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 1, 0.9)])
     colour = DEFAULT_PALETTE[0]
     # Box covers columns 20..49 and rows 15..39.
     assert tuple(out[15, 35]) == colour and tuple(out[39, 35]) == colour
     assert tuple(out[27, 20]) == colour and tuple(out[27, 49]) == colour
     assert tuple(out[27, 35]) == (GRAY,) * 3 and tuple(out[5, 5]) == (GRAY,) * 3
-    second = plain(draw_boxes=True, thickness=1).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 2, 0.9)])
+    second = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 2, 0.9)])
     assert tuple(second[15, 35]) == DEFAULT_PALETTE[1]
+
+
+def test_box_outline_is_dark_on_both_sides_of_the_line():
+    out = plain(draw_boxes=True, thickness=1).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 1, 0.9)])
+    assert tuple(out[27, 20]) == DEFAULT_PALETTE[0]
+    assert tuple(out[27, 19]) == (0, 0, 0) and tuple(out[27, 21]) == (0, 0, 0)
+    assert tuple(out[27, 22]) == (GRAY,) * 3
 
 
 def test_corrected_box_has_its_own_colour_and_label():
     renderer = plain(draw_boxes=True, draw_labels=True, thickness=1, corrected_color=(0, 220, 0))
-    out = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 0.9, corrected=True)])
+    out = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 0.9, keyframe_source="fix.json:7")])
     assert tuple(out[49, 35]) == (0, 220, 0)  # bottom edge, away from the label
     tracker = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 0.9)])
     assert not np.array_equal(out, tracker)
+
+
+@pytest.mark.parametrize(
+    ("source", "given", "corrected", "text"),
+    [
+        (KEYFRAME_GIVEN, True, False, "id 4 given"),
+        ("fix.json:7", False, True, "id 4 corrected"),
+        ("", False, False, "id 4 0.87"),
+    ],
+)
+def test_first_frame_box_is_labelled_given_and_a_correction_corrected(source, given, corrected, text):
+    item = OverlayItem([20, 25, 30, 25], 4, 0.87, keyframe_source=source)
+    assert (item.given, item.corrected, label_text(item)) == (given, corrected, text)
+
+
+def test_given_box_keeps_the_track_colour_and_is_thicker():
+    renderer = plain(draw_boxes=True, thickness=1, outline_color=None, corrected_color=(0, 220, 0))
+    out = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 1.0, keyframe_source=KEYFRAME_GIVEN)])
+    assert tuple(out[49, 35]) == DEFAULT_PALETTE[0]
+    tracker = renderer.annotate(gray_frame(), [OverlayItem([20, 25, 30, 25], 1, 1.0)])
+    assert np.count_nonzero(np.any(out != GRAY, axis=-1)) > np.count_nonzero(np.any(tracker != GRAY, axis=-1))
+
+
+@pytest.mark.parametrize(
+    ("background", "text"),
+    [((0, 220, 0), (0, 0, 0)), (DEFAULT_PALETTE[0], (255, 255, 255)), ((255, 127, 14), (0, 0, 0)),
+     ((0, 0, 0), (255, 255, 255)), ((255, 255, 255), (0, 0, 0))],
+)
+def test_label_text_colour_is_the_more_contrasting_of_black_and_white(background, text):
+    assert _text_colour(background) == text
+
+
+def test_keyframe_source_must_be_a_string():
+    with pytest.raises(ValueError, match="keyframe_source"):
+        OverlayItem([0, 0, 1, 1], 1, 0.5, keyframe_source=True)
+
+
+@pytest.mark.parametrize(
+    ("size", "thickness", "radius"),
+    [((240, 320), 2, 0), ((480, 640), 2, 0), ((720, 1280), 3, 1), ((1080, 1920), 4, 2)],
+)
+def test_mark_sizes_scale_with_the_frame(size, thickness, radius):
+    sizes = OverlayRenderer().sizes_for(*size)
+    assert (sizes.thickness, sizes.particle_radius) == (thickness, radius)
+    assert sizes.font_scale >= 0.4
+
+
+def test_line_width_and_label_grow_with_the_frame():
+    renderer = plain(draw_boxes=True, draw_labels=True, outline_color=None)
+    small = renderer.annotate(gray_frame(240, 320), [OverlayItem([100, 100, 60, 50], 1, 0.9)])
+    large = renderer.annotate(gray_frame(720, 1280), [OverlayItem([300, 300, 180, 150], 1, 0.9)])
+    # The left edge's width, measured on a row below the label.
+    width = lambda out, row, x: int(np.count_nonzero(np.all(out[row, x - 5 : x + 6] == DEFAULT_PALETTE[0], -1)))  # noqa: E731
+    assert width(small, 130, 100) == 2 and width(large, 400, 300) == 3
+    label_rows = lambda out: int(np.count_nonzero(np.any(np.all(out == DEFAULT_PALETTE[0], -1), axis=1)))  # noqa: E731
+    assert label_rows(large) > label_rows(small)
+
+
+def test_label_goes_below_a_box_at_the_top_of_the_frame():
+    out = plain(draw_labels=True, outline_color=None).annotate(gray_frame(), [OverlayItem([20, 0, 30, 20], 1, 0.87)])
+    assert np.array_equal(out[:20], gray_frame()[:20])  # the object is left clear
+    assert np.any(np.all(out[20:] == DEFAULT_PALETTE[0], axis=-1))
+
+
+def test_drawing_is_deterministic():
+    rng = np.random.default_rng(0)
+    particles = np.column_stack([rng.uniform(0, 70, (200, 2)), np.full((200, 2), 4.0)])
+    item = OverlayItem([10, 10, 30, 20], 1, 0.5, particles_xywh=particles, particle_scores=rng.normal(size=200),
+                       superpixel_labels=rng.integers(0, 4, (20, 30)), superpixel_origin_xy=[5, 5])
+    frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    renderer = OverlayRenderer(particle_radius=2)
+    assert np.array_equal(renderer.annotate(frame, [item]), renderer.annotate(frame.copy(), [item]))
 
 
 def test_label_sits_above_the_box():
@@ -87,12 +168,12 @@ def test_nan_box_draws_nothing_but_keeps_the_review_mark():
 
 
 def test_particles_are_shaded_by_score_within_the_frame():
-    renderer = plain(draw_particles=True, particle_radius=0)
+    renderer = plain(draw_particles=True, particle_radius=0, particle_min_alpha=1.0)
     particles = np.array([[10, 10, 4, 4], [30, 20, 6, 2], [50, 40, 2, 2]], dtype=float)
     scores = np.array([-3.0, 7.0, 2.0])
     item = OverlayItem([0, 0, 1, 1], 1, 0.5, particles_xywh=particles, particle_scores=scores)
     out = renderer.annotate(gray_frame(), [item])
-    lut = renderer._lut
+    lut = renderer._lut.astype(np.uint8)
     assert tuple(out[12, 12]) == tuple(lut[0])  # worst: dark end of the colormap
     assert tuple(out[21, 33]) == tuple(lut[255])  # best: bright end
     assert tuple(out[41, 51]) == tuple(lut[round(5 / 10 * 255)])
@@ -101,6 +182,16 @@ def test_particles_are_shaded_by_score_within_the_frame():
     scaled = OverlayItem([0, 0, 1, 1], 1, 0.5, particles_xywh=particles, particle_scores=scores * 10)
     again = renderer.annotate(gray_frame(), [scaled])
     assert np.array_equal(out, again)
+
+
+def test_worse_particles_are_fainter():
+    renderer = plain(draw_particles=True, particle_radius=0, particle_min_alpha=0.25)
+    particles = np.array([[10, 10, 4, 4], [30, 20, 6, 2]], dtype=float)
+    item = OverlayItem([0, 0, 1, 1], 1, 0.5, particles_xywh=particles, particle_scores=np.array([0.0, 1.0]))
+    out = renderer.annotate(gray_frame(), [item])
+    lut = renderer._lut
+    assert tuple(out[12, 12]) == tuple(np.round(GRAY * 0.75 + lut[0] * 0.25).astype(np.uint8))
+    assert tuple(out[21, 33]) == tuple(lut[255].astype(np.uint8))
 
 
 def test_superpixel_boundaries_inside_the_labelled_area():
@@ -139,7 +230,7 @@ def test_items_from_frame_result_and_tracks():
     )  # fmt: skip
     assert items_from_tracks([track], 3) == []
     (first,) = items_from_tracks([track], 0)
-    assert first.corrected and first.box_xywh.tolist() == [1, 2, 3, 4]
+    assert first.given and not first.corrected and first.box_xywh.tolist() == [1, 2, 3, 4]
     (absent,) = items_from_tracks([track], 5)
     assert absent.flagged and np.isnan(absent.box_xywh).all()
 

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from annotator.pipeline import SpanThumbnail
-from annotator.report import flagged_spans, render_report, track_summary
+from annotator.report import _tick_step, flagged_spans, render_report, track_summary
+from annotator.wording import plural
 from annotator.tracks import TrackResult, VideoInfo
 
 GOLDEN = Path(__file__).parent / "golden" / "annotate"
@@ -93,7 +94,7 @@ class SpanRows(html.parser.HTMLParser):
     def handle_starttag(self, tag, attrs):
         attrs = dict(attrs)
         if tag == "tr" and "span" in (attrs.get("class") or "").split():
-            self._row = {"cells": [], "seek": None, "img": None}
+            self._row = {"cells": [], "seek": None, "img": None, "thumb_seek": None}
         elif tag == "video":
             self.videos.append(attrs)
         elif tag == "rect" and attrs.get("class") == "flag":
@@ -101,6 +102,8 @@ class SpanRows(html.parser.HTMLParser):
         elif self._row is not None:
             if tag == "td":
                 self._cell = []
+            elif tag == "a" and "thumb" in (attrs.get("class") or "").split():
+                self._row["thumb_seek"] = attrs.get("onclick")
             elif tag == "a" and "seek" in (attrs.get("class") or ""):
                 self._row["seek"] = attrs.get("onclick")
             elif tag == "img":
@@ -213,6 +216,62 @@ def test_labels_and_paths_are_escaped(tmp_path):
     assert "<script>alert(1)" not in page and "&lt;script&gt;alert(1)" in page
 
 
+def svg_texts(page: str, track_id: int) -> list[tuple[dict, str]]:
+    """The ``<text>`` elements of one track's timeline: attributes and text."""
+    svg = re.search(rf'<svg class="timeline"[^>]*aria-label="confidence of track {track_id} per frame">(.*?)</svg>',
+                    page, re.S).group(1)
+    return [(dict(re.findall(r'(\S+)="([^"]*)"', attrs)), text)
+            for attrs, text in re.findall(r"<text([^>]*)>([^<]*)</text>", svg)]
+
+
+def test_timeline_has_frame_ticks_and_axis_labels(tmp_path):
+    page = render(tmp_path, make_tracks())
+    texts = svg_texts(page, 1)
+    labels = [text for attrs, text in texts if attrs.get("class") == "axis-label"]
+    assert labels == ["source frame", "confidence"]
+    x_ticks = [(float(a["x"]), t) for a, t in texts if "class" not in a and a.get("text-anchor") == "middle"]
+    y_ticks = [t for a, t in texts if a.get("text-anchor") == "end"]
+    # Source frames 1, 3, ..., 23 (step 2): ticks every 5 frames, at the frame's place on the processed axis.
+    assert [t for _, t in x_ticks] == ["5", "10", "15", "20"]
+    left, plot_w = 52, 900 - 52 - 10
+    assert x_ticks[0][0] == pytest.approx(left + plot_w * 2 / 11, abs=0.05)  # frame 5 is position 2
+    assert x_ticks[1][0] == pytest.approx(left + plot_w * 4.5 / 11, abs=0.05)  # frame 10 lies between 9 and 11
+    assert y_ticks == ["0", "0.5", "1"]
+
+
+@pytest.mark.parametrize(("span", "step"), [(0, 1), (7, 1), (22, 5), (100, 20), (1000, 200), (12345, 2000)])
+def test_tick_step_is_one_two_or_five_times_a_power_of_ten(span, step):
+    assert _tick_step(span) == step
+
+
+def test_single_frame_timeline_and_singular_wording(tmp_path):
+    track = make_track(1, [7], ".")
+    page = render(tmp_path, [track], run_info={**RUN_INFO, "frames_processed": 1})
+    assert [t for a, t in svg_texts(page, 1) if "class" not in a and a.get("text-anchor") == "middle"] == ["7"]
+    assert "Processed 1 frame in" in page and "1 frames" not in page
+
+
+def test_thumbnail_seeks_the_overlay_like_the_span_link(tmp_path):
+    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 1, 3, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")])
+    rows = [row for row in parse(page).rows if row["img"]]
+    assert len(rows) == 2 and all(row["thumb_seek"] == row["seek"] is not None for row in rows)
+    no_overlay = render(tmp_path, make_tracks(), overlay=None, thumbnails=[SpanThumbnail(1, 1, 3, "AAAA")])
+    assert all(row["thumb_seek"] is None for row in parse(no_overlay).rows)
+
+
+def test_overlay_video_has_a_plain_fallback_link(tmp_path):
+    page = render(tmp_path, make_tracks())
+    video = re.search(r"<video[^>]*>(.*?)</video>", page, re.S).group(1)
+    assert '<a href="overlay.mp4">' in video  # for browsers without <video>
+    assert '<a class="video-file" href="overlay.mp4">' in page  # for browsers that cannot decode the file
+
+
+def test_report_shows_the_absolute_input_path_from_run_json(tmp_path):
+    absolute = str((tmp_path / "clips" / "walk.mp4").resolve())
+    page = render(tmp_path, make_tracks(), run_info={**RUN_INFO, "input": {"path": absolute}})
+    assert f'<div class="muted">{absolute} &middot;' in page and "clips/walk.mp4 &middot;" not in page.replace(absolute, "")
+
+
 def test_report_golden(tmp_path):
     page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 1, 3, "AAAA")])
     golden = GOLDEN / "report.html"
@@ -221,3 +280,9 @@ def test_report_golden(tmp_path):
         golden.write_text(page, encoding="utf-8")
     assert golden.exists(), f"missing golden file {golden}; create it with UPDATE_GOLDEN=1"
     assert page == golden.read_text(encoding="utf-8"), f"report differs from {golden}; if intended, UPDATE_GOLDEN=1"
+
+
+@pytest.mark.parametrize(("count", "text"), [(0, "0 frames"), (1, "1 frame"), (2, "2 frames")])
+def test_counts_are_worded_in_the_right_number(count, text):
+    assert plural(count, "frame") == text
+    assert plural(count, "frame box", "frame boxes") == text.replace("frame", "frame box").replace("boxs", "boxes")

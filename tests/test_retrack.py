@@ -524,3 +524,17 @@ def test_retrack_interrupted_says_so_and_changes_nothing(out, monkeypatch):
     assert result.exit_code == 130
     assert "interrupted; nothing in" in result.output and "was changed" in result.output
     assert snapshot(out) == before
+
+
+def test_report_shows_the_absolute_input_path_before_and_after_a_retrack(tmp_path, monkeypatch):
+    frames = _write_folder(tmp_path / "seq", 8)
+    monkeypatch.chdir(tmp_path)
+    truth = make_clip(8, size=(96, 72), object_size=(24, 20)).boxes_xywh
+    annotate(Path("seq"), [Target(tuple(truth[0]), 1)], CONFIG, out_dir=Path("out"), show_progress=False)
+    absolute = str(frames.resolve())
+    header = f'<div class="muted">{absolute} &middot;'
+    assert header in (tmp_path / "out" / "report.html").read_text()
+    fix = tmp_path / "fix.csv"
+    fix.write_text("frame,x,y,w,h\n" + csv_row(5, truth[5]))
+    assert apply_corrections(Path("out"), fix, show_progress=False).changed
+    assert header in (tmp_path / "out" / "report.html").read_text()

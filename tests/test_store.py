@@ -25,6 +25,7 @@ from annotator.exports import FILE_EXPORTS, write_exports
 from annotator.pipeline import Target
 from annotator.review import load_run
 from annotator.store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
+from annotator.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
 from test_exports import GOLDEN, VIDEO, make_tracks
 from test_retrack import CONFIG, GT, _write_folder, csv_row, snapshot
@@ -229,3 +230,38 @@ def test_store_range_is_validated():
     with pytest.raises(ValueError, match="unique"):
         RunStore(video=VideoInfo(path="a", name="a", width=4, height=4, fps=1.0, frame_count=1), start=0, stop=1,
                  step=1, tracks=(track, track))
+
+
+# --------------------------------------------------------------------------- image folders: real image names
+
+
+def test_frame_files_round_trip_and_older_stores_read_without_them(tmp_path):
+    files = tuple(f"walk/img/{k + 1:04d}.jpg" for k in range(VIDEO.frame_count))
+    video = VideoInfo(**{**VIDEO.__dict__, "frame_files": files})
+    path = write_store(tmp_path / STORE_NAME, RunStore(video=video, start=0, stop=12, step=2, tracks=make_tracks()))
+    assert read_store(path).video == video and read_store(path).video.frame_files == files
+    # A store written before frame_files existed: its header has no such key.
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files}
+    header = json.loads(str(arrays["header"]))
+    del header["video"]["frame_files"]
+    arrays["header"] = np.array(json.dumps(header))
+    old = tmp_path / "old.npz"
+    np.savez(old, **arrays)
+    assert read_store(old).video == VIDEO and read_store(old).video.frame_files is None
+
+
+def test_coco_of_an_otb_folder_names_the_real_images(tmp_path):
+    from pycocotools.coco import COCO
+
+    frames = _write_folder(tmp_path / "img", 5)
+    otb = tmp_path / "Coke"
+    otb.mkdir()
+    frames.rename(otb / "img")
+    annotate(otb, [Target(tuple(make_clip(5, size=(96, 72), object_size=(24, 20)).boxes_xywh[0]), 1)], CONFIG,
+             out_dir=tmp_path / "out", step=2, show_progress=False)
+    coco = COCO(str(tmp_path / "out" / "annotations.json"))
+    images = coco.loadImgs(sorted(coco.getImgIds()))
+    assert [im["file_name"] for im in images] == ["Coke/img/0000.png", "Coke/img/0002.png", "Coke/img/0004.png"]
+    assert all((tmp_path / im["file_name"]).is_file() for im in images)  # image root: the sequence's parent
+    assert read_store(tmp_path / "out" / STORE_NAME).video.frame_files[1] == "Coke/img/0001.png"

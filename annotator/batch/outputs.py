@@ -4,12 +4,14 @@ Layout of the output folder ``OUT``::
 
     OUT/<id>/...            each item's outputs, exactly as ``sptpt-annotate VIDEO`` writes them
     OUT/annotations.json    COCO for the whole dataset (merge_coco: ids unique across videos)
+    OUT/labelstudio.json    with --formats labelstudio: every item's Label Studio task in one import file
     OUT/summary.json        settings, counts and one row per item
     OUT/failures.jsonl      one JSON object per failed item: id, input, manifest line, exit code, error
     OUT/report.html         index: a sortable row per item, linking ``<id>/report.html``
 
 The batch-level files are rebuilt at the end of every run from all items'
-``run.json``, so a resumed run indexes old and new items alike; each is
+``run.json`` and track stores (never their exports), so a resumed run
+indexes old and new items alike; each is
 written atomically (write to a temporary file, rename). ``failures.jsonl``
 is also rewritten whenever an item fails, so a killed run still lists the
 failures so far.
@@ -17,6 +19,7 @@ failures so far.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 from dataclasses import dataclass, field
@@ -28,6 +31,7 @@ from annotator.atomic import write_text_atomic
 from annotator.batch.plan import PlannedItem, normalised_json, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
+from annotator.store import STORE_NAME, RunStore, read_store
 
 #: Batch-level outputs in ``OUT``.
 BATCH_FILES = ("annotations.json", "summary.json", "report.html", "failures.jsonl")
@@ -124,32 +128,42 @@ def write_failures(out_dir: Path, planned: Sequence[PlannedItem], outcomes: Mapp
     return path
 
 
-def _merged_coco(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """All items' COCO files in manifest order, each video renamed to its item id (unique), ids renumbered."""
-    from annotator.exports.coco import merge_coco
+def _item_stores(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> list[RunStore]:
+    """The track stores of the items that have results, in manifest order, each video named for its item id.
 
-    datasets = []
+    The id is unique in the batch where video names need not be; a video
+    item's frame-dump names (``<name>/<frame:06d>.jpg``) follow the new name,
+    while an image-folder item keeps its real image paths.
+    """
+    stores = []
     for row in rows:
-        path = out_dir / row["id"] / "annotations.json"
+        path = out_dir / row["id"] / STORE_NAME
         if row["status"] not in ("done", "partial") or not path.is_file():
             continue
-        data = json.loads(path.read_text(encoding="utf-8"))
-        for video in data.get("videos", []):
-            old = video["name"]
-            if old != row["id"]:
-                video["name"] = row["id"]
-                prefix = f"{old}/"
-                for image in data.get("images", []):
-                    if image.get("video_id") == video["id"] and str(image.get("file_name", "")).startswith(prefix):
-                        image["file_name"] = f"{row['id']}/{image['file_name'][len(prefix):]}"
-        datasets.append(data)
-    if not datasets:
+        store = read_store(path)
+        stores.append(dataclasses.replace(store, video=dataclasses.replace(store.video, name=row["id"])))
+    return stores
+
+
+def _merged_coco(stores: Sequence[RunStore]) -> dict[str, Any]:
+    """All items' tracks as one COCO file, ids renumbered to be unique across videos."""
+    from annotator.exports.coco import build_coco, merge_coco
+
+    if not stores:
         return {"info": {"description": "sptpt-annotate boxes for 0 videos", "contributor": "sptpt-annotate",
                          "bbox_format": "xywh, 0-based pixels"},
                 "licenses": [], "categories": [], "videos": [], "images": [], "tracks": [], "annotations": []}
-    merged = merge_coco(datasets)
+    merged = merge_coco([build_coco(store.video, store.tracks) for store in stores])
     merged["info"]["description"] = f"sptpt-annotate boxes for {len(merged['videos'])} videos"
     return merged
+
+
+def _merged_labelstudio(stores: Sequence[RunStore]) -> list[dict[str, Any]]:
+    """One Label Studio task list for the whole batch: every item's task, in manifest order."""
+    from annotator.exports.labelstudio import build_labelstudio_tasks
+
+    return [task for store in stores for task in build_labelstudio_tasks(
+        store.video, store.tracks, frames=range(store.start, store.stop, store.step))]
 
 
 def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
@@ -198,9 +212,15 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
         "items": rows,
     }
     paths = {"failures": write_failures(out_dir, planned, outcomes)}
+    # Merged views of every item's track store, for the formats that hold several videos.
+    stores = _item_stores(out_dir, rows) if {"coco", "labelstudio"} & set(formats) else []
     if "coco" in formats:
-        save_coco(out_dir / "annotations.json", _merged_coco(out_dir, rows))
+        save_coco(out_dir / "annotations.json", _merged_coco(stores))
         paths["coco"] = out_dir / "annotations.json"
+    if "labelstudio" in formats:
+        write_text_atomic(out_dir / "labelstudio.json",
+                          json.dumps(_merged_labelstudio(stores), indent=2, ensure_ascii=False, allow_nan=False) + "\n")
+        paths["labelstudio"] = out_dir / "labelstudio.json"
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
     paths["summary"] = out_dir / "summary.json"
     _render_index(out_dir / "report.html", summary)

@@ -13,6 +13,7 @@ from typing import TextIO
 
 from annotator.batch.workers import ItemOutcome
 from annotator.progress import format_clock
+from annotator.wording import plural
 
 
 class BatchProgress:
@@ -59,7 +60,7 @@ class BatchProgress:
         if self._tty:
             self.draw(force=True)
         else:
-            what = f"{outcome.frames} frames in {outcome.seconds:.1f} s" if outcome.status != "failed" else ""
+            what = f"{plural(outcome.frames, 'frame')} in {outcome.seconds:.1f} s" if outcome.status != "failed" else ""
             reason = f": {outcome.error}" if outcome.error else ""
             self.stream.write(f"[{self.items_done}/{self.n_items}] {item_id} {outcome.status}"
                               f"{' ' + what if what else ''}{reason}\n")

@@ -10,6 +10,7 @@ import typer
 from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
+from annotator.wording import plural
 
 
 def batch_command(
@@ -60,9 +61,10 @@ def batch_command(
     except ToolError as error:
         fail(error, debug)
     counts = result.counts
-    message = (f"{counts['items']} items: {counts['done']} done ({counts['reused']} kept from an earlier run), "
-               f"{counts['partial']} partly decoded, {counts['failed']} failed; {result.frames_this_run} frames "
-               f"tracked in {result.seconds:.1f} s; index {result.paths['report']}")
+    message = (f"{plural(counts['items'], 'item')}: {counts['done']} done ({counts['reused']} kept from an earlier "
+               f"run), {counts['partial']} partly decoded, {counts['failed']} failed; "
+               f"{plural(result.frames_this_run, 'frame')} tracked in {result.seconds:.1f} s; "
+               f"index {result.paths['report']}")
     if result.exit_code != EXIT_OK:
         typer.echo(f"sptpt-annotate: warning: {message}; reasons in {result.paths['failures']}", err=True)
         raise typer.Exit(result.exit_code)

@@ -12,6 +12,7 @@ from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
 from sptpt.params import PRESETS
 from annotator.errors import EXIT_OK, EXIT_VALUE, ToolError
+from annotator.wording import plural
 
 def track_command(
     video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),
@@ -89,7 +90,8 @@ def track_command(
     if not quiet:
         flagged = sum(int(t.flagged.sum()) for t in result.run.tracks)
         total = sum(len(t.frame_indices) for t in result.run.tracks)
-        typer.echo(f"{result.run.frames_processed} frames tracked in {result.run.seconds_total:.1f} s; "
-                   f"{flagged} of {total} frame boxes flagged for review; results in {result.out_dir}", err=True)
+        typer.echo(f"{plural(result.run.frames_processed, 'frame')} tracked in {result.run.seconds_total:.1f} s; "
+                   f"{flagged} of {plural(total, 'frame box', 'frame boxes')} flagged for review; "
+                   f"results in {result.out_dir}", err=True)
         if review is not None:
             typer.echo(review.summary(), err=True)

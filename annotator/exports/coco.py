@@ -5,10 +5,14 @@ choices it leaves open:
 
 * **Images.** One image per processed frame (the union over tracks), in
   source order. ``frame_id`` is the 0-based position in that list (CocoVID);
-  ``frame_index`` the source frame index (TAO). ``file_name`` is
-  ``<video name>/<frame_index:06d>.jpg``: this exporter writes no images, and
-  that is the name ``ffmpeg -i VIDEO -start_number 0 NAME/%06d.jpg`` gives
-  each decoded frame (add ``-fps_mode passthrough`` for variable frame rate).
+  ``frame_index`` the source frame index (TAO). ``file_name`` is, for an
+  image-folder source, the real image's path relative to the parent of the
+  sequence folder (``VideoInfo.frame_files``, e.g. ``Coke/img/0001.jpg``
+  for an OTB sequence), so a COCO viewer given that parent folder as image
+  root finds the images. For a video it is ``<video name>/<frame_index:06d>.jpg``:
+  this exporter writes no images, and that is the name
+  ``ffmpeg -i VIDEO -start_number 0 NAME/%06d.jpg`` gives each decoded frame
+  (add ``-fps_mode passthrough`` for variable frame rate).
 * **Boxes** are 0-based ``xywh``, clipped to the image, rounded to 1/1000
   pixel. A frame whose object is ``outside`` gets no annotation; so does a
   box that is NaN or lies wholly outside the image after clipping (COCO has
@@ -74,6 +78,13 @@ def _categories(tracks: Sequence[TrackResult], categories: Sequence[str | Mappin
     if missing:
         raise ValueError(f"track labels {missing} are not among categories {names}; add them or relabel the tracks")
     return result
+
+
+def _file_name(video: VideoInfo, frame_index: int) -> str:
+    """COCO ``file_name`` of a source frame: the image folder's own file, else the ffmpeg frame-dump name."""
+    if video.frame_files is not None:
+        return video.frame_files[frame_index]
+    return f"{video.name}/{frame_index:06d}.jpg"
 
 
 def _clip_xywh(box: np.ndarray, width: int, height: int) -> list[float] | None:
@@ -158,7 +169,7 @@ def build_coco(
         {
             "id": image_id[int(f)],
             "video_id": video_id,
-            "file_name": f"{video.name}/{int(f):06d}.jpg",
+            "file_name": _file_name(video, int(f)),
             "width": video.width,
             "height": video.height,
             "frame_id": k,

@@ -39,7 +39,7 @@ folder exactly as it was, and the temporary folder is removed.
 Overlay
 -------
 The overlay is re-rendered for the whole processed range from the tracks:
-boxes, labels, corrected (keyframe) boxes and review marks. Particle clouds
+boxes, labels, the given first-frame box and corrected boxes, and review marks. Particle clouds
 and superpixels are not redrawn, on any frame: the tracker state that drew
 them is gone for the kept frames, and a video that showed them on re-tracked
 frames only would suggest a difference that is not there.
@@ -75,6 +75,7 @@ from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import RUN_JSON, LoadedRun, load_run
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from annotator.wording import plural
 
 __all__ = ["ReviewResult", "apply_corrections"]
 
@@ -100,9 +101,10 @@ class ReviewResult:
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
-        return (f"{len(r.anchors)} new or changed correction{'s' if len(r.anchors) != 1 else ''}; re-tracked "
-                f"{frames} frames in {len(r.segments)} span{'s' if len(r.segments) != 1 else ''} in {r.seconds:.1f} s; "
-                f"{self.flagged_after} frame boxes flagged for review (was {self.flagged_before}); "
+        return (f"{plural(len(r.anchors), 'new or changed correction')}; re-tracked "
+                f"{plural(frames, 'frame')} in {plural(len(r.segments), 'span')} in {r.seconds:.1f} s; "
+                f"{plural(self.flagged_after, 'frame box', 'frame boxes')} flagged for review "
+                f"(was {self.flagged_before}); "
                 f"outputs rewritten in {self.out_dir}")
 
 
