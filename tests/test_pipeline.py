@@ -406,3 +406,17 @@ def test_parse_box_errors(text, needle):
     with pytest.raises(ToolError) as caught:
         parse_box(text)
     assert caught.value.exit_code == EXIT_VALUE and needle in str(caught.value) and "--box" in str(caught.value)
+
+
+def test_review_budget_flags_the_most_doubtful_share_and_the_overlay_marks_none(scripted, clip, tmp_path):
+    config = resolve_config({"seed": 4, "flags": {"review_budget": 25}, "failure_model": str(SCORE_ONLY_MODEL)})
+    result = annotate(clip, TARGETS[:1], config, out_dir=tmp_path / "out", start=START, stop=STOP, step=STEP,
+                      show_progress=False)
+    track = result.run.tracks[0]
+    # ceil(25% of 14 frames) = 4: the four rejected frames, the most doubtful ones.
+    assert track.frame_indices[track.flagged].tolist() == sorted(REJECTED)
+    assert set(track.reasons[i] for i in np.flatnonzero(track.flagged)) == {"budget+doubt:score"}
+    overlay = open_frames(tmp_path / "out" / "overlay.mp4")
+    assert not any(border_is_red(frame) for _, frame in overlay)
+    table = read_flags_csv(tmp_path / "out" / "flags.csv")
+    assert table.flagged.sum() == 4

@@ -39,6 +39,13 @@ def track_command(
         None, "--corrections",
         help="CSV frame,x,y,w,h[,track_id] or COCO file of human boxes, applied right after tracking "
              "(as 'sptpt-annotate retrack')."),
+    review_budget: Optional[float] = typer.Option(
+        None, "--review-budget", metavar="PCT",
+        help="Flag the PCT% most doubtful frames of each track (highest failure probability) instead of every frame "
+             "above the threshold, for a fixed amount of review time."),
+    failure_model: Optional[Path] = typer.Option(
+        None, "--failure-model", help="A failure-model JSON refitted with benchmarks/failure_model.py "
+                                      "(default: the one shipped)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
@@ -58,7 +65,12 @@ def track_command(
         targets = [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
         try:
             file_values = load_config_file(config_file) if config_file is not None else {}
-            config = resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed)
+            flag_overrides = {"review_budget": review_budget} if review_budget is not None else None
+            if review_budget is not None and not 0 < review_budget <= 100:
+                raise ToolError(f"--review-budget {review_budget:g} is out of range: give a percentage of frames "
+                                "to review, 0 < PCT <= 100 (e.g. --review-budget 5)", EXIT_VALUE)
+            config = resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed,
+                                    flag_overrides=flag_overrides, failure_model=failure_model)
         except ConfigError as exc:
             raise ToolError(str(exc), exc.exit_code) from None
         chosen = [f.strip() for f in formats.split(",") if f.strip()]

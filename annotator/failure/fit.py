@@ -1,0 +1,91 @@
+"""Fitting the failure model: logistic regression, leave-one-sequence-out, threshold chosen on training data only.
+
+Used by ``benchmarks/failure_model.py`` (which gathers the runs and writes the
+model file); kept in the package so that a test can refit on fixed data and
+check the result is reproduced.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from annotator.failure.model import FEATURES, FailureModel, model_from_fit
+
+__all__ = ["Sample", "choose_threshold", "fit_model", "leave_one_sequence_out"]
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One tracked sequence (one seed): features per frame and whether each frame failed.
+
+    ``use`` marks the frames to learn from and score: not the boxes a person gave.
+    """
+
+    sequence: str
+    seed: int
+    features: np.ndarray  # (F, len(FEATURES))
+    failed: np.ndarray  # (F,) bool: IoU < 0.5 with the ground truth
+    use: np.ndarray  # (F,) bool
+
+
+def _stack(samples: Sequence[Sample]) -> tuple[np.ndarray, np.ndarray]:
+    X = np.concatenate([s.features[s.use] for s in samples]) if samples else np.zeros((0, len(FEATURES)))
+    y = np.concatenate([s.failed[s.use] for s in samples]) if samples else np.zeros(0, bool)
+    return X, y
+
+
+def choose_threshold(p_fail: np.ndarray, failed: np.ndarray) -> float:
+    """The threshold that maximises frame-level F1 of ``p_fail > t`` (ties: the higher t, fewer flags)."""
+    candidates = np.round(np.arange(0.05, 0.951, 0.01), 2)
+    best, best_f1 = 0.5, -1.0
+    for t in candidates:
+        flagged = p_fail > t
+        tp = float(np.sum(flagged & failed))
+        precision = tp / max(flagged.sum(), 1)
+        recall = tp / max(failed.sum(), 1)
+        f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+        if f1 >= best_f1:
+            best, best_f1 = float(t), f1
+    return best
+
+
+def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    from sklearn.linear_model import LogisticRegression
+
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs")
+    model.fit((X - mean) / scale, y.astype(int))
+    return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
+
+
+def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, Any] | None = None) -> FailureModel:
+    """Fit on every sample's usable frames; the threshold maximises F1 on those same training frames."""
+    X, y = _stack(samples)
+    if len(np.unique(y)) < 2:
+        raise ValueError("the training frames must hold both failed and good frames")
+    mean, scale, coef, intercept = _fit(X, y, C)
+    provisional = model_from_fit(FEATURES, mean, scale, coef, intercept, 0.5, {})
+    threshold = choose_threshold(provisional.p_fail(X), y)
+    return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, dict(info or {}))
+
+
+def leave_one_sequence_out(samples: Sequence[Sample], *, C: float = 1.0,
+                           drop: Sequence[str] = ()) -> dict[str, tuple[FailureModel, list[Sample]]]:
+    """For each sequence: the model fitted on all *other* sequences (every seed), and that sequence's samples.
+
+    ``drop`` names features to leave out (their columns are zeroed in training
+    and scoring alike), for measuring what a group of signals is worth.
+    """
+    keep = np.array([f not in set(drop) for f in FEATURES])
+    masked = [Sample(s.sequence, s.seed, np.where(keep, s.features, 0.0), s.failed, s.use) for s in samples]
+    folds = {}
+    for name in sorted({s.sequence for s in masked}):
+        train = [s for s in masked if s.sequence != name]
+        held = [s for s in masked if s.sequence == name]
+        folds[name] = (fit_model(train, C=C), held)
+    return folds

@@ -1,0 +1,232 @@
+"""The failure probability: each signal moves where a synthetic track fails, online equals offline, the model
+file is checked field by field and refits reproducibly, calibration metrics are exact, and bad input is refused.
+"""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotator.cli import _with_default_command, app
+from annotator.evaluation.calibration import auroc, expected_calibration_error, reliability
+from annotator.failure import (
+    FEATURES,
+    SIGNALS,
+    FailureModelError,
+    SignalMeter,
+    TrackDoubt,
+    feature_matrix,
+    load_model,
+    particle_stats,
+    score_track,
+)
+from annotator.failure.fit import Sample, fit_model
+from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
+from annotator.flagging import FlagParams, flag_p_fail
+from annotator.synthetic import make_clip
+
+FAIL_AT = 12
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return make_clip(24, size=(160, 120), object_size=(32, 28), seed=3)
+
+
+def measure(clip, boxes, frames=None) -> dict[str, np.ndarray]:
+    """Signals of a pass that reports ``boxes`` over the clip (tracker scores fixed: only the images and boxes vary)."""
+    frames = clip.frames if frames is None else frames
+    meter = SignalMeter()
+    rows = [meter.first(frames[0], boxes[0])]
+    for k in range(1, len(frames)):
+        rows.append(meter.next(frames[k], boxes[k], log_likelihood=5.0, scoring="subspace", accepted=True))
+    return {name: np.array([r[name] for r in rows]) for name in SIGNALS}
+
+
+def background_box(clip, k: int) -> np.ndarray:
+    """A box of the object's size on background, far from the object at frame k."""
+    x, y, w, h = clip.boxes_xywh[k]
+    return np.array([(x + 70) % (160 - w), (y + 50) % (120 - h), w, h])
+
+
+def test_flow_appearance_and_motion_signals_move_where_the_box_slides_onto_background(clip):
+    truth = measure(clip, clip.boxes_xywh)
+    lost = clip.boxes_xywh.copy()
+    for k in range(FAIL_AT, len(lost)):
+        lost[k] = background_box(clip, k)
+    failed = measure(clip, lost)
+    before = slice(1, FAIL_AT)
+    # Up to the failure the signals are those of the true track.
+    for name in SIGNALS:
+        np.testing.assert_array_equal(failed[name][before], truth[name][before], err_msg=name)
+    # At the failure: the flow no longer carries the previous box onto this one, the patch no longer looks
+    # like the first frame's or the previous frame's, and the box jumped.
+    assert failed["flow_iou"][FAIL_AT] < 0.2 < truth["flow_iou"][before].min()
+    assert failed["ncc_first"][FAIL_AT] < truth["ncc_first"][before].min() - 0.2
+    assert failed["ncc_prev"][FAIL_AT] < truth["ncc_prev"][before].min() - 0.2
+    assert failed["jump"][FAIL_AT] > 1.0 > truth["jump"][before].max()
+
+
+def test_the_object_swapped_for_background_lowers_the_appearance_signals(clip):
+    frames = [f.copy() for f in clip.frames]
+    for k in range(FAIL_AT, len(frames)):
+        x, y, w, h = (int(round(v)) for v in clip.boxes_xywh[k])
+        frames[k][y:y + h, x:x + w] = cv2.blur(frames[k], (31, 31))[y:y + h, x:x + w]  # object gone, blur left
+    truth = measure(clip, clip.boxes_xywh)
+    swapped = measure(clip, clip.boxes_xywh, frames)
+    assert swapped["ncc_first"][FAIL_AT] < truth["ncc_first"][1:FAIL_AT].min() - 0.3
+    assert swapped["ncc_prev"][FAIL_AT] < truth["ncc_prev"][1:FAIL_AT].min() - 0.3
+
+
+def test_score_signals_follow_the_tracker_and_the_candidates():
+    box = np.array([40.0, 40.0, 20.0, 20.0])
+    rng = np.random.default_rng(0)
+    centres = rng.normal(50, 1, (200, 2))
+    particles = np.column_stack([centres - 10, np.full((200, 2), 20.0)])
+    peaked = np.concatenate([[10.0], rng.normal(0, 0.1, 199)])
+    flat = rng.normal(0, 0.1, 200)
+    gap_peaked, spread_tight = particle_stats(particles, peaked, box)
+    gap_flat, _ = particle_stats(particles, flat, box)
+    assert gap_peaked > 5 * gap_flat
+    wide = np.column_stack([rng.uniform(0, 150, (200, 2)) - 10, np.full((200, 2), 20.0)])
+    _, spread_wide = particle_stats(wide, flat, box)
+    assert spread_wide > 5 * spread_tight
+    assert particle_stats(None, None, box) == (0.0, 0.0)
+
+
+def random_signals(rng, n: int) -> dict[str, np.ndarray]:
+    signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
+    signals["log_likelihood"] = rng.normal(3, 4, n)
+    signals["bootstrap"] = (np.arange(n) < 4).astype(float)
+    return signals
+
+
+def test_online_failure_equals_the_whole_track_computation():
+    rng = np.random.default_rng(5)
+    model = load_model()
+    for n in (0, 1, 2, 3, 7, 40, 130):
+        signals = random_signals(rng, n)
+        keyframe = np.zeros(n, bool)
+        keyframe[:1] = True
+        keyframe[n // 2: n // 2 + 1] = n > 4
+        expected = model.p_fail(feature_matrix(signals, keyframe)) if n else np.zeros(0)
+        online = OnlineFailure(model)
+        got = []
+        for t in range(n):
+            got += online.push({k: v[t] for k, v in signals.items()}, bool(keyframe[t]))
+        got += online.finish()
+        assert [pos for pos, _, _ in got] == list(range(n))
+        np.testing.assert_allclose([p for _, p, _ in got], expected, rtol=0, atol=1e-12)
+
+
+def test_track_doubt_equals_score_track_then_flags():
+    rng = np.random.default_rng(6)
+    model = load_model()
+    params = FlagParams(threshold=0.4, merge_gap=2, min_span=2)
+    n = 90
+    signals = random_signals(rng, n)
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 50]] = True
+    doubt = TrackDoubt(model, params)
+    decided = []
+    for t in range(n):
+        out = doubt.push({k: v[t] for k, v in signals.items()}, bool(keyframe[t]))
+        assert all(pos == t - doubt.lag for pos, *_ in out)
+        decided += out
+    decided += doubt.finish()
+    p_fail, groups = score_track(signals, keyframe, np.zeros(n, bool), model)
+    expected = flag_p_fail(p_fail, groups, 0.4, params, keyframe=keyframe)
+    np.testing.assert_allclose([p for _, p, _, _ in decided], p_fail, atol=1e-12)
+    assert [f for _, _, f, _ in decided] == expected.flagged.tolist()
+    assert [r for _, _, _, r in decided] == list(expected.reasons)
+    assert p_fail[0] == 0 and p_fail[50] == 0
+
+
+def test_the_shipped_model_loads_with_its_fields_and_versions():
+    model = load_model()
+    assert model.features == FEATURES and model.mean.shape == model.coef.shape == (len(FEATURES),)
+    assert 0 < model.threshold < 1 and np.all(model.scale > 0)
+    data = json.loads(json.dumps(model.to_json()))
+    assert data["format"] == MODEL_FORMAT and data["version"] == MODEL_VERSION
+    assert "fitted_by" in model.info or "note" in model.info  # says how it was made
+
+
+@pytest.mark.parametrize("edit, fragment", [
+    (lambda d: d.update(format="something else"), "is not a sptpt-annotate failure model"),
+    (lambda d: d.update(version=99), "has version 99"),
+    (lambda d: d.update(features=d["features"][:-1]), "is for features"),
+    (lambda d: d.update(coef=d["coef"][:3]), "coef must be"),
+    (lambda d: d.update(threshold=1.5), "threshold in (0, 1)"),
+    (lambda d: d.pop("intercept"), "lacks or garbles"),
+])
+def test_a_foreign_or_damaged_model_file_is_refused(tmp_path, edit, fragment):
+    data = load_model().to_json()
+    edit(data)
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(FailureModelError, match=str(path)) as info:
+        load_model(path)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+    (tmp_path / "broken.json").write_text('{"format": ')
+    with pytest.raises(FailureModelError, match=r"broken.json:1: not valid JSON"):
+        load_model(tmp_path / "broken.json")
+
+
+def small_samples() -> list[Sample]:
+    rng = np.random.default_rng(11)
+    samples = []
+    for k, name in enumerate(["A", "B", "C", "D"]):
+        n = 60
+        failed = np.arange(n) > 30 + 5 * k
+        features = rng.normal(0, 1, (n, len(FEATURES)))
+        features[:, FEATURES.index("flow_iou")] -= 2.0 * failed
+        use = np.ones(n, bool)
+        use[0] = False
+        samples.append(Sample(name, 0, features, failed, use))
+    return samples
+
+
+def test_refitting_on_fixed_input_reproduces_the_model_file():
+    first = fit_model(small_samples(), C=0.1, info={"data": "fixed"})
+    second = fit_model(small_samples(), C=0.1, info={"data": "fixed"})
+    assert json.dumps(first.to_json()) == json.dumps(second.to_json())
+    # The fitted signal is the one that separates failures, and the file round-trips exactly.
+    assert first.coef[FEATURES.index("flow_iou")] < 0
+    assert model_from_fit(FEATURES, first.mean, first.scale, first.coef, first.intercept, first.threshold,
+                          first.info).to_json() == first.to_json()
+
+
+def test_auroc_and_calibration_error_on_hand_made_numbers():
+    assert auroc([0.1, 0.2, 0.8, 0.9], [False, False, True, True]) == 1.0
+    assert auroc([0.9, 0.8, 0.2, 0.1], [False, False, True, True]) == 0.0
+    assert auroc([0.5, 0.5], [False, True]) == 0.5
+    assert np.isnan(auroc([0.1, 0.2], [True, True]))
+    # Two bins used: [0.1, 0.1] observed 0 -> error 0.1; [0.9, 0.9] observed 1 -> 0.1.
+    assert expected_calibration_error([0.1, 0.1, 0.9, 0.9], [False, False, True, True]) == pytest.approx(0.1)
+    r = reliability([0.05, 0.95, 0.95], [False, True, False])
+    assert r.count.tolist() == [1, 0, 0, 0, 0, 0, 0, 0, 0, 2]
+    assert r.observed[9] == 0.5 and r.predicted[9] == pytest.approx(0.95)
+
+
+def _run(*args):
+    result = CliRunner().invoke(app, _with_default_command([str(a) for a in args]))
+    return result.exit_code, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("budget", ["0", "101", "-5"])
+def test_review_budget_out_of_range_is_one_line_exit_4(tmp_path, budget):
+    code, output = _run(tmp_path, "--box", "1,2,3,4", "--review-budget", budget, "--out", tmp_path / "o")
+    assert code == 4 and "--review-budget" in output and "0 < PCT <= 100" in output
+    assert output.strip().count("\n") == 0 and not (tmp_path / "o").exists()
+
+
+def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
+    (tmp_path / "m.json").write_text("[1, 2]")
+    code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "m.json", "--out", tmp_path / "o")
+    assert code == 4 and "m.json is not a sptpt-annotate failure model" in output
+    code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "nope.json")
+    assert code == 3 and "nope.json cannot be read" in output
