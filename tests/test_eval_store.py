@@ -137,3 +137,27 @@ def _fast(tmp_path: Path) -> Path:
     config = tmp_path / "fast.yaml"
     config.write_text("tracker:\n  n_particles: 60\n  n_negatives: 20\n")
     return config
+
+
+def test_eval_scores_the_failure_probability_of_stores_and_plots_its_calibration(tmp_path):
+    gt = _gt(20)
+    write_otb_boxes(tmp_path / "gt.txt", gt)
+    pred = gt.copy()
+    pred[10:] += [40.0, 40.0, 0.0, 0.0]  # lost from frame 10: IoU 0
+    track = _track(np.arange(20), pred)
+    p_fail = np.where(np.arange(20) >= 9, 0.9, 0.1)
+    flagged = np.arange(20) >= 10
+    track = TrackResult(**{**{k: getattr(track, k) for k in track.__dataclass_fields__},
+                           "flagged": flagged, "reasons": tuple("doubt:flow" if f else "" for f in flagged),
+                           "signals": {"p_fail": p_fail}})
+    (tmp_path / "run").mkdir()
+    write_store(tmp_path / "run" / STORE_NAME, RunStore(video=VIDEO, start=0, stop=20, step=1, tracks=[track]))
+    code, table, err = _run("eval", tmp_path / "run", tmp_path / "gt.txt", "--out", tmp_path / "eval")
+    assert code == 0, err
+    assert "## Failure probability and flags (1 sequences, 20 frames)" in table
+    assert "| AUROC of p_fail for failure frames (IoU < 0.5) | 0.950 |" in table  # frame 9: a tie, half
+    assert "| flag precision | 1.000 |" in table and "| flag recall | 1.000 |" in table
+    # Calibration: bin 0.1 holds 9 good frames (error 0.1), bin 0.9 holds 1 good and 10 failed (|10/11 - 0.9|).
+    expected_ece = (9 * 0.1 + 11 * abs(10 / 11 - 0.9)) / 20
+    assert f"| expected calibration error (10 bins) | {expected_ece:.3f} |" in table
+    assert (tmp_path / "eval" / "calibration.png").stat().st_size > 1000

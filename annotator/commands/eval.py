@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import typer
 
 from annotator.commands.common import fail
@@ -23,9 +24,11 @@ def eval_command(
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
     from annotator.evaluation import DatasetScore, EvaluationError, evaluate_result_file, evaluate_results_dir
     from annotator.evaluation import results_markdown, write_report
+    from annotator.evaluation.calibration import failure_markdown, failure_summary, plot_calibration
     from annotator.otb import OTBFormatError
 
     notes: list[str] = []
+    pairs: list = []
     try:
         try:
             if ground_truth.is_dir():
@@ -34,12 +37,12 @@ def eval_command(
                     raise ToolError(f"--sequences {sequences!r} names no sequence: give names such as "
                                     "--sequences Coke,David", EXIT_VALUE)
                 score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names,
-                                             notes=notes)
+                                             notes=notes, pairs=pairs)
             else:
                 if sequences is not None:
                     raise ToolError("--sequences picks sequences of a dataset: give an OTB-layout root as "
                                     "GROUND_TRUTH, or drop --sequences", EXIT_VALUE)
-                sequence = evaluate_result_file(results, ground_truth, notes=notes)
+                sequence = evaluate_result_file(results, ground_truth, notes=notes, pairs=pairs)
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
@@ -48,8 +51,16 @@ def eval_command(
         for note in notes:
             typer.echo(note, err=True)
         typer.echo(results_markdown([score]))
+        failure = failure_summary(pairs)
+        if failure is not None:
+            typer.echo(failure_markdown(failure))
         if out is not None:
             written = write_report(out, [score])
+            if failure is not None:
+                scored = [(pair, seq) for pair, seq in pairs if pair.p_fail is not None]
+                p_fail = np.concatenate([pair.p_fail for pair, _ in scored])
+                failed = np.concatenate([~(seq.ious >= 0.5) for _, seq in scored])
+                written["calibration"] = plot_calibration(out / "calibration.png", {tracker_name: (p_fail, failed)})
             typer.echo(f"plots and tables written to {out}: {', '.join(p.name for p in written.values())}", err=True)
     except ToolError as error:
         fail(error, debug)

@@ -108,3 +108,51 @@ def plot_calibration(path: str | os.PathLike, curves: dict[str, tuple[np.ndarray
         fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
+
+
+def failure_summary(pairs) -> dict[str, float] | None:
+    """The failure probability and flags of output folders against ground truth, pooled over sequences.
+
+    ``pairs`` holds ``(SequencePair, SequenceScore)`` as the evaluation
+    functions collect them; sequences without a failure probability (results
+    of other tools) are left out, and None is returned when none has one.
+    Keys: ``auroc``, ``ece``, ``precision``, ``recall``, ``flagged_share``,
+    ``onset_recall``, ``good_flagged_share`` (on sequences tracked with
+    success AUC >= 0.6), ``sequences``, ``frames``.
+    """
+    from annotator.evaluation.flag_quality import flag_quality_dataset
+
+    scored = [(pair, score) for pair, score in pairs if pair.p_fail is not None]
+    if not scored:
+        return None
+    failed = [~(score.ious >= 0.5) for _, score in scored]
+    p = np.concatenate([pair.p_fail for pair, _ in scored])
+    y = np.concatenate(failed)
+    report = flag_quality_dataset({pair.name: (pair.flagged, score.ious) for pair, score in scored})
+    good = [(pair, score) for pair, score in scored if score.auc >= 0.6]
+    good_frames = sum(len(pair.flagged) for pair, _ in good)
+    pooled = report.pooled
+    return {
+        "auroc": auroc(p, y),
+        "ece": expected_calibration_error(p, y),
+        "precision": pooled.precision,
+        "recall": pooled.recall,
+        "flagged_share": pooled.flagged_share,
+        "onset_recall": pooled.onset_recall,
+        "good_flagged_share": (sum(int(pair.flagged.sum()) for pair, _ in good) / good_frames
+                               if good_frames else float("nan")),
+        "sequences": len(scored),
+        "frames": int(len(p)),
+    }
+
+
+def failure_markdown(summary: dict[str, float]) -> str:
+    """The eval command's table of :func:`failure_summary`."""
+    rows = [("AUROC of p_fail for failure frames (IoU < 0.5)", "auroc"), ("expected calibration error (10 bins)", "ece"),
+            ("flag precision", "precision"), ("flag recall", "recall"), ("flagged share", "flagged_share"),
+            ("onset recall (spans >= 5 frames, flag within 10)", "onset_recall"),
+            ("flagged share on sequences with AUC >= 0.6", "good_flagged_share")]
+    lines = [f"## Failure probability and flags ({summary['sequences']} sequences, {summary['frames']} frames)", "",
+             "| metric | value |", "|---|---:|"]
+    lines += [f"| {label} | {summary[key]:.3f} |" for label, key in rows]
+    return "\n".join(lines) + "\n"

@@ -53,6 +53,7 @@ from annotator.evaluation.metrics import (
 )
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
+from annotator.tracks import TrackResult
 
 __all__ = [
     "OUTPUT_FOLDER_RESULT_NAMES",
@@ -206,6 +207,9 @@ class SequencePair:
     frames: np.ndarray | None = None
     #: Rows of the ground-truth file.
     gt_rows: int = 0
+    #: From a track store: the failure probability and the flags of each scored frame (else None).
+    p_fail: np.ndarray | None = None
+    flagged: np.ndarray | None = None
 
     @property
     def note(self) -> str | None:
@@ -219,8 +223,8 @@ class SequencePair:
                 f"{step}) against those rows of the {self.gt_rows}-row ground truth")
 
 
-def _store_track(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """0-based boxes and source frame indices of the track of sequence ``name`` in a track store."""
+def _store_track(path: Path, name: str) -> TrackResult:
+    """The track of sequence ``name`` in a track store."""
     try:
         store = read_store(path)
     except StoreError as exc:
@@ -234,7 +238,7 @@ def _store_track(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
             raise EvaluationError(f"{path} holds tracks {ids}: name the sequence <Name>.<track id> (OTB multi-target "
                                   f"naming, e.g. {store.video.name}.{ids[0]}) to pick one")
         track = store.track(int(suffix))
-    return track.boxes_xywh, track.frame_indices
+    return track
 
 
 def load_sequence_pair(
@@ -260,14 +264,17 @@ def load_sequence_pair(
             raise EvaluationError(f"sequence {name!r}: {role} file {path} does not exist")
     gt = read_otb_boxes(gt_path, origin=gt_origin)
     if pred_path.suffix == ".npz":
-        pred, frames = _store_track(pred_path, name)
+        track = _store_track(pred_path, name)
+        pred, frames = track.boxes_xywh, track.frame_indices
         if len(frames) == 0 or frames[-1] >= len(gt):
             last = int(frames[-1]) if len(frames) else None
             raise EvaluationError(
                 f"sequence {name!r}: {pred_path} holds source frames up to {last} but the ground truth {gt_path} has "
                 f"{len(gt)} rows (frames 0-{len(gt) - 1}); evaluate against the ground truth of the same video")
+        p_fail = track.signals.get("p_fail")
         return SequencePair(name=name, pred=np.array(pred), gt=gt[frames], pred_path=pred_path, gt_path=gt_path,
-                            frames=frames, gt_rows=len(gt))
+                            frames=frames, gt_rows=len(gt), p_fail=None if p_fail is None else np.array(p_fail),
+                            flagged=np.array(track.flagged))
     pred = read_otb_boxes(pred_path, origin=pred_origin)
     if len(pred) != len(gt):
         raise EvaluationError(
@@ -352,6 +359,7 @@ def evaluate_result_file(
     replace_first: bool = True,
     invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
     notes: list[str] | None = None,
+    pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
 ) -> SequenceScore:
     """Score one result file (or output folder) against one ground-truth file.
 
@@ -368,6 +376,8 @@ def evaluate_result_file(
         As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
     notes : list of str, optional
         Receives :attr:`SequencePair.note` when only part of the ground truth is scored.
+    pairs : list, optional
+        Receives ``(SequencePair, SequenceScore)`` (for the failure-probability metrics).
     """
     ground_truth = Path(ground_truth)
     name = name or _sequence_name(ground_truth)
@@ -375,7 +385,10 @@ def evaluate_result_file(
     pair = load_sequence_pair(result_path, ground_truth, name=name)
     if notes is not None and pair.note:
         notes.append(pair.note)
-    return evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+    score = evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+    if pairs is not None:
+        pairs.append((pair, score))
+    return score
 
 
 def evaluate_results_dir(
@@ -388,6 +401,7 @@ def evaluate_results_dir(
     replace_first: bool = True,
     invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
     notes: list[str] | None = None,
+    pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
 ) -> DatasetScore:
     """Score a folder of results against an OTB-layout root (one tracker).
 
@@ -405,17 +419,21 @@ def evaluate_results_dir(
         As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
     notes : list of str, optional
         Receives :attr:`SequencePair.note` of each sequence scored only in part.
+    pairs : list, optional
+        Receives ``(SequencePair, SequenceScore)`` of every sequence.
 
     Returns
     -------
     DatasetScore
     """
     results_dir = Path(results_dir)
-    pairs = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
+    loaded = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
     if notes is not None:
-        notes.extend(pair.note for pair in pairs.values() if pair.note)
+        notes.extend(pair.note for pair in loaded.values() if pair.note)
     scores = {
         name: evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
-        for name, pair in pairs.items()
+        for name, pair in loaded.items()
     }
+    if pairs is not None:
+        pairs.extend((loaded[name], scores[name]) for name in loaded)
     return DatasetScore.from_sequences(tracker or results_dir.resolve().name, scores)
