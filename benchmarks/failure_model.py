@@ -48,6 +48,7 @@ from annotator.store import STORE_NAME, read_store  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
 
 MODEL_FILE = ROOT / "annotator" / "data" / "failure_model.json"
+tracking_seconds: list[float] = []  # mean tracker seconds per frame of every run, filled by load_samples
 PLOTS = ROOT / "benchmarks" / "failure_plots"
 
 
@@ -65,6 +66,7 @@ def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, d
             failed = ~(iou >= 0.5)
             signals = {name: track.signals[name] for name in SIGNALS}
             samples.append(Sample(folder.name, seed, feature_matrix(signals, track.keyframe), failed, ~track.keyframe))
+            tracking_seconds.append(float(track.seconds[1:].mean()) if len(track) > 1 else np.nan)
             aucs[(folder.name, seed)] = evaluate_sequence(track.boxes_xywh, gt, name=folder.name).auc
             # The tracker's own confidence (logistic of the log-likelihood): the baseline before p_fail.
             ll = track.log_likelihood
@@ -74,6 +76,31 @@ def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, d
             bootstrap = np.array([s == "bootstrap" for s in track.scoring])
             confidence[(folder.name, seed)] = np.where(bootstrap, np.nan, conf)
     return samples, aucs, confidence
+
+
+def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each: int = 30) -> tuple[float, float]:
+    """Milliseconds per frame the failure signals add (measured on real frames), and that as a share of tracking."""
+    import cv2
+
+    from annotator.failure import SignalMeter
+
+    total, count = 0.0, 0
+    rng = np.random.default_rng(0)
+    for name in sequences:
+        images = sorted((otb / name / "img").iterdir())[:frames_each]
+        gt = read_otb_boxes(otb / name / "groundtruth_rect.txt")
+        frames = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in images]
+        meter = SignalMeter()
+        meter.first(frames[0], gt[0])
+        for k in range(1, len(frames)):
+            particles = np.tile(gt[k], (600, 1)) + rng.normal(0, 5, (600, 4)) * [1, 1, 0, 0]
+            tic = time.perf_counter()
+            meter.next(frames[k], gt[k], log_likelihood=1.0, scoring="subspace", accepted=True,
+                       particles_xywh=particles, particle_scores=rng.normal(size=600))
+            total += time.perf_counter() - tic
+            count += 1
+    ms = 1000 * total / max(count, 1)
+    return ms, ms / tracking_ms
 
 
 def held_out(samples: list[Sample], *, C: float, drop=()) -> list[tuple[Sample, np.ndarray, list[str], float]]:
@@ -196,6 +223,10 @@ def main() -> int:
     print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}, ECE {expected_calibration_error(pooled_p, pooled_y):.3f}; "
           f"tracker confidence alone AUROC {base_auroc:.3f}; fold thresholds {thresholds}")
     print("AUROC without each group:", {g: round(v, 3) for g, v in worth.items()})
+    tracking_ms = 1000 * float(np.nanmean(tracking_seconds))
+    cost_ms, cost_share = signal_cost(args.otb, sequences, tracking_ms)
+    print(f"signals: {cost_ms:.1f} ms a frame, {100 * cost_share:.1f}% of the tracker's {tracking_ms:.0f} ms a frame "
+          "(target <= 25%)")
 
     if not args.write:
         return 0
@@ -270,6 +301,10 @@ def main() -> int:
         "Each feature alone:",
         "",
         *single_rows,
+        "",
+        f"Cost of the signals: {cost_ms:.1f} ms a frame (SignalMeter on 30 real frames of each sequence), "
+        f"{100 * cost_share:.1f}% of the tracker's {tracking_ms:.0f} ms a frame in these runs (target <= 25%: "
+        f"{'met' if cost_share <= 0.25 else '**missed**'}).",
         "",
         "Calibration plot: `benchmarks/failure_plots/calibration.png`.",
     ])
