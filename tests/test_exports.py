@@ -36,8 +36,8 @@ UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
 VIDEO = VideoInfo(path="clips/walk.mp4", name="walk", width=64, height=48, fps=25.0, frame_count=12)
 
 
-def check_golden(path: Path, golden_name: str) -> None:
-    golden = GOLDEN / golden_name
+def check_golden(path: Path, golden_name: str, *, root: Path = GOLDEN) -> None:
+    golden = root / golden_name
     text = path.read_text(encoding="utf-8")
     if UPDATE:
         golden.parent.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,7 @@ from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelst
 from annotator.exports.mot import write_mot
 from annotator.exports.yolo import write_yolo
 from annotator.tracks import TrackResult, VideoInfo
+import test_exports
 from test_exports import VIDEO, make_tracks
 
 GOLDEN = Path(__file__).parent / "golden" / "exports" / "review"
@@ -33,13 +34,7 @@ FRAMES = range(0, 12, 2)  # make_tracks(): every other frame of the 12-frame vid
 
 
 def check_golden(path: Path, golden_name: str) -> None:
-    golden = GOLDEN / golden_name
-    text = path.read_text(encoding="utf-8")
-    if UPDATE:
-        golden.parent.mkdir(parents=True, exist_ok=True)
-        golden.write_text(text, encoding="utf-8")
-    assert golden.exists(), f"missing golden file {golden}; create it with UPDATE_GOLDEN=1"
-    assert text == golden.read_text(encoding="utf-8"), f"{path.name} differs from {golden}; UPDATE_GOLDEN=1 if intended"
+    test_exports.check_golden(path, golden_name, root=GOLDEN)
 
 
 def leftovers(folder: Path) -> list[str]:
@@ -86,7 +81,7 @@ def test_cvat_golden_and_datumaro(tmp_path):
             np.testing.assert_allclose(box["xywh"], walker_track.boxes_xywh[i])
     assert boxes[(0, 6)]["xywh"] == boxes[(0, 4)]["xywh"]  # absent: last known box, outside=1
     assert boxes[(1, 6)]["attributes"]["outside"] and boxes[(1, 10)]["attributes"]["outside"]  # NaN; track ended
-    assert boxes[(0, 2)]["attributes"][REVIEW_SCORE_NAME] == pytest.approx(0.9)
+    assert boxes[(0, 2)]["attributes"][REVIEW_SCORE_NAME] == pytest.approx(0.1)  # p_fail = 1 - confidence 0.9
 
 
 def test_cvat_frames_are_source_indices_with_range_in_meta():

@@ -3,9 +3,9 @@
 * The **processed range**: a Python ``range(start, stop, step)`` of source
   frame indices (``stop`` exclusive, as ``run.json`` records it). Every
   track row must be one of its frames.
-* The **review score** shown beside each box. It is the tracker's confidence
-  today; when the failure probability exists, change :data:`REVIEW_SCORE_NAME`
-  and :func:`review_scores` here and every exporter (and importer) follows.
+* The **review score** shown beside each box: the failure probability
+  ``p_fail`` (``1 - confidence``, which is 1 where the object is absent), so a
+  reviewer can sort or filter boxes by how likely they are wrong.
 * The **review keyframes**: the frames a reviewer should look at, which the
   interpolating tools (CVAT, Label Studio) mark as keyframes.
 * **Labels** in order of first appearance over the tracks, the same order
@@ -22,14 +22,14 @@ import numpy as np
 from annotator.tracks import TrackResult, VideoInfo
 
 #: Name of the per-box score attribute (CVAT ``<attribute name=...>``); "p_fail" once it exists.
-REVIEW_SCORE_NAME = "confidence"
+REVIEW_SCORE_NAME = "p_fail"
 #: Decimals the score is written with: finer steps mean nothing to a reviewer sorting boxes.
 REVIEW_SCORE_DECIMALS = 3
 
 
 def review_scores(track: TrackResult) -> np.ndarray:
     """(F,) float64 in [0, 1]: the score written as :data:`REVIEW_SCORE_NAME` for each row of ``track``."""
-    return np.round(track.confidence, REVIEW_SCORE_DECIMALS)
+    return np.round(1.0 - track.confidence, REVIEW_SCORE_DECIMALS)
 
 
 def check_frame_range(video: VideoInfo, tracks: Sequence[TrackResult], frames: range | None) -> range:
