@@ -327,7 +327,11 @@ def timeline_lines(page: str, track_id: int) -> tuple[list[list[tuple[float, flo
 def test_timeline_plots_p_fail_with_gaps_where_the_object_is_absent(tmp_path):
     p_fail = [0.0, 0.25, 0.5, 1.0, 0.0, 0.75, 0.0, 0.5]
     track = make_track(1, np.arange(8), "....O.OX", p_fail=p_fail)
-    lines, dots, absent = timeline_lines(render(tmp_path, [track]), 1)
+    page = render(tmp_path, [track])
+    lines, dots, absent = timeline_lines(page, 1)
+    # The span of absent frames has no worst p_fail and no expected errors; it comes last.
+    assert [r["cells"][1:5] for r in parse(page).rows] == [["6\u20137", "2", "0.50", "0.50"],
+                                                           ["4\u20134", "1", "0.00", "\u2013"]]
     top, plot_h, left, plot_w = 8, 150 - 8 - 36, 52, 900 - 52 - 10
     to_p = lambda py: 1.0 - (py - top) / plot_h  # noqa: E731 - higher p_fail is higher on the plot
     to_i = lambda px: (px - left) / plot_w * 7  # noqa: E731
