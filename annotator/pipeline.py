@@ -37,7 +37,7 @@ from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoIn
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
-__all__ = ["Target", "TrackingRun", "SpanThumbnail", "track_source", "seed_for_track"]
+__all__ = ["Target", "TrackingRun", "SpanThumbnail", "WorstFrameThumbnails", "track_source", "seed_for_track"]
 
 THUMBNAIL_WIDTH = 200
 
@@ -59,6 +59,48 @@ class SpanThumbnail:
     position: int
     frame_index: int
     jpeg_base64: str
+
+
+class WorstFrameThumbnails:
+    """One thumbnail per flagged span: its frame with the highest ``p_fail``, captured as overlay frames stream by.
+
+    Frames are given in order, each with its final flag; a span is over at its
+    track's first unflagged frame (or at :meth:`finish`). Per open span only
+    the worst frame so far is kept, already shrunk to thumbnail size, so
+    memory is one small image per track. Equal maxima keep the first frame,
+    and a span without a finite ``p_fail`` (object absent throughout) keeps its
+    first frame: the same choice as :func:`annotator.report.flagged_spans`.
+    The first frame of a span is not captured too: the report's frame-range
+    link already seeks there, and a span's first frames are often still
+    right (spans merge and lead up to the failure).
+    """
+
+    def __init__(self) -> None:
+        self.thumbnails: list[SpanThumbnail] = []
+        self._open: dict[int, tuple[float, int, int, np.ndarray]] = {}  # track -> (p_fail, position, frame, small)
+
+    def add(self, track_id: int, position: int, frame_index: int, *, flagged: bool, p_fail: float,
+            drawn: np.ndarray) -> None:
+        """Take the next overlay frame ``drawn`` ((H, W, 3) uint8 RGB) of a track."""
+        if not flagged:
+            self._close(track_id)
+            return
+        score = float(p_fail) if np.isfinite(p_fail) else -np.inf
+        current = self._open.get(track_id)
+        if current is None or score > current[0]:
+            self._open[track_id] = (score, position, frame_index, _shrink(drawn))
+
+    def finish(self) -> list[SpanThumbnail]:
+        """Close every open span (the frames ended); return all thumbnails, in the order their spans ended."""
+        for track_id in list(self._open):
+            self._close(track_id)
+        return self.thumbnails
+
+    def _close(self, track_id: int) -> None:
+        current = self._open.pop(track_id, None)
+        if current is not None:
+            _, position, frame_index, small = current
+            self.thumbnails.append(SpanThumbnail(track_id, position, frame_index, _jpeg_base64(small)))
 
 
 @dataclass
@@ -114,12 +156,17 @@ def seed_for_track(seed: int, track_id: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(track_id)]))
 
 
-def _thumbnail(frame_rgb: np.ndarray) -> str:
+def _shrink(frame_rgb: np.ndarray) -> np.ndarray:
+    """The frame at thumbnail width (a new array: the caller may reuse its frame buffer)."""
     height, width = frame_rgb.shape[:2]
     scale = THUMBNAIL_WIDTH / width
-    small = cv2.resize(frame_rgb, (THUMBNAIL_WIDTH, max(1, int(round(height * scale)))), interpolation=cv2.INTER_AREA)
-    ok, data = cv2.imencode(".jpg", cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    return cv2.resize(frame_rgb, (THUMBNAIL_WIDTH, max(1, int(round(height * scale)))), interpolation=cv2.INTER_AREA)
+
+
+def _jpeg_base64(small_rgb: np.ndarray) -> str:
+    ok, data = cv2.imencode(".jpg", cv2.cvtColor(small_rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
     return base64.b64encode(data.tobytes()).decode("ascii") if ok else ""
+
 
 
 def track_source(
@@ -163,8 +210,7 @@ def track_source(
     flags: dict[int, dict[int, tuple[bool, str]]] = {t.track_id: {} for t in targets}
     pending: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
     renderer = OverlayRenderer() if render else None
-    thumbnails: list[SpanThumbnail] = []
-    in_span: dict[int, bool] = {t.track_id: False for t in targets}
+    thumbnails = WorstFrameThumbnails()
     tracking_seconds = 0.0
     decode_error: DecodeError | None = None
     interrupted = False
@@ -180,20 +226,20 @@ def track_source(
                     return
             _, frame_index, frame, results = pending.popleft()
             items = []
+            frame_p_fail: dict[int, float] = {}
             for tid, result in results.items():
                 flagged, _ = flags[tid].get(position, (False, ""))
-                p_fail = p_fails[tid].pop(position, 0.0)
+                p_fail = frame_p_fail[tid] = p_fails[tid].pop(position, 0.0)
                 # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
                 items.append(OverlayItem.from_frame_result(
                     result, track_id=tid, flagged=flagged and not budget, confidence=1.0 - p_fail,
                     keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else ""))
             drawn = renderer.annotate(frame, items)
             writer.write(drawn)
+            # Flags and p_fail of this frame are final here, so each span's worst frame is known when it ends.
             for tid in results:
-                flagged = flags[tid].get(position, (False, ""))[0]
-                if flagged and not in_span[tid]:
-                    thumbnails.append(SpanThumbnail(tid, position, frame_index, _thumbnail(drawn)))
-                in_span[tid] = flagged
+                thumbnails.add(tid, position, frame_index, flagged=flags[tid].get(position, (False, ""))[0],
+                               p_fail=frame_p_fail[tid], drawn=drawn)
 
     def settle(tid: int, decided: list[tuple[int, float, bool, str]]) -> None:
         """Store the failure probabilities and flags the flagger has made final."""
@@ -261,6 +307,7 @@ def track_source(
             settle(tid, flagger.finish())
         if writer is not None:
             drain(writer, final=True)
+            thumbnails.finish()
         return position + 1
 
     with _deferred_interrupt() as stop_request:
@@ -289,7 +336,7 @@ def track_source(
         seconds_total=time.perf_counter() - started,
         decode_error=decode_error,
         interrupted=interrupted,
-        thumbnails=thumbnails,
+        thumbnails=thumbnails.thumbnails,
         overlay_path=overlay_path if render else None,
     )
 

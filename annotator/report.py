@@ -12,12 +12,12 @@ import numpy as np
 from markupsafe import Markup
 
 from annotator.atomic import write_text_atomic
-from annotator.flagging import spans_from_mask
+from annotator.flagging import REASONS, spans_from_mask
 from annotator.pipeline import SpanThumbnail
 from annotator.tracks import TrackResult
 from annotator.wording import plural
 
-__all__ = ["FlaggedSpan", "flagged_spans", "track_summary", "render_report", "templates_dir"]
+__all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "reason_legend", "track_summary", "render_report", "templates_dir"]
 
 REPORT_TEMPLATE = "report.html.j2"
 
@@ -45,6 +45,14 @@ class FlaggedSpan:
     last_frame: int
     min_confidence: float
     reasons: tuple[str, ...]
+    expected_errors: float = 0.0
+    """Sum of p_fail over the span's frames (absent frames count 0): how many wrong boxes a review should find."""
+    worst_p_fail: float = float("nan")
+    """Highest p_fail in the span; NaN when the object is absent from every frame of it."""
+    worst: int = -1
+    """Position of the frame with the highest p_fail (the first such frame; ``start`` when there is none)."""
+    worst_frame: int = -1
+    """Source frame index of ``worst``."""
 
     @property
     def length(self) -> int:
@@ -52,15 +60,43 @@ class FlaggedSpan:
 
 
 def flagged_spans(track: TrackResult) -> list[FlaggedSpan]:
-    """Every flagged span of a track, with its weakest confidence and the reasons seen in it."""
+    """Every flagged span of a track, in frame order, with its expected errors, worst frame and reasons."""
     spans = []
+    p_fail = track.p_fail
     for start, stop in spans_from_mask(track.flagged):
+        start, stop = int(start), int(stop)
         reasons = sorted({part for r in track.reasons[start:stop] for part in r.split("+") if part})
+        values = p_fail[start:stop]
+        finite = np.isfinite(values)
+        # argmax of the finite values picks the first of equal maxima, as the overlay's thumbnail capture does.
+        worst = start + int(np.argmax(np.where(finite, values, -np.inf))) if finite.any() else start
         spans.append(FlaggedSpan(
-            track_id=track.track_id, start=int(start), stop=int(stop),
+            track_id=track.track_id, start=start, stop=stop,
             first_frame=int(track.frame_indices[start]), last_frame=int(track.frame_indices[stop - 1]),
-            min_confidence=float(track.confidence[start:stop].min()), reasons=tuple(reasons)))
+            min_confidence=float(track.confidence[start:stop].min()), reasons=tuple(reasons),
+            expected_errors=float(values[finite].sum()),
+            worst_p_fail=float(values[finite].max()) if finite.any() else float("nan"),
+            worst=worst, worst_frame=int(track.frame_indices[worst])))
     return spans
+
+
+def by_expected_errors(spans: Sequence[FlaggedSpan]) -> list[FlaggedSpan]:
+    """The spans most likely to hold wrong boxes first; ties in frame order, then by track."""
+    return sorted(spans, key=lambda s: (-s.expected_errors, s.start, s.track_id))
+
+
+def reason_legend(tracks: Sequence[TrackResult]) -> list[tuple[str, str]]:
+    """``(reason, explanation)`` for every reason the tracks' flags use, in :data:`REASONS` order.
+
+    Only the reasons present: the full list is in the README, and the page
+    should explain what it shows. A reason this version does not know (a
+    store written by another version) is listed without an explanation
+    rather than hidden.
+    """
+    present = {part for track in tracks for r in track.reasons for part in r.split("+") if part}
+    known = [(name, text) for name, text in REASONS.items() if name in present]
+    unknown = [(name, "") for name in sorted(present - set(REASONS))]
+    return known + unknown
 
 
 def track_summary(track: TrackResult) -> dict[str, Any]:
@@ -100,14 +136,16 @@ def _tick_step(span: float, target: int = 8) -> int:
 
 
 def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: int = 150) -> str:
-    """Confidence over the processed frames as an inline SVG; flagged spans shaded and clickable.
+    """The failure probability over the processed frames as an inline SVG; flagged spans shaded and clickable.
 
-    The x axis is ticked with source frame numbers (at 1, 2, 5 x 10^k steps,
-    placed by interpolation so a ``--step`` run is ticked right), the y axis
-    at confidence 0, 0.5 and 1. The SVG scales uniformly, so its text is
-    never stretched.
+    ``p_fail`` (higher = worse) is drawn where it is finite: a frame where the
+    object is absent breaks the line and is marked by a grey bar under the
+    plot, so an absence never reads as a sure box. The x axis is ticked with
+    source frame numbers (at 1, 2, 5 x 10^k steps, placed by interpolation so
+    a ``--step`` run is ticked right), the y axis at p_fail 0, 0.5 and 1. The
+    SVG scales uniformly, so its text is never stretched.
     """
-    n = len(track.confidence)
+    n = len(track.frame_indices)
     if n == 0:
         return ""
     left, right, top, bottom = 52, 10, 8, 36  # plot margins: room for tick labels and axis titles
@@ -115,7 +153,7 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
     x = lambda i: left + plot_w * (i / max(n - 1, 1))  # noqa: E731
     y = lambda c: top + plot_h * (1.0 - float(np.clip(c, 0, 1)))  # noqa: E731
     parts = [f'<svg class="timeline" viewBox="0 0 {width} {height}" role="img" '
-             f'aria-label="confidence of track {track.track_id} per frame">',
+             f'aria-label="p_fail of track {track.track_id} per frame">',
              f'<rect class="plot" x="{left}" y="{top}" width="{plot_w}" height="{plot_h}"/>']
     for span in flagged_spans(track):
         x0, x1 = x(span.start) - 1, x(span.stop - 1) + 1
@@ -129,14 +167,28 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
                      'stroke="#00b400" stroke-width="2" style="cursor: pointer" '
                      f'onclick="seekTo({_seek_seconds(int(i), fps):.3f})"><title>frame {int(track.frame_indices[i])} '
                      f'corrected</title></line>')
-    step = max(1, n // 2000)
-    points = " ".join(f"{x(i):.1f},{y(track.confidence[i]):.1f}" for i in range(0, n, step))
-    parts.append(f'<polyline class="confidence" points="{points}"/>')
-    # Axes: frame-number ticks below the plot, confidence ticks on its left.
+    p_fail = track.p_fail
+    step = max(1, n // 2000)  # at most about 2000 points per line: the plot is 838 px wide
+    bottom_y = top + plot_h
+    for start, stop in spans_from_mask(np.isfinite(p_fail)):
+        if stop - start == 1:  # a lone frame between absences: a dot, since a one-point line draws nothing
+            parts.append(f'<circle class="p-fail" cx="{x(start):.1f}" cy="{y(p_fail[start]):.1f}" r="1.5"/>')
+            continue
+        # Every step-th frame and the run's last, so the line ends where the run does.
+        positions = [*range(int(start), int(stop), step)]
+        if positions[-1] != stop - 1:
+            positions.append(int(stop) - 1)
+        points = " ".join(f"{x(i):.1f},{y(p_fail[i]):.1f}" for i in positions)
+        parts.append(f'<polyline class="p-fail" points="{points}"/>')
+    for start, stop in spans_from_mask(~np.isfinite(p_fail)):
+        x0, x1 = x(start) - 1, x(stop - 1) + 1
+        parts.append(f'<rect class="absent" x="{x0:.1f}" y="{bottom_y - 4}" width="{max(x1 - x0, 2):.1f}" height="4">'
+                     f'<title>frames {int(track.frame_indices[start])}-{int(track.frame_indices[stop - 1])}: '
+                     'object absent</title></rect>')
+    # Axes: frame-number ticks below the plot, p_fail ticks on its left.
     frames = track.frame_indices.astype(np.float64)
     first, last = int(frames[0]), int(frames[-1])
     tick = _tick_step(last - first)
-    bottom_y = top + plot_h
     for frame in range(-(-first // tick) * tick, last + 1, tick):
         tx = x(float(np.interp(frame, frames, np.arange(n))))
         parts.append(f'<g class="tick x"><line x1="{tx:.1f}" x2="{tx:.1f}" y1="{bottom_y}" y2="{bottom_y + 4}"/>'
@@ -148,7 +200,7 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
     parts.append(f'<text class="axis-label" x="{left + plot_w / 2:.1f}" y="{height - 4}" text-anchor="middle">'
                  'source frame</text>')
     parts.append(f'<text class="axis-label" x="12" y="{top + plot_h / 2:.1f}" text-anchor="middle" '
-                 f'transform="rotate(-90 12 {top + plot_h / 2:.1f})">confidence</text>')
+                 f'transform="rotate(-90 12 {top + plot_h / 2:.1f})">p_fail</text>')
     parts.append("</svg>")
     return "".join(parts)
 
@@ -164,10 +216,13 @@ def render_report(
     overlay_name: str | None,
     review: dict[str, Any] | None = None,
 ) -> None:
-    """Write ``report.html``: summary, confidence timelines, flagged spans with thumbnails, settings.
+    """Write ``report.html``: summary, p_fail timelines, flagged spans with thumbnails, settings.
 
     The page is self-contained (inline CSS, SVG and JPEG thumbnails) apart
-    from the overlay video beside it, which the span links seek. ``review``
+    from the overlay video beside it, which the span links seek. Spans are
+    listed by expected errors, highest first; each shows the thumbnail in
+    ``thumbnails`` at its worst frame (or, failing that, any one inside it),
+    and clicking the thumbnail seeks to that frame. ``review``
     adds the Corrections section after a re-track (built by
     :mod:`annotator.review`: the corrections in force and what the last
     re-track changed).
@@ -182,9 +237,17 @@ def render_report(
         undefined=jinja2.StrictUndefined,
     )
     env.filters["plural"] = plural
-    thumbs = {(t.track_id, t.position): t.jpeg_base64 for t in thumbnails}
-    spans = [s for track in tracks for s in flagged_spans(track)]
-    spans.sort(key=lambda s: (s.start, s.track_id))
+    thumbs = {(t.track_id, t.position): t for t in thumbnails}
+    spans = by_expected_errors([s for track in tracks for s in flagged_spans(track)])
+
+    def span_item(span: FlaggedSpan) -> dict[str, Any]:
+        inside = [thumbs[(span.track_id, p)] for p in range(span.start, span.stop) if (span.track_id, p) in thumbs]
+        thumb = thumbs.get((span.track_id, span.worst)) or (inside[0] if inside else None)
+        return {"span": span, "seconds": _seek_seconds(span.start, fps),
+                "thumbnail": thumb.jpeg_base64 if thumb else None,
+                "thumbnail_frame": thumb.frame_index if thumb else None,
+                "thumbnail_seconds": _seek_seconds(thumb.position, fps) if thumb else None}
+
     fps = float(video.fps)
     input_path = (run_info.get("input") or {}).get("path") or video.path
     page = env.get_template(REPORT_TEMPLATE).render(
@@ -192,8 +255,8 @@ def render_report(
         input_path=input_path,
         summaries=[track_summary(t) for t in tracks],
         timelines=[(t.track_id, Markup(_timeline_svg(t, fps))) for t in tracks],
-        spans=[{"span": s, "seconds": _seek_seconds(s.start, fps), "thumbnail": thumbs.get((s.track_id, s.start))}
-               for s in spans],
+        spans=[span_item(s) for s in spans],
+        legend=reason_legend(tracks),
         settings=settings,
         run=run_info,
         overlay=overlay_name,

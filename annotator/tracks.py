@@ -259,6 +259,18 @@ class TrackResult:
         """(F,) bool: the ``needs_review`` attribute of the exports (same as ``flagged``)."""
         return self.flagged
 
+    @property
+    def p_fail(self) -> np.ndarray:
+        """(F,) float64: failure probability ``P(IoU < 0.5)`` per frame, NaN where the object is absent.
+
+        The ``p_fail`` signal when the track carries it (:mod:`annotator.failure`), else ``1 - confidence``
+        (tracks built without failure signals, such as hand-made ones in tests).
+        """
+        stored = (self.signals or {}).get("p_fail")
+        p_fail = np.array(stored if stored is not None else 1.0 - self.confidence, dtype=np.float64)
+        p_fail[self.outside] = np.nan
+        return p_fail
+
     def up_to(self, last_frame_index: int) -> TrackResult:
         """The rows whose source index is <= ``last_frame_index`` (e.g. a DecodeError's last good frame)."""
         keep = self.frame_indices <= last_frame_index

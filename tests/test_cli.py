@@ -237,7 +237,7 @@ def test_main_run_report_has_one_row_per_flagged_span_of_flags_csv(main_run):
     for row in parsed.rows:
         first = int(row["cells"][1].split("\u2013")[0])
         assert shows_frame(seek_seconds(row["seek"]), MAIN_FRAMES.index(first), FPS)
-        assert row["img"]  # a thumbnail of the span's first overlay frame
+        assert row["img"]  # a thumbnail of the span's worst overlay frame
 
 
 def test_main_run_json(main_run, clip):

@@ -12,6 +12,7 @@ are flagged ``outside``.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,3 +126,11 @@ def test_every_reason_a_flag_can_carry_is_explained():
     for group in set(FEATURE_GROUPS.values()):
         assert f"doubt:{group}" in REASONS
     assert {"span", "budget", "outside"} <= set(REASONS)
+
+
+def test_readme_explains_every_flag_reason_as_the_code_does():
+    """The README's "Flag reasons" table is REASONS, row for row (the report's legend is built from REASONS)."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = readme.split("### Flag reasons", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `([^`]+)` \| (.*) \|$", section, re.M)
+    assert rows == list(REASONS.items())

@@ -228,9 +228,13 @@ def test_report_lists_the_spans_of_flags_csv_with_thumbnails(run):
     assert [(s.track_id, s.first_frame, s.last_frame) for s in spans] == [(1, 11, 17)]
     assert len(parsed.rows) == 1
     row = parsed.rows[0]
-    assert row["cells"][:3] == ["1", "11\u201317", "4"] and row["cells"][4] == "doubt:score, span"
+    assert row["cells"][:3] == ["1", "11\u201317", "4"] and row["cells"][5] == "doubt:score, span"
+    assert float(row["cells"][3]) == pytest.approx(spans[0].expected_errors, abs=0.005)
     assert shows_frame(seek_seconds(row["seek"]), INDICES.index(11), FPS)
+    # The thumbnail, captured while the overlay was drawn, is of the span's highest-p_fail frame and seeks there.
     assert row["img"] and row["img"].startswith("data:image/jpeg;base64,")
+    assert [(t.track_id, t.position) for t in result.run.thumbnails] == [(1, spans[0].worst)]
+    assert shows_frame(seek_seconds(row["thumb_seek"]), spans[0].worst, FPS)
     assert [v["src"] for v in parsed.videos] == ["overlay.mp4"]
 
 

@@ -1,4 +1,6 @@
-"""The review report: every flagged span is listed once, with a link that seeks the overlay to its first frame.
+"""The review report: every flagged span is listed once, most expected errors first, with a link that seeks the
+overlay to its first frame and a thumbnail of its worst frame; the timeline plots p_fail; a legend explains the
+reasons shown.
 
 The golden file ``tests/golden/annotate/report.html`` pins the page for fixed
 inputs. After an intended template change, regenerate it with::
@@ -10,6 +12,7 @@ and review the diff before committing.
 
 from __future__ import annotations
 
+import html
 import html.parser
 import os
 import re
@@ -18,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from annotator.pipeline import SpanThumbnail
-from annotator.report import _tick_step, flagged_spans, render_report, track_summary
+from annotator.flagging import REASONS
+from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
+from annotator.report import _tick_step, by_expected_errors, flagged_spans, reason_legend, render_report, track_summary
 from annotator.wording import plural
 from annotator.tracks import TrackResult, VideoInfo
 
@@ -30,12 +34,17 @@ FPS = 20.0
 VIDEO = VideoInfo(path="clips/walk.mp4", name="walk", width=96, height=72, fps=FPS, frame_count=40)
 
 
-def make_track(track_id: int, frame_indices, flags: str, *, label: str = "object", reasons: dict | None = None):
-    """A track whose flags are drawn as a string: ``X`` flagged, ``.`` not (one character per processed frame)."""
+def make_track(track_id: int, frame_indices, flags: str, *, label: str = "object", reasons: dict | None = None,
+               p_fail=None):
+    """A track whose flags are drawn as a string: ``X`` flagged, ``O`` flagged and absent, ``.`` neither (one
+    character per processed frame). ``p_fail`` (NaN where absent) defaults to 0.1 rising to 0.7."""
     n = len(flags)
-    flagged = np.array([c == "X" for c in flags])
-    reasons = reasons or {}
-    confidence = np.linspace(0.9, 0.3, n)
+    flagged = np.array([c in "XO" for c in flags])
+    outside = np.array([c == "O" for c in flags])
+    reasons = {**{i: "outside" for i in np.flatnonzero(outside)}, **(reasons or {})}
+    p_fail = np.linspace(0.1, 0.7, n) if p_fail is None else np.asarray(p_fail, dtype=np.float64)
+    p_fail = np.where(outside, np.nan, p_fail)
+    confidence = np.where(np.isfinite(p_fail), 1.0 - p_fail, 0.0)
     return TrackResult(
         track_id=track_id,
         label=label,
@@ -45,18 +54,19 @@ def make_track(track_id: int, frame_indices, flags: str, *, label: str = "object
         log_likelihood=np.linspace(5.0, -1.0, n),
         accepted=~flagged,
         flagged=flagged,
-        reasons=tuple(reasons.get(i, "drop") if f else "" for i, f in enumerate(flagged)),
+        reasons=tuple(reasons.get(i, "doubt:score") if f else "" for i, f in enumerate(flagged)),
         keyframe=np.arange(n) == 0,
-        outside=np.zeros(n, bool),
+        outside=outside,
         seconds=np.full(n, 0.125),
+        signals={"p_fail": p_fail},
     )
 
 
 def make_tracks() -> list[TrackResult]:
     """Two tracks over source frames 1, 3, 5, ... (step 2): positions and source indices differ."""
     indices = np.arange(1, 25, 2)  # 12 processed frames
-    one = make_track(1, indices, ".XXX....XX.X", reasons={1: "rejected", 2: "held", 3: "span"})
-    two = make_track(2, indices, "......XXXXXX", label="car", reasons={6: "low_confidence+drop"})
+    one = make_track(1, indices, ".XXX....XX.X", reasons={1: "doubt:motion", 2: "doubt:flow", 3: "span"})
+    two = make_track(2, indices, "......XXXXXX", label="car", reasons={6: "budget+doubt:appearance"})
     return [one, two]
 
 
@@ -146,9 +156,48 @@ def test_flagged_spans_of_a_track():
     assert [(s.start, s.stop, s.first_frame, s.last_frame, s.length) for s in spans] == [
         (1, 4, 3, 7, 3), (8, 10, 17, 19, 2), (11, 12, 23, 23, 1),
     ]  # fmt: skip
-    assert spans[0].reasons == ("held", "rejected", "span")
+    assert spans[0].reasons == ("doubt:flow", "doubt:motion", "span")
     assert spans[0].min_confidence == pytest.approx(one.confidence[3])
-    assert [(s.start, s.stop, s.reasons) for s in flagged_spans(two)] == [(6, 12, ("drop", "low_confidence"))]
+    p = np.linspace(0.1, 0.7, 12)
+    assert [s.expected_errors for s in spans] == pytest.approx([p[1:4].sum(), p[8:10].sum(), p[11]])
+    assert [(s.worst, s.worst_frame) for s in spans] == [(3, 7), (9, 19), (11, 23)]
+    assert [s.worst_p_fail for s in spans] == pytest.approx([p[3], p[9], p[11]])
+    assert [(s.start, s.stop, s.reasons) for s in flagged_spans(two)] == [
+        (6, 12, ("budget", "doubt:appearance", "doubt:score"))]
+
+
+def test_spans_are_sorted_by_expected_errors():
+    # Expected errors: 0.9 (one sure failure), 1.2 (four doubtful frames), 0.6, and 0 for an absence.
+    p_fail = [0.0, 0.9, 0.0, 0.3, 0.3, 0.3, 0.3, 0.0, 0.2, 0.2, 0.2, 0.0, 0.0, 0.0, 0.0]
+    track = make_track(1, np.arange(15), ".X.XXXX.XXX.OO.", p_fail=p_fail)
+    two = make_track(2, np.arange(15), "........XXX....", p_fail=p_fail)  # ties track 1's third span: frame order
+    spans = by_expected_errors(flagged_spans(track) + flagged_spans(two))
+    assert [(s.track_id, s.first_frame) for s in spans] == [(1, 3), (1, 1), (1, 8), (2, 8), (1, 12)]
+    assert [s.expected_errors for s in spans] == pytest.approx([1.2, 0.9, 0.6, 0.6, 0.0])
+    absent = spans[-1]
+    assert np.isnan(absent.worst_p_fail) and (absent.worst, absent.worst_frame) == (12, 12)
+
+
+def test_worst_frame_thumbnail_is_the_highest_p_fail_of_each_span():
+    """Frames streamed as the overlay is drawn: each span's thumbnail is of its highest-p_fail frame."""
+    p_fail = [0.0, 0.4, 0.8, 0.8, 0.5, 0.0, 0.6, 0.3, 0.9, 0.1, 0.0, np.nan, np.nan]
+    flags = ".XXXX.XXXX.OO"
+    track = make_track(1, np.arange(100, 113), flags, p_fail=p_fail)
+    capture = WorstFrameThumbnails()
+    frames = {}
+    for position, (flag, p) in enumerate(zip(flags, p_fail)):
+        # Each frame a different flat grey, so a thumbnail tells which frame it was taken from.
+        frames[position] = np.full((30, 40, 3), 20 * position, np.uint8)
+        capture.add(1, position, 100 + position, flagged=flag in "XO", p_fail=p, drawn=frames[position])
+    thumbs = capture.finish()
+    # Ties keep the first frame; a span with no finite p_fail (object absent) keeps its first frame.
+    assert [(t.position, t.frame_index) for t in thumbs] == [(2, 102), (8, 108), (11, 111)]
+    assert [(s.worst, s.worst_frame) for s in flagged_spans(track)] == [(t.position, t.frame_index) for t in thumbs]
+    import base64
+    import cv2
+    for t in thumbs:
+        image = cv2.imdecode(np.frombuffer(base64.b64decode(t.jpeg_base64), np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape[1] == 200 and abs(int(image.mean()) - 20 * t.position) <= 2
 
 
 def test_track_summary():
@@ -166,27 +215,31 @@ def shows_frame(seconds: float, position: int, fps: float) -> bool:
 @pytest.mark.parametrize("fps", [FPS, 25.0, 30.0, 30000 / 1001, 60.0])
 def test_report_lists_every_flagged_span_with_a_seek_link(tmp_path, fps):
     tracks = make_tracks()
-    thumbnails = [SpanThumbnail(1, 1, 3, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")]
+    thumbnails = [SpanThumbnail(1, 3, 7, "AAAA"), SpanThumbnail(2, 11, 23, "BBBB")]  # the spans' worst frames
     video = VideoInfo(path="clips/walk.mp4", name="walk", width=96, height=72, fps=fps, frame_count=40)
     page = render(tmp_path, tracks, thumbnails=thumbnails, video=video)
     parsed = parse(page)
-    expected = sorted(((s.start, s.track_id, s) for t in tracks for s in flagged_spans(t)), key=lambda e: e[:2])
+    expected = sorted((s for t in tracks for s in flagged_spans(t)), key=lambda s: -s.expected_errors)
     assert len(parsed.rows) == len(expected) == 4
-    for row, (_, _, span) in zip(parsed.rows, expected):
-        track, frames, length, lowest, reasons, _ = row["cells"]
+    assert [(s.track_id, s.start) for s in expected] == [(2, 6), (1, 8), (1, 11), (1, 1)]
+    for row, span in zip(parsed.rows, expected):
+        track, frames, length, errors, worst, reasons, _ = row["cells"]
         assert int(track) == span.track_id
         assert frames == f"{span.first_frame}\u2013{span.last_frame}"
         assert int(length) == span.length
-        assert float(lowest) == pytest.approx(span.min_confidence, abs=0.005)
+        assert float(errors) == pytest.approx(span.expected_errors, abs=0.005)
+        assert float(worst) == pytest.approx(span.worst_p_fail, abs=0.005)
         assert reasons == ", ".join(span.reasons)
         # The overlay holds the processed frames only, at the source rate: the link shows the span's first one.
         assert shows_frame(seek_seconds(row["seek"]), span.start, fps), (row["seek"], span.start, fps)
-    thumbs = {int(row["cells"][0]): row["img"] for row in parsed.rows if row["img"]}
-    assert thumbs == {1: "data:image/jpeg;base64,AAAA", 2: "data:image/jpeg;base64,BBBB"}
+        if row["img"]:  # and the thumbnail the span's worst frame
+            assert shows_frame(seek_seconds(row["thumb_seek"]), span.worst, fps)
+    thumbs = {(int(row["cells"][0]), row["cells"][1]): row["img"] for row in parsed.rows if row["img"]}
+    assert thumbs == {(1, "3\u20137"): "data:image/jpeg;base64,AAAA", (2, "13\u201323"): "data:image/jpeg;base64,BBBB"}
     assert [v.get("src") for v in parsed.videos] == ["overlay.mp4"]
     # The timelines shade the same spans, and clicking them seeks to the same frames.
     assert [r["onclick"] for r in parsed.flag_rects] == [
-        row["seek"] for row in sorted(parsed.rows, key=lambda row: int(row["cells"][0]))
+        row["seek"] for row in sorted(parsed.rows, key=lambda row: (int(row["cells"][0]), seek_seconds(row["seek"])))
     ]
     assert f"Flagged spans ({len(expected)})" in page
 
@@ -218,7 +271,7 @@ def test_labels_and_paths_are_escaped(tmp_path):
 
 def svg_texts(page: str, track_id: int) -> list[tuple[dict, str]]:
     """The ``<text>`` elements of one track's timeline: attributes and text."""
-    svg = re.search(rf'<svg class="timeline"[^>]*aria-label="confidence of track {track_id} per frame">(.*?)</svg>',
+    svg = re.search(rf'<svg class="timeline"[^>]*aria-label="p_fail of track {track_id} per frame">(.*?)</svg>',
                     page, re.S).group(1)
     return [(dict(re.findall(r'(\S+)="([^"]*)"', attrs)), text)
             for attrs, text in re.findall(r"<text([^>]*)>([^<]*)</text>", svg)]
@@ -228,7 +281,7 @@ def test_timeline_has_frame_ticks_and_axis_labels(tmp_path):
     page = render(tmp_path, make_tracks())
     texts = svg_texts(page, 1)
     labels = [text for attrs, text in texts if attrs.get("class") == "axis-label"]
-    assert labels == ["source frame", "confidence"]
+    assert labels == ["source frame", "p_fail"]
     x_ticks = [(float(a["x"]), t) for a, t in texts if "class" not in a and a.get("text-anchor") == "middle"]
     y_ticks = [t for a, t in texts if a.get("text-anchor") == "end"]
     # Source frames 1, 3, ..., 23 (step 2): ticks every 5 frames, at the frame's place on the processed axis.
@@ -251,12 +304,57 @@ def test_single_frame_timeline_and_singular_wording(tmp_path):
     assert "Processed 1 frame in" in page and "1 frames" not in page
 
 
-def test_thumbnail_seeks_the_overlay_like_the_span_link(tmp_path):
-    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 1, 3, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")])
-    rows = [row for row in parse(page).rows if row["img"]]
-    assert len(rows) == 2 and all(row["thumb_seek"] == row["seek"] is not None for row in rows)
-    no_overlay = render(tmp_path, make_tracks(), overlay=None, thumbnails=[SpanThumbnail(1, 1, 3, "AAAA")])
+def test_thumbnail_seeks_the_overlay_to_its_own_frame(tmp_path):
+    # Track 2's thumbnail is of its span's first frame (a thumbnail set made before worst frames): still shown.
+    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 3, 7, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")])
+    rows = {int(row["cells"][0]): row for row in parse(page).rows if row["img"]}
+    assert shows_frame(seek_seconds(rows[1]["thumb_seek"]), 3, FPS) and not shows_frame(seek_seconds(rows[1]["seek"]), 3, FPS)
+    assert rows[2]["thumb_seek"] == rows[2]["seek"] is not None
+    assert 'alt="frame 7"' in page and 'alt="frame 13"' in page
+    no_overlay = render(tmp_path, make_tracks(), overlay=None, thumbnails=[SpanThumbnail(1, 3, 7, "AAAA")])
     assert all(row["thumb_seek"] is None for row in parse(no_overlay).rows)
+
+
+def timeline_lines(page: str, track_id: int) -> tuple[list[list[tuple[float, float]]], list[tuple[float, float]], int]:
+    """The p_fail polylines (points), dots, and absent-frame marks of one track's timeline."""
+    svg = re.search(rf'aria-label="p_fail of track {track_id} per frame">(.*?)</svg>', page, re.S).group(1)
+    lines = [[tuple(map(float, p.split(","))) for p in points.split()]
+             for points in re.findall(r'<polyline class="p-fail" points="([^"]*)"', svg)]
+    dots = [(float(cx), float(cy)) for cx, cy in re.findall(r'<circle class="p-fail" cx="([^"]*)" cy="([^"]*)"', svg)]
+    return lines, dots, len(re.findall(r'<rect class="absent"', svg))
+
+
+def test_timeline_plots_p_fail_with_gaps_where_the_object_is_absent(tmp_path):
+    p_fail = [0.0, 0.25, 0.5, 1.0, 0.0, 0.75, 0.0, 0.5]
+    track = make_track(1, np.arange(8), "....O.OX", p_fail=p_fail)
+    page = render(tmp_path, [track])
+    lines, dots, absent = timeline_lines(page, 1)
+    # The span of absent frames has no worst p_fail and no expected errors; it comes last.
+    assert [r["cells"][1:5] for r in parse(page).rows] == [["6\u20137", "2", "0.50", "0.50"],
+                                                           ["4\u20134", "1", "0.00", "\u2013"]]
+    top, plot_h, left, plot_w = 8, 150 - 8 - 36, 52, 900 - 52 - 10
+    to_p = lambda py: 1.0 - (py - top) / plot_h  # noqa: E731 - higher p_fail is higher on the plot
+    to_i = lambda px: (px - left) / plot_w * 7  # noqa: E731
+    assert [[(round(to_i(px)), round(to_p(py), 2)) for px, py in line] for line in lines] == [
+        [(0, 0.0), (1, 0.25), (2, 0.5), (3, 1.0)]]
+    # Frame 5 lies alone between two absences: a dot; so does frame 7 at the end.
+    assert [(round(to_i(px)), round(to_p(py), 2)) for px, py in dots] == [(5, 0.75), (7, 0.5)]
+    assert absent == 2
+
+
+def test_legend_explains_the_reasons_present(tmp_path):
+    tracks = make_tracks()
+    legend = reason_legend(tracks)
+    assert [name for name, _ in legend] == ["doubt:score", "doubt:motion", "doubt:flow", "doubt:appearance", "span",
+                                            "budget"]  # REASONS order
+    assert all(text == REASONS[name] for name, text in legend)
+    page = render(tmp_path, tracks)
+    dl = re.search(r'<dl class="reasons">(.*?)</dl>', page, re.S).group(1)
+    assert [(name, html.unescape(text)) for name, text in re.findall(r"<dt>([^<]*)</dt><dd>([^<]*)</dd>", dl)] == legend
+    assert "outside" not in dict(legend)
+    old = make_track(1, np.arange(4), ".XX.", reasons={1: "held"})
+    assert reason_legend([old]) == [("doubt:score", REASONS["doubt:score"]), ("held", "")]
+    assert "not described by this version" in render(tmp_path, [old])
 
 
 def test_overlay_video_has_a_plain_fallback_link(tmp_path):
@@ -273,7 +371,7 @@ def test_report_shows_the_absolute_input_path_from_run_json(tmp_path):
 
 
 def test_report_golden(tmp_path):
-    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 1, 3, "AAAA")])
+    page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 3, 7, "AAAA")])
     golden = GOLDEN / "report.html"
     if UPDATE:
         golden.parent.mkdir(parents=True, exist_ok=True)

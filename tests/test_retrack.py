@@ -344,6 +344,28 @@ def test_apply_corrections_rewrites_every_output_consistently(out):
     assert snapshot(out) == again
 
 
+def test_rerendered_report_shows_each_span_by_expected_errors_with_its_worst_frame(out):
+    """After a re-track the overlay is drawn again; each span's thumbnail is taken from its highest-p_fail frame."""
+    from test_report import parse, seek_seconds, shows_frame
+
+    from annotator.report import by_expected_errors, flagged_spans
+
+    info = json.loads((out / "run.json").read_text())
+    # Flag every frame the model doubts at all, one frame is a span: several spans whose p_fail varies.
+    info["config"]["flags"] = {**info["config"]["flags"], "threshold": 1e-9, "merge_gap": 0, "min_span": 1}
+    (out / "run.json").write_text(json.dumps(info))
+    (out.parent / "fix.csv").write_text("frame,x,y,w,h\n" + csv_row(12, GT[12]))
+    result = apply_corrections(out, out.parent / "fix.csv", show_progress=False)
+    spans = by_expected_errors([s for t in result.retrack.tracks for s in flagged_spans(t)])
+    assert len(spans) >= 2 and any(s.worst != s.start for s in spans)
+    rows = parse((out / "report.html").read_text()).rows
+    assert [r["cells"][1] for r in rows] == [f"{s.first_frame}\u2013{s.last_frame}" for s in spans]
+    fps = info["input"]["fps"]
+    for row, span in zip(rows, spans):
+        assert row["img"] and shows_frame(seek_seconds(row["thumb_seek"]), span.worst, fps), (row, span)
+        assert shows_frame(seek_seconds(row["seek"]), span.start, fps)
+
+
 def test_rows_outside_the_affected_spans_stay_byte_identical(out):
     (out.parent / "a.csv").write_text(csv_row(10, GT[10]))
     apply_corrections(out, out.parent / "a.csv", show_progress=False)

@@ -296,7 +296,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,
                    *, merge: str, show_progress: bool) -> list[Path]:
     """Write every output of the run's formats into ``tmp``; return their paths relative to it."""
-    from annotator.pipeline import SpanThumbnail, _thumbnail
+    from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
     from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
     from annotator.report import render_report, track_summary
 
@@ -308,7 +308,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     thumbnails: list[SpanThumbnail] = []
     if "overlay" in formats:
         renderer = OverlayRenderer()
-        in_span = {t.track_id: False for t in tracks}
+        capture = WorstFrameThumbnails()
+        p_fail = {t.track_id: t.p_fail for t in tracks}
         n = len(run.frame_indices)
         bar = Progress(n, label="overlay frames", enabled=show_progress)
         with OverlayWriter(tmp / OVERLAY_NAME, fps=video.fps, width=video.width, height=video.height) as writer:
@@ -317,11 +318,10 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                 drawn = renderer.annotate(frame, items_from_tracks(tracks, index))
                 writer.write(drawn)
                 for t in tracks:
-                    flagged = bool(t.flagged[position])
-                    if flagged and not in_span[t.track_id]:
-                        thumbnails.append(SpanThumbnail(t.track_id, position, index, _thumbnail(drawn)))
-                    in_span[t.track_id] = flagged
+                    capture.add(t.track_id, position, index, flagged=bool(t.flagged[position]),
+                                p_fail=float(p_fail[t.track_id][position]), drawn=drawn)
                 bar.advance()
+        thumbnails = capture.finish()
         bar.close()
         written["overlay"] = [Path(OVERLAY_NAME)]
     info = dict(run.info)
