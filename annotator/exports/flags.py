@@ -17,8 +17,9 @@ Columns (header always present, in this order)::
 
 Then one column per signal the tracks carry (:attr:`TrackResult.signals`):
 ``p_fail``, the failure probability (``confidence`` is ``1 - p_fail``), first,
-then the failure signals of :data:`annotator.failure.SIGNALS` in that order,
-6 significant digits; empty where a track has no such value.
+then the failure signals of :data:`annotator.failure.SIGNALS` in that order
+(but for ``log_likelihood`` and ``accepted``, already columns), 6 significant
+digits; empty where a track has no such value.
 
 Rows are sorted by frame, then track. Fields are quoted only when needed
 (RFC 4180, a reason holding a comma).
@@ -87,7 +88,8 @@ def signal_columns(tracks: Sequence[TrackResult]) -> list[str]:
     """The signal columns of a flags file: ``p_fail``, then the failure signals in their order, then any other."""
     from annotator.failure.signals import SIGNALS
 
-    names = {name for t in tracks for name in t.signals}
+    # A signal named like a fixed column (the tracker's log-likelihood and acceptance) is that column already.
+    names = {name for t in tracks for name in t.signals} - set(FLAGS_HEADER)
     known = [n for n in ("p_fail", *SIGNALS) if n in names]
     return known + sorted(names - set(known))
 
