@@ -27,6 +27,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sptpt._kernels.color import lab_image_memo, new_lab_memo
+
 # Heap position codes in ``pos`` besides a slot index >= 0.
 _UNSEEN = -1  # not in the heap and not labelled
 _LABELLED = -2
@@ -139,23 +141,47 @@ def _replace_root_bottom_up(heap_d, heap_c, heap_p, pos, size, d, c, p):  # prag
 
 
 @numba.njit(cache=True)
-def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, owner, sums):  # pragma: no cover
-    """Grow superpixels from ``seeds`` on one Lab image, writing into ``labels``.
+def grid_tables(height, width):  # pragma: no cover - compiled
+    """Template-independent tables of an ``height x width`` grid, built once per batch.
 
-    lab: (H, W, 3) float64, C-contiguous. seeds: (s, 2) int64 (row, col),
-    distinct, inside the image. spatial_weight: ``M**2 * s / N``.
-    labels: (H, W) int32, C-contiguous, output. Work arrays (contents
-    ignored): heap_d (N + 4,) float64, heap_c (N + 4,) int64, heap_p
-    (N + 4,) int32, pos (N,) int32, owner (N,) int32, sums (s, 6) float64.
+    Returns ``neighbours`` (N * 4,) int32: the 4-neighbours of each pixel in
+    the official order (left, up, right, down), -1 outside the image; and
+    ``xs``, ``ys`` (N,) float64: the column and row of each pixel. They spare
+    the growth loop an integer division and four border tests per pixel.
     """
-    height, width = lab.shape[0], lab.shape[1]
     n_pixels = height * width
+    neighbours = np.empty(n_pixels * 4, dtype=np.int32)
+    xs = np.empty(n_pixels, dtype=np.float64)
+    ys = np.empty(n_pixels, dtype=np.float64)
+    for y in range(height):
+        for x in range(width):
+            p = y * width + x
+            xs[p] = x
+            ys[p] = y
+            neighbours[4 * p] = p - 1 if x > 0 else -1
+            neighbours[4 * p + 1] = p - width if y > 0 else -1
+            neighbours[4 * p + 2] = p + 1 if x < width - 1 else -1
+            neighbours[4 * p + 3] = p + width if y < height - 1 else -1
+    return neighbours, xs, ys
+
+
+@numba.njit(cache=True)
+def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, width,
+              heap_d, heap_c, heap_p, pos, owner, sums):  # pragma: no cover
+    """Grow superpixels from ``seeds`` on one Lab image, writing into ``flat_labels``.
+
+    flat_lab: (N * 3,) float64, the (H, W, 3) Lab image flattened. seeds:
+    (s, 2) int64 (row, col), distinct, inside the image. spatial_weight:
+    ``M**2 * s / N``. flat_labels: (N,) int32, output. neighbours, xs, ys:
+    :func:`grid_tables` of the image size; width: W. Work arrays (contents
+    ignored): heap_d (N + 4,) float64, heap_c (N + 4,) int64, heap_p
+    (N + 4,) int32, pos (N,) int32, owner (N,) int32, sums (s * 6,) float64.
+    """
+    n_pixels = flat_labels.shape[0]
     n_seeds = seeds.shape[0]
-    flat_lab = lab.reshape(n_pixels * 3)
-    flat_labels = labels.reshape(n_pixels)
     flat_labels[:] = -1
     pos[:] = _UNSEEN
-    flat_sums = sums.reshape(n_seeds * 6)
+    flat_sums = sums
     flat_sums[:] = 0.0
 
     # Seeds enter with d = 0 in raster order, so seed k is popped k-th and
@@ -184,15 +210,13 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
         # distance, so a lowered key cannot climb past it.
         heap_d[0] = -1.0
 
-        y = p // width
-        x = p - y * width
         base = 6 * k
         # Online centroid: running sums, as the official code keeps them.
         flat_sums[base] += flat_lab[3 * p]
         flat_sums[base + 1] += flat_lab[3 * p + 1]
         flat_sums[base + 2] += flat_lab[3 * p + 2]
-        flat_sums[base + 3] += x
-        flat_sums[base + 4] += y
+        flat_sums[base + 3] += xs[p]
+        flat_sums[base + 4] += ys[p]
         flat_sums[base + 5] += 1.0
         kl = flat_sums[base]
         ka = flat_sums[base + 1]
@@ -207,30 +231,9 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
         # Neighbour order of the official code (dx8/dy8, CONNECTIVITY = 4):
         # left, up, right, down. It fixes the counters, hence tie-breaking.
         for nb in range(4):
-            if nb == 0:
-                if x == 0:
-                    continue
-                q = p - 1
-                xx = x - 1
-                yy = y
-            elif nb == 1:
-                if y == 0:
-                    continue
-                q = p - width
-                xx = x
-                yy = y - 1
-            elif nb == 2:
-                if x == width - 1:
-                    continue
-                q = p + 1
-                xx = x + 1
-                yy = y
-            else:
-                if y == height - 1:
-                    continue
-                q = p + width
-                xx = x
-                yy = y + 1
+            q = neighbours[4 * p + nb]
+            if q < 0:
+                continue
             slot = pos[q]
             if slot == _LABELLED:
                 continue
@@ -242,8 +245,8 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
             ldiff = kl - flat_lab[3 * q] * ksize
             adiff = ka - flat_lab[3 * q + 1] * ksize
             bdiff = kb - flat_lab[3 * q + 2] * ksize
-            xdiff = kx - xx * ksize
-            ydiff = ky - yy * ksize
+            xdiff = kx - xs[q] * ksize
+            ydiff = ky - ys[q] * ksize
             colordist = ldiff * ldiff + adiff * adiff + bdiff * bdiff
             xydist = xdiff * xdiff + ydiff * ydiff
             d = (colordist + xydist * spatial_weight) / norm
@@ -303,16 +306,19 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
 @numba.njit(cache=True)
 def _grow_range(lab, seeds, spatial_weight, labels, start, stop):  # pragma: no cover - compiled
     """Run ``snic_grow`` on images ``start:stop``, allocating work arrays once."""
-    n_pixels = lab.shape[1] * lab.shape[2]
+    height, width = lab.shape[1], lab.shape[2]
+    n_pixels = height * width
     n_seeds = seeds.shape[0]
+    neighbours, xs, ys = grid_tables(height, width)
     heap_d = np.empty(n_pixels + 4, dtype=np.float64)
     heap_c = np.empty(n_pixels + 4, dtype=np.int64)
     heap_p = np.empty(n_pixels + 4, dtype=np.int32)
     pos = np.empty(n_pixels, dtype=np.int32)
     owner = np.empty(n_pixels, dtype=np.int32)
-    sums = np.empty((n_seeds, 6), dtype=np.float64)
+    sums = np.empty(n_seeds * 6, dtype=np.float64)
     for i in range(start, stop):
-        snic_grow(lab[i], seeds, spatial_weight, labels[i], heap_d, heap_c, heap_p, pos, owner, sums)
+        snic_grow(lab[i].reshape(n_pixels * 3), seeds, spatial_weight, labels[i].reshape(n_pixels),
+                  neighbours, xs, ys, width, heap_d, heap_c, heap_p, pos, owner, sums)
 
 
 @numba.njit(cache=True)
@@ -348,5 +354,58 @@ def snic_batch(lab, seeds, spatial_weight, n_chunks):  # pragma: no cover - comp
             labels,
             chunk * n_images // n_chunks,
             (chunk + 1) * n_images // n_chunks,
+        )
+    return labels
+
+
+@numba.njit(cache=True)
+def _grow_range_rgb(images, seeds, spatial_weight, labels, start, stop, linear, rgb_to_xyz, white):  # pragma: no cover
+    """``_grow_range`` from uint8 RGB: each image is converted to Lab just before it grows.
+
+    The Lab image stays in a per-thread buffer that is still in cache when
+    SNIC reads it, instead of a (B, H, W, 3) float64 batch written and read
+    back through memory; the colour memo of :func:`lab_image_memo` serves the
+    whole range.
+    """
+    height, width = images.shape[1], images.shape[2]
+    n_pixels = height * width
+    n_seeds = seeds.shape[0]
+    neighbours, xs, ys = grid_tables(height, width)
+    heap_d = np.empty(n_pixels + 4, dtype=np.float64)
+    heap_c = np.empty(n_pixels + 4, dtype=np.int64)
+    heap_p = np.empty(n_pixels + 4, dtype=np.int32)
+    pos = np.empty(n_pixels, dtype=np.int32)
+    owner = np.empty(n_pixels, dtype=np.int32)
+    sums = np.empty(n_seeds * 6, dtype=np.float64)
+    flat_lab = np.empty(n_pixels * 3, dtype=np.float64)
+    memo = new_lab_memo()
+    for i in range(start, stop):
+        lab_image_memo(images[i], linear, rgb_to_xyz, white, memo, flat_lab)
+        snic_grow(flat_lab, seeds, spatial_weight, labels[i].reshape(n_pixels),
+                  neighbours, xs, ys, width, heap_d, heap_c, heap_p, pos, owner, sums)
+
+
+@numba.njit(parallel=True, cache=True)
+def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, white):  # pragma: no cover
+    """``snic_batch`` of uint8 RGB images: Lab conversion fused into the growth.
+
+    images: (B, H, W, 3) uint8, C-contiguous. linear, rgb_to_xyz, white: the
+    constants of :func:`sptpt.color.rgb_to_lab_templates`. Same labels as
+    ``snic_batch(rgb_to_lab_batch(images, ...), ...)``, bit for bit.
+    """
+    n_images, height, width = images.shape[0], images.shape[1], images.shape[2]
+    labels = np.empty((n_images, height, width), dtype=np.int32)
+    n_chunks = max(1, min(n_chunks, n_images))
+    for chunk in numba.prange(n_chunks):
+        _grow_range_rgb(
+            images,
+            seeds,
+            spatial_weight,
+            labels,
+            chunk * n_images // n_chunks,
+            (chunk + 1) * n_images // n_chunks,
+            linear,
+            rgb_to_xyz,
+            white,
         )
     return labels
