@@ -27,7 +27,7 @@ from fractions import Fraction
 import numba
 import numpy as np
 
-from sptpt._kernels.snic import snic_batch, snic_batch_rgb
+from sptpt._kernels.snic import MAX_PIXELS, snic_batch, snic_batch_rgb
 from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_lab
 
 __all__ = ["SEEDINGS", "seed_grid", "snic", "snic_lab"]
@@ -57,6 +57,14 @@ def _check_compactness(compactness: object) -> float:
     if not math.isfinite(value) or value < 0.0:
         raise ValueError(f"compactness must be finite and >= 0 (official default 20, range 10-40), got {compactness!r}")
     return value
+
+
+def _check_size(height: int, width: int, name: str) -> None:
+    if height * width > MAX_PIXELS:
+        raise ValueError(
+            f"{name} has {height} x {width} = {height * width} pixels per image; SNIC here takes at most "
+            f"{MAX_PIXELS} (2**28 - 1); split the image into tiles"
+        )
 
 
 def _official_seeds(height: int, width: int, n_segments: int) -> np.ndarray:
@@ -223,6 +231,7 @@ def snic_lab(lab: np.ndarray, seeds: np.ndarray, *, compactness: float = 20.0) -
         raise ValueError(f"lab must be a real (H, W, 3) or (B, H, W, 3) array, got {lab.dtype} {lab.shape}")
     if lab.shape[-3] < 1 or lab.shape[-2] < 1:
         raise ValueError(f"lab must have at least one pixel, got shape {lab.shape}")
+    _check_size(lab.shape[-3], lab.shape[-2], "lab")
     if not np.all(np.isfinite(lab)):
         raise ValueError("lab contains NaN or infinite values")
     seeds = np.asarray(seeds)
@@ -343,6 +352,7 @@ def snic(
     height, width = images.shape[-3], images.shape[-2]
     if height < 1 or width < 1:
         raise ValueError(f"images must have at least one pixel, got shape {images.shape}")
+    _check_size(height, width, "images")
     seeds = seed_grid(height, width, n_segments, seeding=seeding)
     compactness = _check_compactness(compactness)
     # Lab of uint8 input is always finite and seed_grid's seeds are valid:

@@ -413,6 +413,15 @@ def test_snic_lab_rejects_bad_seeds(seeds: np.ndarray, match: str) -> None:
         snic_lab(np.zeros((32, 32, 3)), seeds)
 
 
+def test_images_beyond_the_packed_key_range_are_rejected() -> None:
+    # A broadcast view: 2**14 x 2**14 pixels without the memory.
+    huge = np.broadcast_to(np.zeros((1, 1, 3), dtype=np.uint8), (1 << 14, 1 << 14, 3))
+    with pytest.raises(ValueError, match="at most"):
+        snic(huge)
+    with pytest.raises(ValueError, match="at most"):
+        snic_lab(np.broadcast_to(np.zeros((1, 1, 3)), (1 << 14, 1 << 14, 3)), np.array([[0, 0]]))
+
+
 def test_seed_grid_rejects_bad_sizes() -> None:
     with pytest.raises(ValueError, match="height"):
         seed_grid(0, 32, 4)
