@@ -27,8 +27,8 @@ from fractions import Fraction
 import numba
 import numpy as np
 
-from sptpt._kernels.snic import snic_batch
-from sptpt.color import rgb_to_lab, rgb_to_lab_templates
+from sptpt._kernels.snic import MAX_PIXELS, snic_batch, snic_batch_rgb
+from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_lab
 
 __all__ = ["SEEDINGS", "seed_grid", "snic", "snic_lab"]
 
@@ -57,6 +57,14 @@ def _check_compactness(compactness: object) -> float:
     if not math.isfinite(value) or value < 0.0:
         raise ValueError(f"compactness must be finite and >= 0 (official default 20, range 10-40), got {compactness!r}")
     return value
+
+
+def _check_size(height: int, width: int, name: str) -> None:
+    if height * width > MAX_PIXELS:
+        raise ValueError(
+            f"{name} has {height} x {width} = {height * width} pixels per image; SNIC here takes at most "
+            f"{MAX_PIXELS} (2**28 - 1); split the image into tiles"
+        )
 
 
 def _official_seeds(height: int, width: int, n_segments: int) -> np.ndarray:
@@ -223,6 +231,7 @@ def snic_lab(lab: np.ndarray, seeds: np.ndarray, *, compactness: float = 20.0) -
         raise ValueError(f"lab must be a real (H, W, 3) or (B, H, W, 3) array, got {lab.dtype} {lab.shape}")
     if lab.shape[-3] < 1 or lab.shape[-2] < 1:
         raise ValueError(f"lab must have at least one pixel, got shape {lab.shape}")
+    _check_size(lab.shape[-3], lab.shape[-2], "lab")
     if not np.all(np.isfinite(lab)):
         raise ValueError("lab contains NaN or infinite values")
     seeds = np.asarray(seeds)
@@ -238,18 +247,42 @@ def snic_lab(lab: np.ndarray, seeds: np.ndarray, *, compactness: float = 20.0) -
     return labels[0] if lab.ndim == 3 else labels
 
 
+def _spatial_weight(compactness: float, n_seeds: int, height: int, width: int) -> float:
+    # Same operation order as the official invwt = (M*M*numk)/double(sz).
+    return (compactness * compactness * n_seeds) / (height * width)
+
+
 def _grow(lab: np.ndarray, seeds: np.ndarray, compactness: float) -> np.ndarray:
     """Validated (B, H, W, 3) Lab batch -> (B, H, W) int32 labels."""
     n_images, height, width = lab.shape[:3]
     if n_images == 0:
         return np.empty((0, height, width), dtype=np.int32)
-    # Same operation order as the official invwt = (M*M*numk)/double(sz).
-    spatial_weight = (compactness * compactness * len(seeds)) / (height * width)
     return snic_batch(
         np.ascontiguousarray(lab, dtype=np.float64),
         np.ascontiguousarray(seeds, dtype=np.int64),
-        spatial_weight,
+        _spatial_weight(compactness, len(seeds), height, width),
         numba.get_num_threads(),
+    )
+
+
+def _grow_rgb(images: np.ndarray, seeds: np.ndarray, compactness: float) -> np.ndarray:
+    """Validated (B, H, W, 3) uint8 batch -> (B, H, W) int32 labels, Lab converted inside the kernel.
+
+    The same labels as ``_grow(rgb_to_lab_templates(images), ...)`` bit for bit
+    (the kernel converts with the same per-pixel code), without the float64
+    Lab batch in memory and with about half of the ``cbrt`` calls.
+    """
+    n_images, height, width = images.shape[:3]
+    if n_images == 0:
+        return np.empty((0, height, width), dtype=np.int32)
+    return snic_batch_rgb(
+        np.ascontiguousarray(images),
+        np.ascontiguousarray(seeds, dtype=np.int64),
+        _spatial_weight(compactness, len(seeds), height, width),
+        numba.get_num_threads(),
+        _SRGB_TO_LINEAR,
+        _RGB_TO_XYZ,
+        _WHITE,
     )
 
 
@@ -262,10 +295,10 @@ def snic(
 ) -> np.ndarray:
     """SNIC superpixels of uint8 RGB image(s) (spec 2.3).
 
-    Converts to CIELAB with the official SNIC constants (one vectorised call
-    for the whole batch), places the seeds with :func:`seed_grid` and grows
-    all images in parallel (numba ``prange``; thread count from
-    ``numba.set_num_threads``).
+    Converts to CIELAB with the official SNIC constants (each image just
+    before it grows, through a memo of converted colours), places the seeds
+    with :func:`seed_grid` and grows all images in parallel (numba
+    ``prange``; thread count from ``numba.set_num_threads``).
 
     Parameters
     ----------
@@ -319,9 +352,10 @@ def snic(
     height, width = images.shape[-3], images.shape[-2]
     if height < 1 or width < 1:
         raise ValueError(f"images must have at least one pixel, got shape {images.shape}")
+    _check_size(height, width, "images")
     seeds = seed_grid(height, width, n_segments, seeding=seeding)
     compactness = _check_compactness(compactness)
     # Lab of uint8 input is always finite and seed_grid's seeds are valid:
     # skip snic_lab's checks.
-    labels = _grow(rgb_to_lab_templates(images.reshape((-1, height, width, 3))), seeds, compactness)
+    labels = _grow_rgb(images.reshape((-1, height, width, 3)), seeds, compactness)
     return labels[0] if images.ndim == 3 else labels

@@ -11,8 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from sptpt._kernels.snic import snic_batch, snic_image
-from sptpt.color import rgb_to_lab, rgb_to_lab_templates
+from sptpt._kernels.color import MEMO_BITS
+from sptpt._kernels.snic import snic_batch, snic_batch_rgb, snic_image
+from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_lab, rgb_to_lab_templates
 from sptpt.superpixels import seed_grid, snic, snic_lab
 
 # ---------------------------------------------------------------------------
@@ -321,6 +322,23 @@ def test_thread_count_does_not_change_labels() -> None:
     np.testing.assert_array_equal(snic(batch), results[0])
 
 
+@pytest.mark.parametrize("n_chunks", [1, 2, 3])
+def test_fused_rgb_kernel_equals_lab_kernel_bit_for_bit(n_chunks: int) -> None:
+    # More distinct colours than memo slots, so that slots are overwritten and
+    # colours come back after eviction; plus smooth templates that repeat
+    # colours, as the tracker's do.
+    rng = np.random.default_rng(17)
+    n_noisy = 2 * (1 << MEMO_BITS) // (32 * 32) + 1
+    noisy = rng.integers(0, 256, (n_noisy, 32, 32, 3), dtype=np.uint8)
+    smooth = np.stack([smooth_noisy(rng, 32, 32) for _ in range(20)])
+    batch = np.concatenate([smooth[:10], noisy, smooth[10:], smooth[:5]])
+    seeds = seed_grid(32, 32, 30)
+    weight = (20.0 * 20.0 * len(seeds)) / 1024
+    expected = snic_batch(rgb_to_lab_templates(batch), seeds, weight, n_chunks)
+    labels = snic_batch_rgb(batch, seeds, weight, n_chunks, _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE)
+    np.testing.assert_array_equal(labels, expected)
+
+
 def test_snic_lab_matches_snic_and_accepts_a_single_image() -> None:
     image = smooth_noisy(np.random.default_rng(2), 20, 30)
     seeds = seed_grid(20, 30, 12, seeding="exact")
@@ -393,6 +411,15 @@ def test_bad_parameters(kwargs: dict, error: type[Exception], match: str) -> Non
 def test_snic_lab_rejects_bad_seeds(seeds: np.ndarray, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         snic_lab(np.zeros((32, 32, 3)), seeds)
+
+
+def test_images_beyond_the_packed_key_range_are_rejected() -> None:
+    # A broadcast view: 2**14 x 2**14 pixels without the memory.
+    huge = np.broadcast_to(np.zeros((1, 1, 3), dtype=np.uint8), (1 << 14, 1 << 14, 3))
+    with pytest.raises(ValueError, match="at most"):
+        snic(huge)
+    with pytest.raises(ValueError, match="at most"):
+        snic_lab(np.broadcast_to(np.zeros((1, 1, 3)), (1 << 14, 1 << 14, 3)), np.array([[0, 0]]))
 
 
 def test_seed_grid_rejects_bad_sizes() -> None:

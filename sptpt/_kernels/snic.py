@@ -17,7 +17,12 @@ centroids. The counter still advances on every would-be push, so ties
 compare exactly as in the duplicate queue. This halves the number of pops
 and keeps the heap at the size of the growth front (~200 entries on a 32 x 32
 template instead of ~700). The heap is 4-ary (half the depth of a binary
-heap) and stored as parallel arrays; see ``SPTPT_SPEC.md`` 5 for the budget.
+heap) and stored as two parallel arrays: the distance, and one int64
+``counter << 32 | pixel``. Counters are unique, so comparing the packed keys
+compares the counters, and the pixel rides along without a third array (one
+load and store fewer per heap move). This bounds images to fewer than 2**28
+pixels (counter < 4 N + s < 2**30); ``sptpt.superpixels`` checks it. See
+``SPTPT_SPEC.md`` 5 for the budget.
 
 No validation and no defaults here; ``sptpt.superpixels`` is the public door.
 """
@@ -27,12 +32,18 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sptpt._kernels.color import lab_image_memo, new_lab_memo
+
 # Heap position codes in ``pos`` besides a slot index >= 0.
 _UNSEEN = -1  # not in the heap and not labelled
 _LABELLED = -2
 # Key of the padding slots behind the heap end: larger than any real key, so
 # the 4-way child choice needs no bounds test.
 _PAD_COUNTER = 1 << 62
+# Low half of a packed heap key: the pixel.
+_PIXEL_MASK = (1 << 32) - 1
+#: Largest image (pixels) the packed keys can hold.
+MAX_PIXELS = (1 << 28) - 1
 
 
 @numba.njit(cache=True, inline="always")
@@ -56,25 +67,23 @@ def _min_child(heap_d, heap_c, first):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _move(heap_d, heap_c, heap_p, pos, dst, src):  # pragma: no cover - compiled
+def _move(heap_d, heap_c, pos, dst, src):  # pragma: no cover - compiled
     heap_d[dst] = heap_d[src]
-    heap_c[dst] = heap_c[src]
-    moved = heap_p[src]
-    heap_p[dst] = moved
-    pos[moved] = dst
+    key = heap_c[src]
+    heap_c[dst] = key
+    pos[key & _PIXEL_MASK] = dst
 
 
 @numba.njit(cache=True, inline="always")
-def _place(heap_d, heap_c, heap_p, pos, slot, d, c, p):  # pragma: no cover - compiled
+def _place(heap_d, heap_c, pos, slot, d, c):  # pragma: no cover - compiled
     heap_d[slot] = d
     heap_c[slot] = c
-    heap_p[slot] = p
-    pos[p] = slot
+    pos[c & _PIXEL_MASK] = slot
 
 
 @numba.njit(cache=True, inline="always")
-def _sift_up(heap_d, heap_c, heap_p, pos, hole, d, c, p):  # pragma: no cover - compiled
-    """Put (d, c, p) at ``hole`` or above; c must be newer than every key above.
+def _sift_up(heap_d, heap_c, pos, hole, d, c):  # pragma: no cover - compiled
+    """Put (d, c) at ``hole`` or above; c must be newer than every key above.
 
     With the newest counter, the entry only rises above strictly larger
     distances, so one comparison per level suffices.
@@ -82,16 +91,16 @@ def _sift_up(heap_d, heap_c, heap_p, pos, hole, d, c, p):  # pragma: no cover - 
     while hole > 0:
         parent = (hole - 1) >> 2
         if d < heap_d[parent]:
-            _move(heap_d, heap_c, heap_p, pos, hole, parent)
+            _move(heap_d, heap_c, pos, hole, parent)
             hole = parent
         else:
             break
-    _place(heap_d, heap_c, heap_p, pos, hole, d, c, p)
+    _place(heap_d, heap_c, pos, hole, d, c)
 
 
 @numba.njit(cache=True, inline="always")
-def _replace_root_top_down(heap_d, heap_c, heap_p, pos, size, d, c, p):  # pragma: no cover - compiled
-    """Overwrite the root with (d, c, p) and sift it down.
+def _replace_root_top_down(heap_d, heap_c, pos, size, d, c):  # pragma: no cover - compiled
+    """Overwrite the root with (d, c) and sift it down.
 
     Used with the smallest new neighbour, which is often the next pixel to
     pop, so the loop usually stops after a level or two.
@@ -104,16 +113,16 @@ def _replace_root_top_down(heap_d, heap_c, heap_p, pos, size, d, c, p):  # pragm
         m = _min_child(heap_d, heap_c, first)
         md = heap_d[m]
         if (md < d) | ((md == d) & (heap_c[m] < c)):
-            _move(heap_d, heap_c, heap_p, pos, hole, m)
+            _move(heap_d, heap_c, pos, hole, m)
             hole = m
         else:
             break
-    _place(heap_d, heap_c, heap_p, pos, hole, d, c, p)
+    _place(heap_d, heap_c, pos, hole, d, c)
 
 
 @numba.njit(cache=True, inline="always")
-def _replace_root_bottom_up(heap_d, heap_c, heap_p, pos, size, d, c, p):  # pragma: no cover - compiled
-    """Overwrite the root with (d, c, p), Floyd's bottom-up way.
+def _replace_root_bottom_up(heap_d, heap_c, pos, size, d, c):  # pragma: no cover - compiled
+    """Overwrite the root with (d, c), Floyd's bottom-up way.
 
     Used with the former last entry, which almost always belongs near the
     bottom: walk the smallest children up to a leaf without comparing
@@ -125,37 +134,62 @@ def _replace_root_bottom_up(heap_d, heap_c, heap_p, pos, size, d, c, p):  # prag
         if first >= size:
             break
         m = _min_child(heap_d, heap_c, first)
-        _move(heap_d, heap_c, heap_p, pos, hole, m)
+        _move(heap_d, heap_c, pos, hole, m)
         hole = m
     while hole > 0:
         parent = (hole - 1) >> 2
         pd = heap_d[parent]
         if (d < pd) | ((d == pd) & (c < heap_c[parent])):
-            _move(heap_d, heap_c, heap_p, pos, hole, parent)
+            _move(heap_d, heap_c, pos, hole, parent)
             hole = parent
         else:
             break
-    _place(heap_d, heap_c, heap_p, pos, hole, d, c, p)
+    _place(heap_d, heap_c, pos, hole, d, c)
 
 
 @numba.njit(cache=True)
-def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, owner, sums):  # pragma: no cover
-    """Grow superpixels from ``seeds`` on one Lab image, writing into ``labels``.
+def grid_tables(height, width):  # pragma: no cover - compiled
+    """Template-independent tables of an ``height x width`` grid, built once per batch.
 
-    lab: (H, W, 3) float64, C-contiguous. seeds: (s, 2) int64 (row, col),
-    distinct, inside the image. spatial_weight: ``M**2 * s / N``.
-    labels: (H, W) int32, C-contiguous, output. Work arrays (contents
-    ignored): heap_d (N + 4,) float64, heap_c (N + 4,) int64, heap_p
-    (N + 4,) int32, pos (N,) int32, owner (N,) int32, sums (s, 6) float64.
+    Returns ``neighbours`` (N * 4,) int32: the 4-neighbours of each pixel in
+    the official order (left, up, right, down), -1 outside the image; and
+    ``xs``, ``ys`` (N,) float64: the column and row of each pixel. They spare
+    the growth loop an integer division and four border tests per pixel.
     """
-    height, width = lab.shape[0], lab.shape[1]
     n_pixels = height * width
+    neighbours = np.empty(n_pixels * 4, dtype=np.int32)
+    xs = np.empty(n_pixels, dtype=np.float64)
+    ys = np.empty(n_pixels, dtype=np.float64)
+    for y in range(height):
+        for x in range(width):
+            p = y * width + x
+            xs[p] = x
+            ys[p] = y
+            neighbours[4 * p] = p - 1 if x > 0 else -1
+            neighbours[4 * p + 1] = p - width if y > 0 else -1
+            neighbours[4 * p + 2] = p + 1 if x < width - 1 else -1
+            neighbours[4 * p + 3] = p + width if y < height - 1 else -1
+    return neighbours, xs, ys
+
+
+@numba.njit(cache=True)
+def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, width,
+              heap_d, heap_c, pos, owner, sums):  # pragma: no cover
+    """Grow superpixels from ``seeds`` on one Lab image, writing into ``flat_labels``.
+
+    flat_lab: (N * 3,) float64, the (H, W, 3) Lab image flattened. seeds:
+    (s, 2) int64 (row, col), distinct, inside the image. spatial_weight:
+    ``M**2 * s / N``. flat_labels: (N,) int32, output. neighbours, xs, ys:
+    :func:`grid_tables` of the image size; width: W. Work arrays (contents
+    ignored): heap_d (N + 4,) float64, heap_c (N + 4,) int64 (packed
+    ``counter << 32 | pixel`` keys), pos (N,) int32, owner (N,) int32, sums
+    (s * 6,) float64. N <= ``MAX_PIXELS``.
+    """
+    n_pixels = flat_labels.shape[0]
     n_seeds = seeds.shape[0]
-    flat_lab = lab.reshape(n_pixels * 3)
-    flat_labels = labels.reshape(n_pixels)
     flat_labels[:] = -1
     pos[:] = _UNSEEN
-    flat_sums = sums.reshape(n_seeds * 6)
+    flat_sums = sums
     flat_sums[:] = 0.0
 
     # Seeds enter with d = 0 in raster order, so seed k is popped k-th and
@@ -164,7 +198,7 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
     counter = 0
     for k in range(n_seeds):
         p = seeds[k, 0] * width + seeds[k, 1]
-        _place(heap_d, heap_c, heap_p, pos, size, 0.0, counter, p)
+        _place(heap_d, heap_c, pos, size, 0.0, (counter << 32) | p)
         owner[p] = k
         size += 1
         counter += 1
@@ -174,9 +208,8 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
 
     new_d = np.empty(4, dtype=np.float64)
     new_c = np.empty(4, dtype=np.int64)
-    new_p = np.empty(4, dtype=np.int64)
     while size > 0:
-        p = heap_p[0]
+        p = heap_c[0] & _PIXEL_MASK
         k = owner[p]
         flat_labels[p] = k
         pos[p] = _LABELLED
@@ -184,15 +217,13 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
         # distance, so a lowered key cannot climb past it.
         heap_d[0] = -1.0
 
-        y = p // width
-        x = p - y * width
         base = 6 * k
         # Online centroid: running sums, as the official code keeps them.
         flat_sums[base] += flat_lab[3 * p]
         flat_sums[base + 1] += flat_lab[3 * p + 1]
         flat_sums[base + 2] += flat_lab[3 * p + 2]
-        flat_sums[base + 3] += x
-        flat_sums[base + 4] += y
+        flat_sums[base + 3] += xs[p]
+        flat_sums[base + 4] += ys[p]
         flat_sums[base + 5] += 1.0
         kl = flat_sums[base]
         ka = flat_sums[base + 1]
@@ -207,30 +238,9 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
         # Neighbour order of the official code (dx8/dy8, CONNECTIVITY = 4):
         # left, up, right, down. It fixes the counters, hence tie-breaking.
         for nb in range(4):
-            if nb == 0:
-                if x == 0:
-                    continue
-                q = p - 1
-                xx = x - 1
-                yy = y
-            elif nb == 1:
-                if y == 0:
-                    continue
-                q = p - width
-                xx = x
-                yy = y - 1
-            elif nb == 2:
-                if x == width - 1:
-                    continue
-                q = p + 1
-                xx = x + 1
-                yy = y
-            else:
-                if y == height - 1:
-                    continue
-                q = p + width
-                xx = x
-                yy = y + 1
+            q = neighbours[4 * p + nb]
+            if q < 0:
+                continue
             slot = pos[q]
             if slot == _LABELLED:
                 continue
@@ -242,24 +252,23 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
             ldiff = kl - flat_lab[3 * q] * ksize
             adiff = ka - flat_lab[3 * q + 1] * ksize
             bdiff = kb - flat_lab[3 * q + 2] * ksize
-            xdiff = kx - xx * ksize
-            ydiff = ky - yy * ksize
+            xdiff = kx - xs[q] * ksize
+            ydiff = ky - ys[q] * ksize
             colordist = ldiff * ldiff + adiff * adiff + bdiff * bdiff
             xydist = xdiff * xdiff + ydiff * ydiff
             d = (colordist + xydist * spatial_weight) / norm
-            c = counter
+            c = (counter << 32) | q
             counter += 1
             if slot >= 0:
                 # Already queued with an older counter: a duplicate push in
                 # the official queue, which matters only if strictly closer.
                 if d < heap_d[slot]:
                     owner[q] = k
-                    _sift_up(heap_d, heap_c, heap_p, pos, slot, d, c, q)
+                    _sift_up(heap_d, heap_c, pos, slot, d, c)
             else:
                 owner[q] = k
                 new_d[n_new] = d
                 new_c[n_new] = c
-                new_p[n_new] = q
                 if n_new == 0 or d < new_d[best]:
                     best = n_new
                 n_new += 1
@@ -268,23 +277,22 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
             # The closest new neighbour refills the root; the rest are
             # appended. (Keys are unique, so the pop order does not depend on
             # how the heap is arranged.)
-            _replace_root_top_down(heap_d, heap_c, heap_p, pos, size, new_d[best], new_c[best], new_p[best])
+            _replace_root_top_down(heap_d, heap_c, pos, size, new_d[best], new_c[best])
             for j in range(n_new):
                 if j == best:
                     continue
                 size += 1
                 heap_d[size + 2] = np.inf
                 heap_c[size + 2] = _PAD_COUNTER
-                _sift_up(heap_d, heap_c, heap_p, pos, size - 1, new_d[j], new_c[j], new_p[j])
+                _sift_up(heap_d, heap_c, pos, size - 1, new_d[j], new_c[j])
         else:
             size -= 1
             if size > 0:
                 last_d = heap_d[size]
                 last_c = heap_c[size]
-                last_p = heap_p[size]
                 heap_d[size] = np.inf
                 heap_c[size] = _PAD_COUNTER
-                _replace_root_bottom_up(heap_d, heap_c, heap_p, pos, size, last_d, last_c, last_p)
+                _replace_root_bottom_up(heap_d, heap_c, pos, size, last_d, last_c)
 
     # Safety net of the official code: copy the left (else upper) label into
     # an unlabelled pixel. Flooding a connected 4-grid from >= 1 seed reaches
@@ -303,16 +311,18 @@ def snic_grow(lab, seeds, spatial_weight, labels, heap_d, heap_c, heap_p, pos, o
 @numba.njit(cache=True)
 def _grow_range(lab, seeds, spatial_weight, labels, start, stop):  # pragma: no cover - compiled
     """Run ``snic_grow`` on images ``start:stop``, allocating work arrays once."""
-    n_pixels = lab.shape[1] * lab.shape[2]
+    height, width = lab.shape[1], lab.shape[2]
+    n_pixels = height * width
     n_seeds = seeds.shape[0]
+    neighbours, xs, ys = grid_tables(height, width)
     heap_d = np.empty(n_pixels + 4, dtype=np.float64)
     heap_c = np.empty(n_pixels + 4, dtype=np.int64)
-    heap_p = np.empty(n_pixels + 4, dtype=np.int32)
     pos = np.empty(n_pixels, dtype=np.int32)
     owner = np.empty(n_pixels, dtype=np.int32)
-    sums = np.empty((n_seeds, 6), dtype=np.float64)
+    sums = np.empty(n_seeds * 6, dtype=np.float64)
     for i in range(start, stop):
-        snic_grow(lab[i], seeds, spatial_weight, labels[i], heap_d, heap_c, heap_p, pos, owner, sums)
+        snic_grow(lab[i].reshape(n_pixels * 3), seeds, spatial_weight, labels[i].reshape(n_pixels),
+                  neighbours, xs, ys, width, heap_d, heap_c, pos, owner, sums)
 
 
 @numba.njit(cache=True)
@@ -348,5 +358,57 @@ def snic_batch(lab, seeds, spatial_weight, n_chunks):  # pragma: no cover - comp
             labels,
             chunk * n_images // n_chunks,
             (chunk + 1) * n_images // n_chunks,
+        )
+    return labels
+
+
+@numba.njit(cache=True)
+def _grow_range_rgb(images, seeds, spatial_weight, labels, start, stop, linear, rgb_to_xyz, white):  # pragma: no cover
+    """``_grow_range`` from uint8 RGB: each image is converted to Lab just before it grows.
+
+    The Lab image stays in a per-thread buffer that is still in cache when
+    SNIC reads it, instead of a (B, H, W, 3) float64 batch written and read
+    back through memory; the colour memo of :func:`lab_image_memo` serves the
+    whole range.
+    """
+    height, width = images.shape[1], images.shape[2]
+    n_pixels = height * width
+    n_seeds = seeds.shape[0]
+    neighbours, xs, ys = grid_tables(height, width)
+    heap_d = np.empty(n_pixels + 4, dtype=np.float64)
+    heap_c = np.empty(n_pixels + 4, dtype=np.int64)
+    pos = np.empty(n_pixels, dtype=np.int32)
+    owner = np.empty(n_pixels, dtype=np.int32)
+    sums = np.empty(n_seeds * 6, dtype=np.float64)
+    flat_lab = np.empty(n_pixels * 3, dtype=np.float64)
+    memo = new_lab_memo()
+    for i in range(start, stop):
+        lab_image_memo(images[i], linear, rgb_to_xyz, white, memo, flat_lab)
+        snic_grow(flat_lab, seeds, spatial_weight, labels[i].reshape(n_pixels),
+                  neighbours, xs, ys, width, heap_d, heap_c, pos, owner, sums)
+
+
+@numba.njit(parallel=True, cache=True)
+def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, white):  # pragma: no cover
+    """``snic_batch`` of uint8 RGB images: Lab conversion fused into the growth.
+
+    images: (B, H, W, 3) uint8, C-contiguous. linear, rgb_to_xyz, white: the
+    constants of :func:`sptpt.color.rgb_to_lab_templates`. Same labels as
+    ``snic_batch(rgb_to_lab_batch(images, ...), ...)``, bit for bit.
+    """
+    n_images, height, width = images.shape[0], images.shape[1], images.shape[2]
+    labels = np.empty((n_images, height, width), dtype=np.int32)
+    n_chunks = max(1, min(n_chunks, n_images))
+    for chunk in numba.prange(n_chunks):
+        _grow_range_rgb(
+            images,
+            seeds,
+            spatial_weight,
+            labels,
+            chunk * n_images // n_chunks,
+            (chunk + 1) * n_images // n_chunks,
+            linear,
+            rgb_to_xyz,
+            white,
         )
     return labels
