@@ -55,7 +55,7 @@ PLOTS = ROOT / "benchmarks" / "failure_plots"
 def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, dict]:
     """Samples, per-(sequence, seed) success AUC, and the tracker's own confidence per sample."""
     samples, aucs, confidence = [], {}, {}
-    for seed_index, run in enumerate(sorted({p for g in run_globs for p in glob.glob(g)})):
+    for run in sorted({p for g in run_globs for p in glob.glob(g) if Path(p).is_dir()}):
         summary = json.loads((Path(run) / "summary.json").read_text())
         seed = int(summary["settings"]["base_seed"])
         for folder in sorted(p for p in Path(run).iterdir() if (p / STORE_NAME).is_file()):
