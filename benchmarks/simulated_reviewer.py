@@ -185,8 +185,8 @@ def run_sequence(job: dict) -> dict:
     if job.get("threads"):
         numba.set_num_threads(job["threads"])
     seq_dir = Path(job["seq_dir"])
-    config = RunConfig(preset=job["preset"], tracker=params_from_mapping(job["params"]),
-                       flags=FlagParams(accept_threshold=job["params"]["accept_threshold"]), seed=job["seed"])
+    config = RunConfig(preset=job["preset"], tracker=params_from_mapping(job["params"]), flags=FlagParams(),
+                       seed=job["seed"])
     frames, gt = load_sequence(seq_dir, job["stop"])
     record = {"sequence": seq_dir.name, "frames": len(frames)}
     record["baseline"] = interpolation_baseline(gt, job["target"], job["threshold"])
