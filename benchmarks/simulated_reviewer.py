@@ -381,7 +381,8 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                   f"{mean_std((p['reviewer'] / p['baseline_check_all'] for p in ps), 2)}."]
     if args.merge_study:
         methods = [*MERGES, "forward only", "backward only"]
-        lines += ["", f"Merge study: ground truth every {args.merge_study} frames; frames strictly between anchors; "
+        lines += ["", f"Merge study (seed {next(r['seed'] for r in records if 'merge_study' in r)}): ground truth every "
+                  f"{args.merge_study} frames; frames strictly between anchors; "
                   "share with IoU >= 0.5 (mean IoU).", "",
                   "| sequence | " + " | ".join(methods) + " |", "|---|" + "---:|" * len(methods)]
         pooled = {m: [0, 0.0, 0.0] for m in methods}
