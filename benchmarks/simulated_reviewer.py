@@ -381,8 +381,9 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                   f"{mean_std((p['reviewer'] / p['baseline_check_all'] for p in ps), 2)}."]
     if args.merge_study:
         methods = [*MERGES, "forward only", "backward only"]
-        lines += ["", f"Merge study (seed {next(r['seed'] for r in records if 'merge_study' in r)}): ground truth every "
-                  f"{args.merge_study} frames; frames strictly between anchors; "
+        study_seed = next(r["seed"] for r in records if "merge_study" in r)
+        lines += ["", f"Merge study (seed {study_seed}): ground truth every {args.merge_study} frames; frames "
+                  "strictly between anchors; "
                   "share with IoU >= 0.5 (mean IoU).", "",
                   "| sequence | " + " | ".join(methods) + " |", "|---|" + "---:|" * len(methods)]
         pooled = {m: [0, 0.0, 0.0] for m in methods}
@@ -444,14 +445,15 @@ def main() -> None:
         FlagParams(threshold=args.flag_threshold)
     except (FailureModelError, ValueError) as exc:
         parser.error(str(exc))
-    model_record = {"path": model_path or f"annotator/{MODEL_PATH} (installed)", "info": dict(model.info),
+    model_record = {"path": model_path or f"annotator/{MODEL_PATH}", "info": dict(model.info),
                     "threshold": model.threshold, "flag_threshold": args.flag_threshold,
                     "sha256": hashlib.sha256(json.dumps(model.to_json(), sort_keys=True).encode()).hexdigest()}
-    model_text = (f"failure model {model_record['path']} (info {json.dumps(model_record['info'])}; sha256 "
-                  f"{model_record['sha256'][:12]} of its canonical JSON), flag threshold "
-                  f"{args.flag_threshold if args.flag_threshold is not None else model.threshold:g}"
-                  f"{' (given)' if args.flag_threshold is not None else ' (the model’s)'}, other flag settings "
-                  f"the run defaults")
+    threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None
+                      else f"{model.threshold:g} (the model's)")
+    model_text = (f"failure model `{model_record['path']}`{'' if model_path else ' (installed)'}, info "
+                  f"`{json.dumps(model_record['info'])}`, sha256 of its canonical JSON "
+                  f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, other flag settings the run "
+                  "defaults")
 
     all_sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
     if args.sequences != "all":
