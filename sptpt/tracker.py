@@ -189,7 +189,7 @@ class Tracker:
             # accuracy of many particles for a fraction of the templates (fast preset).
             seed_state = states[int(np.argmax(scores))]
             rounds.append(self._round(rgb, seed_state, p.refine_particles, sigma * p.refine_sigma_scale)[:4])
-        level = self._level() if scoring == "subspace" else None
+        level = self._level() if scoring == "subspace" and p.level_window > 0 else None
         if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
             # The target has been missing for a while: also search wide around where it was last accepted.
             rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor))[:4])
@@ -199,9 +199,14 @@ class Tracker:
         self._state = states[best]
         log_likelihood = float(scores[best])
         accepted = bool(log_likelihood > p.accept_threshold)
-        if level is not None:
-            median, spread = level
-            accepted = accepted or log_likelihood >= median - p.accept_drop * spread
+        if scoring == "subspace" and p.level_window > 0:
+            if level is None:
+                # No level yet: the first subspace-scored winner sets it, as the paper's bootstrap
+                # frames are accepted whenever they score above 0.
+                accepted = True
+            else:
+                median, spread = level
+                accepted = accepted or log_likelihood >= median - p.accept_drop * spread
             self._misses = 0 if accepted else self._misses + 1
         if accepted:
             self._anchor = self._state.copy()
@@ -324,11 +329,15 @@ class Tracker:
             self._buffer = []
         refresh = self._negative is None or self._accepted_count % p.negative_every == 0
         if self._frame_number >= p.update_every and refresh:
-            negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
-            features, _ = self._features(rgb, negatives)
-            codes = self._code(features)
-            with self._time("negative_update"):
-                self._negative = TensorSubspace.fit(codes, p.ranks)
+            self._negative = self._fit_negative(rgb)
+
+    def _fit_negative(self, rgb: np.ndarray) -> TensorSubspace:
+        p = self.params
+        negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
+        features, _ = self._features(rgb, negatives)
+        codes = self._code(features)
+        with self._time("negative_update"):
+            return TensorSubspace.fit(codes, p.ranks)
 
 
 def _size(state: np.ndarray, template_size: int) -> float:
