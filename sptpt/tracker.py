@@ -200,9 +200,8 @@ class Tracker:
         log_likelihood = float(scores[best])
         accepted = bool(log_likelihood > p.accept_threshold)
         if scoring == "subspace" and p.level_window > 0:
-            if level is None:
-                # No level yet: the first subspace-scored winner sets it, as the paper's bootstrap
-                # frames are accepted whenever they score above 0.
+            if level is None or len(self._levels) < p.level_min_count:
+                # No settled level yet: accept, as the paper accepts its bootstrap frames.
                 accepted = True
             else:
                 median, spread = level
