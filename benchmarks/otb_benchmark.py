@@ -2,6 +2,7 @@
 
     python benchmarks/otb_benchmark.py                       # all trackers, ../shared/otb, records RESULTS.md
     python benchmarks/otb_benchmark.py --trackers paper,csrt --stop 100 --no-record
+    python benchmarks/otb_benchmark.py --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
 
 For each tracker it runs one-pass evaluation on the same frames (the
 sequence's ``img/`` files, in order), then reports mean success AUC,
@@ -10,6 +11,11 @@ timing, peak resident memory and the quality of its review flags. The peers
 (CSRT, KCF, MIL from opencv-contrib-python-headless) run in an environment of
 their own, ``benchmarks/_env``, created on first use, because that package
 clashes with the project's opencv-python-headless.
+
+With ``--seeds`` every SPTPT preset runs once per seed and the report adds
+the mean and standard deviation over seeds of the AUC per sequence and
+overall; the peers have no seed and run once. Flags, stage timing and
+plots use the first seed.
 
 Frames per second are measured over frames 2..N (the first frame's
 initialisation excluded) with one sequence at a time unless ``--workers`` is
@@ -36,9 +42,8 @@ sys.path.insert(0, str(HERE))
 
 from _results import machine_line, update_section  # noqa: E402
 
-from annotator.evaluation import evaluate_dataset, flag_quality_dataset, write_report  # noqa: E402
+from annotator.evaluation import evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.metrics import iou_xywh  # noqa: E402
-from annotator.flagging import FlagParams, flag_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
 
@@ -102,6 +107,7 @@ def main() -> None:
     parser.add_argument("--stop", type=int, default=None, help="only the first N frames of each sequence")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", default="", help="comma-separated seeds for the SPTPT presets (overrides --seed)")
     parser.add_argument("--out", type=Path, default=HERE / "_runs" / "otb")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = parser.parse_args()
@@ -116,17 +122,25 @@ def main() -> None:
         parser.error(f"unknown trackers {unknown}: choose from {sorted(PRESETS)} and {list(PEERS)}")
     peer_python = ensure_peer_env() if any(t in PEERS for t in trackers) else None
 
+    seeds = [int(v) for v in args.seeds.split(",") if v] if args.seeds else [args.seed]
+    args.seed = seeds[0]
     records: dict[str, list[dict]] = {}
     started = time.time()
     for tracker in trackers:
-        tic = time.time()
-        records[tracker] = run_tracker(tracker, sequences, args.out, workers=args.workers, seed=args.seed,
-                                       stop=args.stop, peer_python=peer_python)
-        print(f"{tracker}: {sum(r['frames'] for r in records[tracker])} frames in {time.time() - tic:.0f} s",
-              file=sys.stderr)
+        for k, seed in enumerate(seeds if tracker in PRESETS else seeds[:1]):
+            tic = time.time()
+            recs = run_tracker(tracker, sequences, _seed_root(args.out, seeds, seed), workers=args.workers, seed=seed,
+                               stop=args.stop, peer_python=peer_python)
+            if k == 0:
+                records[tracker] = recs
+            print(f"{tracker} seed {seed}: {sum(r['frames'] for r in recs)} frames in {time.time() - tic:.0f} s",
+                  file=sys.stderr)
 
     gts = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in sequences}
-    scores, flag_reports, rows = [], {}, []
+    seed_table = _seed_table(args.out, seeds, trackers, sequences, gts) if len(seeds) > 1 else None
+    if len(seeds) > 1:
+        args.out = _seed_root(args.out, seeds, seeds[0])
+    scores, rows = [], []
     for tracker in trackers:
         pairs = {}
         for s in sequences:
@@ -138,26 +152,54 @@ def main() -> None:
         fps = sum(r["frames"] - 1 for r in recs) / sum(r["seconds_after_first"] for r in recs)
         row = {"tracker": score.tracker, "auc": score.auc, "precision_20": score.precision_20, "fps": fps}
         if tracker in PRESETS:
-            flags = {}
-            for s in sequences:
-                frames = np.load(args.out / tracker / f"{s.name}.frames.npz")
-                result = flag_frames(frames["log_likelihood"], frames["confidence"], frames["scoring"], FlagParams(),
-                                     keyframe=frames["scoring"] == "init")
-                flags[s.name] = (result.flagged, score.sequences[s.name].ious)
-            report = flag_quality_dataset(flags)
-            flag_reports[score.tracker] = report
-            row["flags"] = report.pooled
+            # Review flags are measured by benchmarks/failure_model.py: they need the tool's failure signals,
+            # which this direct tracker run does not compute.
             row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs) / sum(r["frames"] - 1 for r in recs)
                                 for st in STAGES}
             row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in recs)
         rows.append(row)
 
     # Trial runs (--no-record) keep their plots beside their results, not over the recorded ones.
-    write_report(args.out / "plots" if args.no_record else HERE / "otb_plots", scores, flag_quality=flag_reports)
+    write_report(args.out / "plots" if args.no_record else HERE / "otb_plots", scores)
     markdown = render_markdown(args, trackers, sequences, rows, scores, time.time() - started)
+    if seed_table:
+        markdown += "\n\n" + seed_table
     print(markdown)
     if not args.no_record:
         update_section("otb", markdown)
+
+
+def _seed_root(out: Path, seeds: list[int], seed: int) -> Path:
+    """Where one seed's results go: ``out`` for a single seed, ``out/seed<k>`` for several."""
+    return out if len(seeds) == 1 else out / f"seed{seed}"
+
+
+def _seed_table(out: Path, seeds: list[int], trackers: list[str], sequences: list[Path], gts: dict) -> str:
+    """Success AUC mean +- std over seeds, per sequence and overall (peers: one deterministic run)."""
+    from annotator.evaluation import evaluate_dataset
+
+    per: dict[str, np.ndarray] = {}  # tracker -> (n_seeds, n_sequences)
+    for tracker in trackers:
+        runs = []
+        for seed in (seeds if tracker in PRESETS else seeds[:1]):
+            pairs = {}
+            for s in sequences:
+                pred = read_otb_boxes(_seed_root(out, seeds, seed) / tracker / f"{s.name}.txt")
+                pairs[s.name] = (pred, gts[s.name][: len(pred)])
+            score = evaluate_dataset(pairs, tracker=tracker)
+            runs.append([score.sequences[s.name].auc for s in sequences])
+        per[tracker] = np.array(runs)
+    names = [f"SPTPT-{t}" if t in PRESETS else t.upper() for t in trackers]
+
+    def cell(values: np.ndarray) -> str:
+        return f"{values.mean():.3f}" if len(values) == 1 else f"{values.mean():.3f} ± {values.std(ddof=1):.3f}"
+
+    lines = [f"### Success AUC over seeds {', '.join(map(str, seeds))} (mean ± std; peers run once)", "",
+             "| Sequence | " + " | ".join(names) + " |", "|---|" + "---:|" * len(trackers)]
+    for j, s in enumerate(sequences):
+        lines.append(f"| {s.name} | " + " | ".join(cell(per[t][:, j]) for t in trackers) + " |")
+    lines.append("| **mean over sequences** | " + " | ".join(cell(per[t].mean(axis=1)) for t in trackers) + " |")
+    return "\n".join(lines)
 
 
 def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
@@ -177,7 +219,7 @@ def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
     ]
     for row in sorted(rows, key=lambda r: -r["auc"]):
         lines.append(f"| {row['tracker']} | {row['auc']:.3f} | {row['precision_20']:.3f} | {row['fps']:.1f} |")
-    sptpt_rows = [r for r in rows if "flags" in r]
+    sptpt_rows = [r for r in rows if "stages_ms" in r]
     if sptpt_rows:
         lines += ["", "### SPTPT per stage (ms per frame, frames 2..N) and memory", "",
                   "| Preset | " + " | ".join(STAGES) + " | peak RSS (MiB) |",
@@ -185,13 +227,6 @@ def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
         for r in sptpt_rows:
             lines.append(f"| {r['tracker']} | " + " | ".join(f"{r['stages_ms'][s]:.1f}" for s in STAGES)
                          + f" | {r['peak_rss_mib']:.0f} |")
-        lines += ["", "### SPTPT review flags against failures (IoU < 0.5), pooled over frames and spans", "",
-                  "| Preset | Flag precision | Flag recall | Flagged share | Onset recall (spans >= 5 frames, flag within 10) |",
-                  "|---|---:|---:|---:|---:|"]
-        for r in sptpt_rows:
-            q = r["flags"]
-            lines.append(f"| {r['tracker']} | {_fmt(q.precision)} | {_fmt(q.recall)} | {_fmt(q.flagged_share)} | "
-                         f"{_fmt(q.onset_recall)} |")
     lines += ["", "### Per sequence (success AUC)", "",
               "| Sequence | " + " | ".join(s.tracker for s in scores) + " |",
               "|---|" + "---:|" * len(scores)]

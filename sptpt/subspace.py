@@ -120,6 +120,12 @@ def _truncate(u: np.ndarray, sigma: np.ndarray, max_rank: int) -> tuple[np.ndarr
     return u[:, :keep], sigma[:keep]
 
 
+def _truncated(svd: IncrementalSVD, rank: int) -> IncrementalSVD:
+    if svd.basis.shape[1] <= rank:
+        return svd
+    return IncrementalSVD(svd.basis[:, :rank], svd.singular_values[:rank], svd.mean, svd.count)
+
+
 def _unfold_codeword(stack: np.ndarray) -> np.ndarray:
     """(q, z, s) stack -> mode-1 unfolding (z, s q): every superpixel's code vector."""
     return stack.transpose(1, 0, 2).reshape(stack.shape[1], -1)
@@ -169,6 +175,21 @@ class TensorSubspace:
             self.superpixel.update(_unfold_superpixel(stack), ranks[1], forgetting),
             self.sample.update(_unfold_sample(stack), ranks[2], forgetting),
         )
+
+    @property
+    def ranks(self) -> tuple[int, int, int]:
+        """Current ranks of the codeword, superpixel and sample-mode bases."""
+        return (self.codeword.basis.shape[1], self.superpixel.basis.shape[1], self.sample.basis.shape[1])
+
+    def truncated(self, ranks: tuple[int, int, int]) -> "TensorSubspace":
+        """The same model keeping at most ``ranks`` leading basis vectors per mode (no refit).
+
+        The bases are ordered by singular value, so the leading columns are the best
+        rank-limited subspace of the data the model was fitted on.
+        """
+        if all(r >= k for r, k in zip(ranks, self.ranks)):
+            return self
+        return TensorSubspace(*(_truncated(svd, r) for svd, r in zip((self.codeword, self.superpixel, self.sample), ranks)))
 
     @property
     def mean_tensor(self) -> np.ndarray:

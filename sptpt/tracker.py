@@ -39,6 +39,9 @@ def _no_timer(stage: str) -> ContextManager:
     return contextlib.nullcontext()
 
 
+# Median absolute deviation to standard deviation for normally distributed values.
+_MAD_TO_STD = 1.4826
+
 _THREADPOOLS: ThreadpoolController | None = None
 
 
@@ -97,6 +100,7 @@ class Tracker:
                 f"{self.n_superpixels} superpixels per template; lower it"
             )
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
+        # Column of the state that a relative motion std multiplies: cx, cy by the size, scale by the scale.
         self._frame_shape: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ public API
@@ -157,6 +161,11 @@ class Tracker:
         self._negative: TensorSubspace | None = None
         self._frame_number = 1
         self._accepted_count = 0
+        # Running level and re-detection (off in the paper preset): winning log-likelihoods of accepted
+        # subspace-scored frames, consecutive misses, and the last accepted state to search around.
+        self._levels: list[float] = []
+        self._misses = 0
+        self._anchor = self._state.copy()
         return FrameResult(
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
@@ -172,23 +181,37 @@ class Tracker:
             )
         p = self.params
         self._frame_number += 1
-        states = self._draw(self._state, p.n_particles, self._sigma)
-        codes, labels, scores, scoring = self._evaluate(rgb, states)
+        sigma = self._motion_sigma(self._state)
+        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma)
+        rounds = [(states, codes, labels, scores)]
         if p.refine_particles > 0:
             # Second, narrower round around the first round's winner: most of the
             # accuracy of many particles for a fraction of the templates (fast preset).
             seed_state = states[int(np.argmax(scores))]
-            refined = self._draw(seed_state, p.refine_particles, self._sigma * p.refine_sigma_scale)
-            codes2, labels2, scores2, _ = self._evaluate(rgb, refined)
-            states = np.concatenate([states, refined])
-            codes = np.concatenate([codes, codes2])
-            labels = np.concatenate([labels, labels2])
-            scores = np.concatenate([scores, scores2])
+            rounds.append(self._round(rgb, seed_state, p.refine_particles, sigma * p.refine_sigma_scale)[:4])
+        level = self._level() if scoring == "subspace" and p.level_window > 0 else None
+        if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
+            # The target has been missing for a while: also search wide around where it was last accepted.
+            rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor))[:4])
+        if len(rounds) > 1:
+            states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
         self._state = states[best]
         log_likelihood = float(scores[best])
         accepted = bool(log_likelihood > p.accept_threshold)
+        if scoring == "subspace" and p.level_window > 0:
+            if level is None or len(self._levels) < p.level_min_count:
+                # No settled level yet: accept, as the paper accepts its bootstrap frames.
+                accepted = True
+            else:
+                median, spread = level
+                accepted = accepted or log_likelihood >= median - p.accept_drop * spread
+            self._misses = 0 if accepted else self._misses + 1
         if accepted:
+            self._anchor = self._state.copy()
+            if scoring == "subspace" and p.level_window > 0:
+                self._levels.append(log_likelihood)
+                del self._levels[: -p.level_window]
             self._learn(rgb, codes[best])
         if scoring == "subspace":
             confidence = confidence_from_log_likelihood(log_likelihood, scale=p.confidence_scale)
@@ -223,6 +246,37 @@ class Tracker:
         np.clip(states[:, 1], 1.0, height, out=states[:, 1])
         return states
 
+    def _motion_sigma(self, state: np.ndarray) -> np.ndarray:
+        """Random-walk std around ``state``: absolute (paper) or relative to the object's size and scale."""
+        if not self.params.relative_motion:
+            return self._sigma
+        sigma = self._sigma.copy()
+        sigma[:2] *= _size(state, self.params.template_size)
+        sigma[2] *= state[2]
+        return sigma
+
+    def _redetect_sigma(self, anchor: np.ndarray) -> np.ndarray:
+        """Wide std of the re-detection round: grows with the square root of the frames missed, up to the frame."""
+        p = self.params
+        spread = p.redetect_sigma * _size(anchor, p.template_size) * np.sqrt(self._misses - p.redetect_after + 1)
+        sigma = self._motion_sigma(anchor).copy()
+        sigma[:2] = min(spread, float(max(self._frame_shape)))
+        return sigma
+
+    def _level(self) -> tuple[float, float] | None:
+        """Median and robust spread of the last accepted winners' log-likelihoods; None when disabled or empty."""
+        p = self.params
+        if p.level_window == 0 or not self._levels:
+            return None
+        median = float(np.median(self._levels))
+        spread = _MAD_TO_STD * float(np.median(np.abs(np.asarray(self._levels) - median)))
+        return median, max(spread, p.level_min_spread)
+
+    def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray):
+        """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring."""
+        states = self._draw(centre, n, sigma)
+        return (states, *self._evaluate(rgb, states))
+
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
         """Code tensors, superpixel labels and log-likelihood of candidate states."""
         features, labels = self._features(rgb, states)
@@ -252,8 +306,11 @@ class Tracker:
 
     def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
         p = self.params
+        negative_model = self._negative
+        if p.negative_rank_matched:
+            negative_model = negative_model.truncated(self._positive.ranks)
         positive = reconstruction_error(self._positive, codes, gamma=p.gamma, mode=p.re_mode)
-        negative = reconstruction_error(self._negative, codes, gamma=p.gamma, mode=p.re_mode)
+        negative = reconstruction_error(negative_model, codes, gamma=p.gamma, mode=p.re_mode)
         return negative - positive
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
@@ -271,11 +328,20 @@ class Tracker:
             self._buffer = []
         refresh = self._negative is None or self._accepted_count % p.negative_every == 0
         if self._frame_number >= p.update_every and refresh:
-            negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
-            features, _ = self._features(rgb, negatives)
-            codes = self._code(features)
-            with self._time("negative_update"):
-                self._negative = TensorSubspace.fit(codes, p.ranks)
+            self._negative = self._fit_negative(rgb)
+
+    def _fit_negative(self, rgb: np.ndarray) -> TensorSubspace:
+        p = self.params
+        negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
+        features, _ = self._features(rgb, negatives)
+        codes = self._code(features)
+        with self._time("negative_update"):
+            return TensorSubspace.fit(codes, p.ranks)
+
+
+def _size(state: np.ndarray, template_size: int) -> float:
+    """Geometric-mean side sqrt(w h) of the box of an affine state, px."""
+    return float(template_size * state[2] * np.sqrt(state[4]))
 
 
 def _as_rgb(frame: np.ndarray) -> np.ndarray:

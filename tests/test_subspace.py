@@ -99,3 +99,22 @@ def test_batch_fit_matches_a_thin_svd(shape):
     np.testing.assert_allclose(model.singular_values, sigma[:k], rtol=1e-9)
     # Same subspace: the projectors agree (singular vectors are defined up to sign).
     np.testing.assert_allclose(model.basis @ model.basis.T, u[:, :k] @ u[:, :k].T, atol=1e-8)
+
+
+@pytest.mark.parametrize("ranks", [(3, 2, 4), (40, 1, 2), (1, 5, 40)])
+def test_truncated_model_equals_a_fit_with_those_ranks_and_the_explicit_projection(ranks):
+    rng = np.random.default_rng(4)
+    stack = np.abs(rng.standard_normal((30, 10, 6)))
+    full = TensorSubspace.fit(stack, (10, 6, 30))
+    small = full.truncated(ranks)
+    assert small.ranks == tuple(min(r, k) for r, k in zip(ranks, full.ranks))
+    codes = np.abs(rng.standard_normal((7, 10, 6)))
+    re1, re2 = small.errors(codes)
+    ref1, ref2 = explicit_errors(small, codes)
+    np.testing.assert_allclose(re1, ref1, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(re2, ref2, rtol=1e-9, atol=1e-12)
+    # Leading singular vectors are the rank-limited fit (projections do not depend on their signs).
+    fitted1, fitted2 = TensorSubspace.fit(stack, ranks).errors(codes)
+    np.testing.assert_allclose(re1, fitted1, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(re2, fitted2, rtol=1e-8, atol=1e-10)
+    assert full.truncated(full.ranks) is full
