@@ -1,8 +1,11 @@
-"""Run OpenCV's CSRT, KCF or MIL over OTB-layout sequences (peer trackers for the benchmark).
+"""Run OpenCV's CSRT, KCF, MIL or NanoTrack over OTB-layout sequences (peer trackers for the benchmark).
 
-Runs inside the benchmark's own environment (``benchmarks/_env``) because
-opencv-contrib-python-headless clashes with the project's opencv-python-headless.
-It therefore imports only the standard library, NumPy and cv2. Frames are the
+CSRT, KCF and MIL run inside the benchmark's own environment (``benchmarks/_env``)
+because opencv-contrib-python-headless clashes with the project's
+opencv-python-headless; NanoTrack is in OpenCV's main modules and runs with the
+project's own python, its weights taken from ``../shared/anchors/nanotrack_v2``
+(a benchmark peer only: the product never loads them). The script therefore
+imports only the standard library, NumPy and cv2. Frames are the
 same files, in the same order, as SPTPT reads; results are written in the OTB
 format (1-based) with got10k's per-frame times.
 
@@ -22,7 +25,18 @@ import cv2
 import numpy as np
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
-CREATE = {"csrt": cv2.TrackerCSRT_create, "kcf": cv2.TrackerKCF_create, "mil": cv2.TrackerMIL_create}
+NANOTRACK = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "nanotrack_v2"
+
+
+def _nanotrack():
+    params = cv2.TrackerNano_Params()
+    params.backbone = str(NANOTRACK / "backbone.onnx")
+    params.neckhead = str(NANOTRACK / "head.onnx")
+    return cv2.TrackerNano_create(params)
+
+
+CREATE = {"csrt": lambda: cv2.TrackerCSRT_create(), "kcf": lambda: cv2.TrackerKCF_create(),
+          "mil": lambda: cv2.TrackerMIL_create(), "nanotrack": _nanotrack}
 
 
 def natural_key(name: str):

@@ -3,14 +3,18 @@
     python benchmarks/otb_benchmark.py                       # all trackers, ../shared/otb, records RESULTS.md
     python benchmarks/otb_benchmark.py --trackers paper,csrt --stop 100 --no-record
     python benchmarks/otb_benchmark.py --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
+    python benchmarks/otb_benchmark.py --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
 
 For each tracker it runs one-pass evaluation on the same frames (the
 sequence's ``img/`` files, in order), then reports mean success AUC,
 precision at 20 px and frames per second; for SPTPT also the per-stage
-timing, peak resident memory and the quality of its review flags. The peers
-(CSRT, KCF, MIL from opencv-contrib-python-headless) run in an environment of
-their own, ``benchmarks/_env``, created on first use, because that package
-clashes with the project's opencv-python-headless.
+timing and peak resident memory (review flags are measured by
+``benchmarks/failure_model.py``). The peers CSRT, KCF and MIL (from
+opencv-contrib-python-headless) run in an environment of their own,
+``benchmarks/_env``, created on first use, because that package clashes with
+the project's opencv-python-headless; NanoTrack runs with the project's
+OpenCV and the weights in ``../shared/anchors`` (a benchmark peer only).
+``--variant`` runs a preset with changed parameters under a name of its own.
 
 With ``--seeds`` every SPTPT preset runs once per seed and the report adds
 the mean and standard deviation over seeds of the AUC per sequence and
@@ -47,7 +51,8 @@ from annotator.evaluation.metrics import iou_xywh  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
 
-PEERS = ("csrt", "kcf", "mil")
+PEERS = ("csrt", "kcf", "mil", "nanotrack")
+MAIN_ENV_PEERS = ("nanotrack",)  # in OpenCV's main modules: no separate environment needed
 PEER_ENV = HERE / "_env"
 PEER_REQUIREMENTS = ["opencv-contrib-python-headless", "numpy"]
 STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update")
@@ -81,15 +86,32 @@ def _peer_job(args: dict) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``NAME=PRESET:key=value,key=value`` -> (NAME, the preset's parameters with the overrides)."""
+    import yaml
+    from sptpt.params import params_from_mapping
+
+    name, _, spec = text.partition("=")
+    preset, _, overrides = spec.partition(":")
+    if not name or preset not in PRESETS:
+        raise ValueError(f"--variant {text!r}: expected NAME=PRESET:key=value,... with PRESET one of {sorted(PRESETS)}")
+    changes = {}
+    for item in filter(None, overrides.split(",")):
+        key, _, value = item.partition("=")
+        changes[key] = yaml.safe_load(value)
+    return name, params_from_mapping(changes, base=PRESETS[preset]).to_dict()
+
+
 def run_tracker(name: str, sequences: list[Path], out_root: Path, *, workers: int, seed: int, stop: int | None,
-                peer_python: Path | None) -> list[dict]:
+                peer_python: Path | None, configs: dict[str, dict]) -> list[dict]:
     out_dir = out_root / name
     if name in PEERS:
-        jobs = [dict(python=str(peer_python), tracker=name, seq_dir=str(s), out_dir=str(out_dir), name=s.name, stop=stop)
+        python = sys.executable if name in MAIN_ENV_PEERS else str(peer_python)
+        jobs = [dict(python=python, tracker=name, seq_dir=str(s), out_dir=str(out_dir), name=s.name, stop=stop)
                 for s in sequences]
         fn = _peer_job
     else:
-        params = PRESETS[name].to_dict()
+        params = configs[name]
         jobs = [dict(seq_dir=str(s), out_dir=str(out_dir), params=params, seed=seed, name=s.name, stop=stop,
                      numba_threads=1 if workers > 1 else None) for s in sequences]
         fn = _sptpt_job
@@ -102,7 +124,7 @@ def run_tracker(name: str, sequences: list[Path], out_root: Path, *, workers: in
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
-    parser.add_argument("--trackers", default="paper,fast,csrt,kcf,mil")
+    parser.add_argument("--trackers", default="paper,fast,robust,csrt,kcf,mil,nanotrack")
     parser.add_argument("--sequences", default="", help="comma-separated names (default: every sequence)")
     parser.add_argument("--stop", type=int, default=None, help="only the first N frames of each sequence")
     parser.add_argument("--workers", type=int, default=1)
@@ -110,6 +132,9 @@ def main() -> None:
     parser.add_argument("--seeds", default="", help="comma-separated seeds for the SPTPT presets (overrides --seed)")
     parser.add_argument("--out", type=Path, default=HERE / "_runs" / "otb")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
+    parser.add_argument("--variant", action="append", default=[],
+                        help="NAME=PRESET:key=value,... a preset with changed parameters, run as tracker NAME "
+                             "(development comparisons; repeatable)")
     args = parser.parse_args()
 
     sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
@@ -117,20 +142,24 @@ def main() -> None:
         wanted = set(args.sequences.split(","))
         sequences = [s for s in sequences if s.name in wanted]
     trackers = [t for t in args.trackers.split(",") if t]
-    unknown = [t for t in trackers if t not in PEERS and t not in PRESETS]
+    try:
+        configs = {name: p.to_dict() for name, p in PRESETS.items()} | dict(map(parse_variant, args.variant))
+    except ValueError as err:
+        parser.error(str(err))
+    unknown = [t for t in trackers if t not in PEERS and t not in configs]
     if unknown:
-        parser.error(f"unknown trackers {unknown}: choose from {sorted(PRESETS)} and {list(PEERS)}")
-    peer_python = ensure_peer_env() if any(t in PEERS for t in trackers) else None
+        parser.error(f"unknown trackers {unknown}: choose from {sorted(configs)} and {list(PEERS)}")
+    peer_python = ensure_peer_env() if any(t in PEERS and t not in MAIN_ENV_PEERS for t in trackers) else None
 
     seeds = [int(v) for v in args.seeds.split(",") if v] if args.seeds else [args.seed]
     args.seed = seeds[0]
     records: dict[str, list[dict]] = {}
     started = time.time()
     for tracker in trackers:
-        for k, seed in enumerate(seeds if tracker in PRESETS else seeds[:1]):
+        for k, seed in enumerate(seeds if tracker in configs else seeds[:1]):
             tic = time.time()
             recs = run_tracker(tracker, sequences, _seed_root(args.out, seeds, seed), workers=args.workers, seed=seed,
-                               stop=args.stop, peer_python=peer_python)
+                               stop=args.stop, peer_python=peer_python, configs=configs)
             if k == 0:
                 records[tracker] = recs
             print(f"{tracker} seed {seed}: {sum(r['frames'] for r in recs)} frames in {time.time() - tic:.0f} s",
@@ -146,12 +175,12 @@ def main() -> None:
         for s in sequences:
             pred = read_otb_boxes(args.out / tracker / f"{s.name}.txt")
             pairs[s.name] = (pred, gts[s.name][: len(pred)])
-        score = evaluate_dataset(pairs, tracker=f"SPTPT-{tracker}" if tracker in PRESETS else tracker.upper())
+        score = evaluate_dataset(pairs, tracker=f"SPTPT-{tracker}" if tracker in configs else tracker.upper())
         scores.append(score)
         recs = records[tracker]
         fps = sum(r["frames"] - 1 for r in recs) / sum(r["seconds_after_first"] for r in recs)
         row = {"tracker": score.tracker, "auc": score.auc, "precision_20": score.precision_20, "fps": fps}
-        if tracker in PRESETS:
+        if tracker in configs:
             # Review flags are measured by benchmarks/failure_model.py: they need the tool's failure signals,
             # which this direct tracker run does not compute.
             row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs) / sum(r["frames"] - 1 for r in recs)
@@ -181,7 +210,7 @@ def _seed_table(out: Path, seeds: list[int], trackers: list[str], sequences: lis
     per: dict[str, np.ndarray] = {}  # tracker -> (n_seeds, n_sequences)
     for tracker in trackers:
         runs = []
-        for seed in (seeds if tracker in PRESETS else seeds[:1]):
+        for seed in (seeds if tracker not in PEERS else seeds[:1]):
             pairs = {}
             for s in sequences:
                 pred = read_otb_boxes(_seed_root(out, seeds, seed) / tracker / f"{s.name}.txt")
@@ -189,7 +218,7 @@ def _seed_table(out: Path, seeds: list[int], trackers: list[str], sequences: lis
             score = evaluate_dataset(pairs, tracker=tracker)
             runs.append([score.sequences[s.name].auc for s in sequences])
         per[tracker] = np.array(runs)
-    names = [f"SPTPT-{t}" if t in PRESETS else t.upper() for t in trackers]
+    names = [t.upper() if t in PEERS else f"SPTPT-{t}" for t in trackers]
 
     def cell(values: np.ndarray) -> str:
         return f"{values.mean():.3f}" if len(values) == 1 else f"{values.mean():.3f} ± {values.std(ddof=1):.3f}"
