@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numbers
 
+import numba
 import numpy as np
 
 from sptpt._kernels.lasso import nonnegative_lasso
@@ -187,7 +188,8 @@ def encode_nonnegative(
     if not ridge > 0.0:
         ridge = np.finfo(np.float64).tiny
     max_iter = _ITER_PER_ATOM * n_atoms + _ITER_EXTRA
-    return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, _MAX_SWEEPS)
+    return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, _MAX_SWEEPS,
+                             numba.get_num_threads())
 
 
 def kkt_residual(
