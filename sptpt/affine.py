@@ -10,6 +10,7 @@ conventions carry over unchanged; boxes crossing this module's boundary are
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sptpt._kernels.warp import warp_affine_batch
@@ -130,7 +131,7 @@ def warp_candidates(frame: np.ndarray, states: np.ndarray, template_size: int) -
     # The kernel samples 0-based pixel positions; the state is 1-based.
     q[:, 0] -= 1.0
     q[:, 1] -= 1.0
-    return warp_affine_batch(frame, np.ascontiguousarray(q), template_offsets(template_size))
+    return warp_affine_batch(frame, np.ascontiguousarray(q), template_offsets(template_size), numba.get_num_threads())
 
 
 def template_labels_to_frame(

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numbers
 
+import numba
 import numpy as np
 
 from sptpt._kernels.lasso import nonnegative_lasso
@@ -150,8 +151,8 @@ def encode_nonnegative(
 
     Notes
     -----
-    With ``G = D^T D`` and ``C = A D - lam`` (one matrix product for all
-    signals) each row is the QP ``min_{h >= 0} 0.5 h^T G h - c^T h``, solved
+    With ``G = D^T D`` (once) and ``c = D^T a - lam`` (per signal, in the
+    kernel, over the nonzero entries of ``a``) each row is the QP ``min_{h >= 0} 0.5 h^T G h - c^T h``, solved
     in parallel over signals by a Lawson-Hanson active set: the coordinate
     with the largest positive gradient ``(c - G h)_j`` enters, the passive
     system is solved with a Cholesky factor grown by one row per entry
@@ -159,7 +160,7 @@ def encode_nonnegative(
     steps back to the boundary and that coordinate leaves (factor rebuilt).
     It stops when ``(c - G h)_j <= tol`` off the support and
     ``|c - G h|_j <= tol`` on it, with ``tol = 1e-10 * max(max_j |d_j^T a|,
-    lam)`` per signal.
+    lam)`` per signal, so that one large signal does not loosen the others.
 
     Degenerate dictionaries: a ridge of ``1e-12 * max_j ||d_j||^2`` on the
     passive system, with pivots clamped to it, keeps the factor finite when
@@ -183,16 +184,12 @@ def encode_nonnegative(
     gram = dictionary.T @ dictionary
     # Exact symmetry: the kernel reads G by rows where the maths uses columns.
     gram = np.ascontiguousarray(0.5 * (gram + gram.T))
-    correlation = signals @ dictionary
-    # Per-signal tolerance, so that one large signal does not loosen the
-    # others: the gradient is on the scale of max_j |d_j^T a| (or lam).
-    tol = _REL_TOL * np.maximum(np.abs(correlation).max(axis=1), lam)
-    linear = np.ascontiguousarray(correlation - lam)
     ridge = _REL_RIDGE * float(np.diagonal(gram).max())
     if not ridge > 0.0:
         ridge = np.finfo(np.float64).tiny
     max_iter = _ITER_PER_ATOM * n_atoms + _ITER_EXTRA
-    return nonnegative_lasso(gram, linear, tol, ridge, max_iter, _MAX_SWEEPS)
+    return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, _MAX_SWEEPS,
+                             numba.get_num_threads())
 
 
 def kkt_residual(

@@ -10,6 +10,7 @@ cue-major and the result is L2-normalised (TPT practice, needed for the
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sptpt._kernels.histograms import cue_features
@@ -110,5 +111,5 @@ def superpixel_features(
             )
     templates = np.ascontiguousarray(templates)
     labels = np.ascontiguousarray(labels, dtype=np.int32)
-    return cue_features(templates, labels, n_superpixels, n_bins)
+    return cue_features(templates, labels, n_superpixels, n_bins, numba.get_num_threads())
 

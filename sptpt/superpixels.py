@@ -297,8 +297,8 @@ def snic(
 
     Converts to CIELAB with the official SNIC constants (each image just
     before it grows, through a memo of converted colours), places the seeds
-    with :func:`seed_grid` and grows all images in parallel (numba
-    ``prange``; thread count from ``numba.set_num_threads``).
+    with :func:`seed_grid` and grows all images in parallel (contiguous
+    ranges on threads; thread count from ``numba.set_num_threads``).
 
     Parameters
     ----------

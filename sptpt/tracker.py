@@ -279,13 +279,28 @@ class Tracker:
 
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
         """Code tensors, superpixel labels and log-likelihood of candidate states."""
-        features, labels = self._features(rgb, states)
-        codes = self._code(features)
+        codes, labels = self._codes(rgb, states)
         with self._time("scoring"):
             if self._positive is not None and self._negative is not None:
                 return codes, labels, self._log_likelihood(codes), "subspace"
             # Bootstrap: histogram intersection with the first-frame code tensor (TPT).
             return codes, labels, np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2)), "bootstrap"
+
+    def _codes(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Code tensors and superpixel labels of ``states``, each distinct state computed once.
+
+        Equal states warp to equal templates, and every later stage treats
+        templates independently, so the copies are exact. About one negative
+        in twenty repeats another (both of its centre coordinates are pushed
+        out to the same margin).
+        """
+        unique, inverse = np.unique(states, axis=0, return_inverse=True)
+        if len(unique) == len(states):
+            features, labels = self._features(rgb, states)
+            return self._code(features), labels
+        features, labels = self._features(rgb, unique)
+        inverse = inverse.reshape(-1)
+        return self._code(features)[inverse], labels[inverse]
 
     def _features(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
@@ -333,8 +348,7 @@ class Tracker:
     def _fit_negative(self, rgb: np.ndarray) -> TensorSubspace:
         p = self.params
         negatives = draw_negatives(self._state, p.n_negatives, p.template_size, self._rng)
-        features, _ = self._features(rgb, negatives)
-        codes = self._code(features)
+        codes, _ = self._codes(rgb, negatives)
         with self._time("negative_update"):
             return TensorSubspace.fit(codes, p.ranks)
 

@@ -342,8 +342,7 @@ def test_coordinate_descent_fallback_reaches_the_optimum(max_iter: int) -> None:
     dictionary = histogram_features(8, rng).T.copy()
     signals = histogram_features(50, rng)
     gram = dictionary.T @ dictionary
-    linear = signals @ dictionary - LAM
-    codes = nonnegative_lasso(gram, linear, np.full(50, 1e-12), 1e-12, max_iter, 100_000)
+    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 1e-12, 1e-12, max_iter, 100_000, 2)
     np.testing.assert_allclose(codes, reference_nnls(signals, dictionary, LAM), rtol=0, atol=1e-8)
 
 
@@ -353,6 +352,6 @@ def test_fallback_sweep_cap_terminates_feasible() -> None:
     rng = np.random.default_rng(8)
     dictionary = histogram_features(30, rng).T.copy()
     signals = histogram_features(20, rng)
-    gram, linear = dictionary.T @ dictionary, signals @ dictionary - LAM
-    codes = nonnegative_lasso(gram, linear, np.zeros(20), 1e-12, 0, 1)
+    gram = dictionary.T @ dictionary
+    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 0.0, 1e-12, 0, 1, 2)
     assert np.all(codes >= 0.0) and np.all(np.isfinite(codes))

@@ -427,3 +427,25 @@ def test_seed_grid_rejects_bad_sizes() -> None:
         seed_grid(0, 32, 4)
     with pytest.raises(TypeError, match="width"):
         seed_grid(32, 32.0, 4)  # type: ignore[arg-type]
+
+
+def test_kernel_pool_survives_fork() -> None:
+    """A child forked after the kernel threads started still runs batches in parallel."""
+    import multiprocessing as mp
+
+    images = np.random.default_rng(0).integers(0, 256, size=(6, 12, 12, 3), dtype=np.uint8)
+    want = snic(images, n_segments=9)
+    with mp.get_context("fork").Pool(1) as pool:
+        got = pool.apply_async(_snic_two_threads, (images,)).get(timeout=120)
+    np.testing.assert_array_equal(got, want)
+
+
+def _snic_two_threads(images: np.ndarray) -> np.ndarray:
+    from sptpt._kernels import run_in_chunks  # noqa: F401 - the pool lives there
+    from sptpt._kernels.snic import snic_batch_rgb
+    from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE
+    from sptpt.superpixels import _spatial_weight, seed_grid
+
+    seeds = seed_grid(12, 12, 9)
+    return snic_batch_rgb(images, seeds, _spatial_weight(20.0, len(seeds), 12, 12), 2,
+                          _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE)

@@ -135,3 +135,16 @@ def test_refinement_round_adds_candidates_around_the_first_winner(clip):
     # The refined candidates sit closer together than the first round's.
     spread = lambda boxes: boxes[:, :2].std(axis=0).mean()  # noqa: E731
     assert spread(detailed.particles_xywh[40:]) < spread(detailed.particles_xywh[:40])
+
+
+def test_repeated_states_are_computed_once_with_identical_results(clip):
+    """Negatives often repeat a state; the tracker codes it once and copies the result."""
+    frames = clip.frames
+    tracker = Tracker(get_preset("paper"), seed=5)
+    tracker.init(frames[0], clip.boxes_xywh[0])
+    states = tracker._draw(tracker._state, 6, tracker._sigma)
+    repeated = states[[0, 1, 2, 1, 3, 0, 4, 5]]
+    codes, labels = tracker._codes(frames[1], repeated)
+    features, want_labels = tracker._features(frames[1], repeated)
+    assert np.array_equal(codes, tracker._code(features))
+    assert np.array_equal(labels, want_labels)

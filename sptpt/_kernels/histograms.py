@@ -7,6 +7,8 @@ import math
 import numba
 import numpy as np
 
+from sptpt._kernels import run_in_chunks
+
 # Same constants as sptpt.color.rgb_to_hsi, so that the HSI computed here is
 # bit-for-bit the one computed there.
 _EPS = np.finfo(np.float64).eps
@@ -104,23 +106,32 @@ def hsi_bins(red, green, blue, n_bins, edge_cosines, unit):  # pragma: no cover 
     return h_bin, s_bin, i_bin
 
 
-@numba.njit(parallel=True, cache=True)
-def cue_features(templates, labels, n_superpixels, n_bins):  # pragma: no cover - compiled
+def cue_features(templates, labels, n_superpixels, n_bins, n_chunks):
     """Normalised, concatenated cue histograms of every superpixel of every template.
 
     templates: (N, H, W, 3) uint8 RGB, C-contiguous. labels: (N, H, W) int32
-    in ``0..n_superpixels-1`` (not checked). Returns (N, n_superpixels,
-    8 * n_bins) float64, cue-major in the order H, S, I, R, G, B, x, y; each
-    cue block is ``counts / pixel_count`` and the whole row is then divided
-    by its L2 norm. Rows of empty superpixels stay zero.
+    in ``0..n_superpixels-1`` (not checked). n_chunks: template ranges run in
+    parallel. Returns (N, n_superpixels, 8 * n_bins) float64, cue-major in
+    the order H, S, I, R, G, B, x, y; each cue block is ``counts /
+    pixel_count`` and the whole row is then divided by its L2 norm. Rows of
+    empty superpixels stay zero.
 
     One pass over the pixels of a template accumulates all eight cues as
     float counts (exact below 2**53) straight into the output rows, which are
-    then normalised in place; the template loop is parallel (prange).
+    then normalised in place.
     """
+    n_templates = labels.shape[0]
+    out = np.zeros((n_templates, n_superpixels, 8 * n_bins), dtype=np.float64)
+    run_in_chunks(_cue_features_range, n_templates, n_chunks, templates, labels, n_bins, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _cue_features_range(templates, labels, n_bins, out, start, stop):  # pragma: no cover - compiled
+    """Templates ``start:stop`` of :func:`cue_features` into ``out`` (zero-filled)."""
     n_templates, height, width = labels.shape
+    n_superpixels = out.shape[1]
     width_features = 8 * n_bins
-    out = np.zeros((n_templates, n_superpixels, width_features), dtype=np.float64)
     # Position bins depend only on the row/column index: floor(i * n / H).
     x_bins = np.empty(width, dtype=np.int64)
     for col in range(width):
@@ -130,7 +141,7 @@ def cue_features(templates, labels, n_superpixels, n_bins):  # pragma: no cover 
         y_bins[row] = 7 * n_bins + (row * n_bins) // height
     edge_cosines = hue_edge_cosines(n_bins)
     unit = np.arange(256) / 255.0
-    for t in numba.prange(n_templates):
+    for t in range(start, stop):
         hist = out[t]
         for row in range(height):
             y_bin = y_bins[row]
@@ -165,4 +176,3 @@ def cue_features(templates, labels, n_superpixels, n_bins):  # pragma: no cover 
             norm = math.sqrt(squares)
             for j in range(width_features):
                 hist[k, j] = hist[k, j] / norm
-    return out

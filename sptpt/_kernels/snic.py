@@ -32,6 +32,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sptpt._kernels import run_in_chunks
 from sptpt._kernels.color import lab_image_memo, new_lab_memo
 
 # Heap position codes in ``pos`` besides a slot index >= 0.
@@ -308,7 +309,7 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
                 flat_labels[p] = 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _grow_range(lab, seeds, spatial_weight, labels, start, stop):  # pragma: no cover - compiled
     """Run ``snic_grow`` on images ``start:stop``, allocating work arrays once."""
     height, width = lab.shape[1], lab.shape[2]
@@ -338,8 +339,7 @@ def snic_image(lab, seeds, spatial_weight):  # pragma: no cover - compiled
     return labels[0]
 
 
-@numba.njit(parallel=True, cache=True)
-def snic_batch(lab, seeds, spatial_weight, n_chunks):  # pragma: no cover - compiled
+def snic_batch(lab, seeds, spatial_weight, n_chunks):
     """SNIC labels of a batch of same-size images sharing one seed grid.
 
     lab: (B, H, W, 3) float64, C-contiguous. seeds: (s, 2) int64 (row, col).
@@ -349,21 +349,12 @@ def snic_batch(lab, seeds, spatial_weight, n_chunks):  # pragma: no cover - comp
     """
     n_images, height, width = lab.shape[0], lab.shape[1], lab.shape[2]
     labels = np.empty((n_images, height, width), dtype=np.int32)
-    n_chunks = max(1, min(n_chunks, n_images))
-    for chunk in numba.prange(n_chunks):
-        _grow_range(
-            lab,
-            seeds,
-            spatial_weight,
-            labels,
-            chunk * n_images // n_chunks,
-            (chunk + 1) * n_images // n_chunks,
-        )
+    run_in_chunks(_grow_range, n_images, n_chunks, lab, seeds, spatial_weight, labels)
     return labels
 
 
-@numba.njit(cache=True)
-def _grow_range_rgb(images, seeds, spatial_weight, labels, start, stop, linear, rgb_to_xyz, white):  # pragma: no cover
+@numba.njit(cache=True, nogil=True)
+def _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, white, start, stop):  # pragma: no cover
     """``_grow_range`` from uint8 RGB: each image is converted to Lab just before it grows.
 
     The Lab image stays in a per-thread buffer that is still in cache when
@@ -388,8 +379,7 @@ def _grow_range_rgb(images, seeds, spatial_weight, labels, start, stop, linear, 
                   neighbours, xs, ys, width, heap_d, heap_c, pos, owner, sums)
 
 
-@numba.njit(parallel=True, cache=True)
-def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, white):  # pragma: no cover
+def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, white):
     """``snic_batch`` of uint8 RGB images: Lab conversion fused into the growth.
 
     images: (B, H, W, 3) uint8, C-contiguous. linear, rgb_to_xyz, white: the
@@ -398,17 +388,6 @@ def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, 
     """
     n_images, height, width = images.shape[0], images.shape[1], images.shape[2]
     labels = np.empty((n_images, height, width), dtype=np.int32)
-    n_chunks = max(1, min(n_chunks, n_images))
-    for chunk in numba.prange(n_chunks):
-        _grow_range_rgb(
-            images,
-            seeds,
-            spatial_weight,
-            labels,
-            chunk * n_images // n_chunks,
-            (chunk + 1) * n_images // n_chunks,
-            linear,
-            rgb_to_xyz,
-            white,
-        )
+    run_in_chunks(_grow_range_rgb, n_images, n_chunks, images, seeds, spatial_weight, labels,
+                  linear, rgb_to_xyz, white)
     return labels

@@ -5,20 +5,30 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sptpt._kernels import run_in_chunks
 
-@numba.njit(parallel=True, cache=True, fastmath=False)
-def warp_affine_batch(frame, q, offsets):  # pragma: no cover - compiled
+
+def warp_affine_batch(frame, q, offsets, n_chunks):
     """Sample ``frame`` at ``(cx + A11 x + A12 y, cy + A21 x + A22 y)`` for every template pixel.
 
     frame: (H, W, 3) uint8. q: (N, 6) float64, 0-based centre and the 2x2
-    linear part. offsets: (T,) template offsets. Returns (N, T, T, 3) uint8.
-    Positions outside ``[0, W-1] x [0, H-1]`` give 0, as MATLAB ``interp2``
-    returns NaN there and ``warpimg`` replaces NaN by 0.
+    linear part. offsets: (T,) template offsets. n_chunks: candidate ranges
+    warped in parallel. Returns (N, T, T, 3) uint8. Positions outside
+    ``[0, W-1] x [0, H-1]`` give 0, as MATLAB ``interp2`` returns NaN there
+    and ``warpimg`` replaces NaN by 0.
     """
+    size = offsets.shape[0]
+    out = np.zeros((q.shape[0], size, size, 3), dtype=np.uint8)
+    run_in_chunks(_warp_range, q.shape[0], n_chunks, frame, q, offsets, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - compiled
+    """Candidates ``start:stop`` of :func:`warp_affine_batch` into ``out`` (zero-filled)."""
     height, width = frame.shape[0], frame.shape[1]
-    n, size = q.shape[0], offsets.shape[0]
-    out = np.zeros((n, size, size, 3), dtype=np.uint8)
-    for i in numba.prange(n):
+    size = offsets.shape[0]
+    for i in range(start, stop):
         cx, cy, a11, a12, a21, a22 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5]
         for r in range(size):
             y = offsets[r]
@@ -39,4 +49,3 @@ def warp_affine_batch(frame, q, offsets):  # pragma: no cover - compiled
                     bottom = frame[y1, x0, ch] * (1.0 - fx) + frame[y1, x1, ch] * fx
                     value = top * (1.0 - fy) + bottom * fy
                     out[i, r, c, ch] = np.uint8(min(max(np.rint(value), 0.0), 255.0))
-    return out
