@@ -310,17 +310,24 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _grow_range(lab, seeds, spatial_weight, labels, start, stop):  # pragma: no cover - compiled
-    """Run ``snic_grow`` on images ``start:stop``, allocating work arrays once."""
-    height, width = lab.shape[1], lab.shape[2]
+def _work_arrays(height, width, n_seeds):  # pragma: no cover - compiled
+    """Grid tables and the heap, owner and sum buffers ``snic_grow`` reuses across the images of a range."""
     n_pixels = height * width
-    n_seeds = seeds.shape[0]
     neighbours, xs, ys = grid_tables(height, width)
     heap_d = np.empty(n_pixels + 4, dtype=np.float64)
     heap_c = np.empty(n_pixels + 4, dtype=np.int64)
     pos = np.empty(n_pixels, dtype=np.int32)
     owner = np.empty(n_pixels, dtype=np.int32)
     sums = np.empty(n_seeds * 6, dtype=np.float64)
+    return neighbours, xs, ys, heap_d, heap_c, pos, owner, sums
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_range(lab, seeds, spatial_weight, labels, start, stop):  # pragma: no cover - compiled
+    """Run ``snic_grow`` on images ``start:stop``, allocating work arrays once."""
+    height, width = lab.shape[1], lab.shape[2]
+    n_pixels = height * width
+    neighbours, xs, ys, heap_d, heap_c, pos, owner, sums = _work_arrays(height, width, seeds.shape[0])
     for i in range(start, stop):
         snic_grow(lab[i].reshape(n_pixels * 3), seeds, spatial_weight, labels[i].reshape(n_pixels),
                   neighbours, xs, ys, width, heap_d, heap_c, pos, owner, sums)
@@ -364,13 +371,7 @@ def _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, w
     """
     height, width = images.shape[1], images.shape[2]
     n_pixels = height * width
-    n_seeds = seeds.shape[0]
-    neighbours, xs, ys = grid_tables(height, width)
-    heap_d = np.empty(n_pixels + 4, dtype=np.float64)
-    heap_c = np.empty(n_pixels + 4, dtype=np.int64)
-    pos = np.empty(n_pixels, dtype=np.int32)
-    owner = np.empty(n_pixels, dtype=np.int32)
-    sums = np.empty(n_seeds * 6, dtype=np.float64)
+    neighbours, xs, ys, heap_d, heap_c, pos, owner, sums = _work_arrays(height, width, seeds.shape[0])
     flat_lab = np.empty(n_pixels * 3, dtype=np.float64)
     memo = new_lab_memo()
     for i in range(start, stop):
