@@ -40,13 +40,15 @@ sys.path.insert(0, str(ROOT))
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
-from annotator.failure.fit import MIN_RECALL, Sample, fit_model, leave_one_sequence_out  # noqa: E402
+from annotator.failure.fit import MIN_RECALL, Sample, choose_C, fit_model, leave_one_sequence_out  # noqa: E402
 from annotator.failure.model import FEATURE_GROUPS, FEATURES  # noqa: E402
 from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.store import STORE_NAME, read_store  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
 
+#: Regularisation values the nested cross-validation chooses from (inverse L2 strength).
+C_GRID = "1,0.1,0.01,0.003,0.001"
 MODEL_FILE = ROOT / "annotator" / "data" / "failure_model.json"
 tracking_seconds: list[float] = []  # mean tracker seconds per frame of every run, filled by load_samples
 PLOTS = ROOT / "benchmarks" / "failure_plots"
@@ -78,6 +80,15 @@ def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, d
     return samples, aucs, confidence
 
 
+def run_preset(run_globs: list[str]) -> str:
+    """The tracker preset the batch runs used (all of them must agree)."""
+    presets = {json.loads(p.read_text())["config"]["preset"]
+               for g in run_globs for run in glob.glob(g) for p in Path(run).glob("*/run.json")}
+    if len(presets) != 1:
+        raise SystemExit(f"--runs: expected runs of one tracker preset, found {sorted(presets) or 'none'}")
+    return presets.pop()
+
+
 def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each: int = 30) -> tuple[float, float]:
     """Milliseconds per frame the failure signals add (measured on real frames), and that as a share of tracking."""
     import cv2
@@ -103,14 +114,15 @@ def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each
     return ms, ms / tracking_ms
 
 
-def held_out(samples: list[Sample], *, C: float, drop=()) -> list[tuple[Sample, np.ndarray, list[str], float]]:
-    """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample."""
-    out = []
+def held_out(samples: list[Sample], *, C, drop=()) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict]:
+    """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample; C of each fold."""
+    out, fold_C = [], {}
     for name, (model, held) in leave_one_sequence_out(samples, C=C, drop=drop).items():
+        fold_C[name] = model.info["C"]
         for s in held:
             p = model.p_fail(s.features)
             out.append((s, np.where(s.use, p, 0.0), model.main_group(s.features), model.threshold))
-    return out
+    return out, fold_C
 
 
 def flag_metrics(results, aucs, params: FlagParams) -> dict[int, dict[str, float]]:
@@ -168,18 +180,27 @@ def main() -> int:
     parser.add_argument("--runs", nargs="+", default=["benchmarks/_runs/failure/paper-s*"],
                         help="batch output folders (globs), one per seed")
     parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
-    parser.add_argument("--C", type=float, default=0.1, help="inverse L2 strength of the logistic regression")
+    parser.add_argument("--C", default=C_GRID,
+                        help="inverse L2 strength of the logistic regression, or a comma-separated grid: each held-out "
+                             "fold then chooses its own on its training sequences (nested leave-one-sequence-out), "
+                             f"and the shipped model chooses on all of them (default: {C_GRID})")
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
     started = time.time()
+    C = [float(c) for c in args.C.split(",")]
+    C = C[0] if len(C) == 1 else C
     samples, aucs, confidence = load_samples(args.runs, args.otb)
     seeds = sorted({s.seed for s in samples})
+    preset = run_preset(args.runs)
     sequences = sorted({s.sequence for s in samples})
     frames = sum(int(s.use.sum()) for s in samples)
     print(f"{len(samples)} runs: {len(sequences)} sequences x seeds {seeds}; {frames} frames scored", flush=True)
 
     params = FlagParams()
-    results = held_out(samples, C=args.C)
+    results, fold_C = held_out(samples, C=C)
+    # The diagnostics below (what each signal group is worth) use the value chosen on all sequences.
+    chosen_C = C if np.ndim(C) == 0 else choose_C(samples, C)
+    print(f"C per held-out fold: {fold_C}; chosen on all sequences: {chosen_C}", flush=True)
     prob = per_seed_probability(results)
     flags = flag_metrics(results, aucs, params)
     pooled_p = np.concatenate([p[s.use] for s, p, _, _ in results])
@@ -197,7 +218,7 @@ def main() -> int:
     worth = {}
     for group in sorted(set(FEATURE_GROUPS.values())):
         drop = [f for f in FEATURES if FEATURE_GROUPS[f] == group]
-        r = held_out(samples, C=args.C, drop=drop)
+        r, _ = held_out(samples, C=chosen_C, drop=drop)
         worth[group] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
                              np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
     single = {}
@@ -231,16 +252,16 @@ def main() -> int:
     if not args.write:
         return 0
     command = "python benchmarks/failure_model.py --runs " + " ".join(f"'{g}'" for g in args.runs) + \
-              (f" --C {args.C}" if args.C != 0.1 else "") + " --write"
+              (f" --C {args.C}" if args.C != C_GRID else "") + " --write"
     info = {
         "fitted_by": command,
         "data": {"runs": args.runs, "sequences": sequences, "seeds": seeds, "frames": frames,
-                 "preset": "paper", "range": "first 150 frames of each sequence"},
-        "C": args.C,
+                 "preset": preset, "range": "first 150 frames of each sequence"},
+        "C": chosen_C,
         "held_out": {"auroc": mean_std(prob, "auroc"), "ece": mean_std(prob, "ece"),
                      "precision": mean_std(flags, "precision"), "recall": mean_std(flags, "recall")},
     }
-    model = fit_model(samples, C=args.C, info=info)
+    model = fit_model(samples, C=chosen_C, info=info)
     from annotator.atomic import write_text_atomic
 
     write_text_atomic(MODEL_FILE, json.dumps(model.to_json(), indent=1) + "\n")
@@ -279,7 +300,7 @@ def main() -> int:
         "",
         f"Command: `{command}` after the three batch runs in the script's docstring  ",
         f"Machine: {machine_line()}; wall time of this script {time.time() - started:.0f} s.  ",
-        f"Data: {len(sequences)} sequences of `../shared/otb`, first 150 frames each, preset `paper`, seeds {seeds} "
+        f"Data: {len(sequences)} sequences of `../shared/otb`, first 150 frames each, preset `{preset}`, seeds {seeds} "
         f"({frames} frames scored; first frames excluded). Every figure is on held-out sequences: the model and its "
         f"threshold for a sequence were fitted on the other {len(sequences) - 1}. Fold thresholds: {thresholds}; "
         f"shipped threshold {model.threshold:.2f} (chosen the same way on all sequences). Threshold rule: the highest "

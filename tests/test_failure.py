@@ -24,7 +24,7 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import Sample, fit_model
+from annotator.failure.fit import Sample, choose_C, fit_model, leave_one_sequence_out
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -198,6 +198,35 @@ def test_refitting_on_fixed_input_reproduces_the_model_file():
     assert first.coef[FEATURES.index("flow_iou")] < 0
     assert model_from_fit(FEATURES, first.mean, first.scale, first.coef, first.intercept, first.threshold,
                           first.info).to_json() == first.to_json()
+
+
+def test_choose_C_takes_the_grid_value_with_the_best_calibrated_held_out_sequences():
+    samples = small_samples()
+    grid = [1.0, 0.01, 0.0001]
+    errors = {}
+    for c in grid:  # the reference: leave-one-sequence-out by hand, pooled calibration error
+        p, y = [], []
+        for model, held in leave_one_sequence_out(samples, C=c).values():
+            p += [model.p_fail(s.features)[s.use] for s in held]
+            y += [s.failed[s.use] for s in held]
+        errors[c] = expected_calibration_error(np.concatenate(p), np.concatenate(y))
+    assert len(set(errors.values())) == 3  # the grid matters on these samples
+    assert choose_C(samples, grid) == min(grid, key=lambda c: (errors[c], c))
+
+
+def test_nested_folds_choose_C_without_seeing_their_held_out_sequence():
+    samples = small_samples()
+    grid = [1.0, 0.01, 0.0001]
+    folds = leave_one_sequence_out(samples, C=grid)
+    # Flip every label of sequence A: the fold that holds A out must not change at all.
+    flipped = [Sample(s.sequence, s.seed, s.features, ~s.failed if s.sequence == "A" else s.failed, s.use)
+               for s in samples]
+    again = leave_one_sequence_out(flipped, C=grid)
+    assert json.dumps(folds["A"][0].to_json()) == json.dumps(again["A"][0].to_json())
+    for name, (model, _) in folds.items():
+        train = [s for s in samples if s.sequence != name]
+        assert model.info["C"] == choose_C(train, grid)
+    assert json.dumps(folds["B"][0].to_json()) != json.dumps(again["B"][0].to_json())
 
 
 def test_auroc_and_calibration_error_on_hand_made_numbers():

@@ -14,7 +14,7 @@ import numpy as np
 
 from annotator.failure.model import FEATURES, FailureModel, model_from_fit
 
-__all__ = ["Sample", "choose_threshold", "fit_model", "leave_one_sequence_out"]
+__all__ = ["Sample", "choose_C", "choose_threshold", "fit_model", "leave_one_sequence_out"]
 
 
 @dataclass(frozen=True)
@@ -80,12 +80,16 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, dict(info or {}))
 
 
-def leave_one_sequence_out(samples: Sequence[Sample], *, C: float = 1.0,
+def leave_one_sequence_out(samples: Sequence[Sample], *, C: float | Sequence[float] = 1.0,
                            drop: Sequence[str] = ()) -> dict[str, tuple[FailureModel, list[Sample]]]:
     """For each sequence: the model fitted on all *other* sequences (every seed), and that sequence's samples.
 
-    ``drop`` names features to leave out (their columns are zeroed in training
-    and scoring alike), for measuring what a group of signals is worth.
+    ``C`` is the regularisation, or a grid of values: then each fold chooses
+    its own from the grid by :func:`choose_C` on its training sequences alone
+    (nested cross-validation), and the chosen value is in the model's
+    ``info["C"]``. ``drop`` names features to leave out (their columns are
+    zeroed in training and scoring alike), for measuring what a group of
+    signals is worth.
     """
     keep = np.array([f not in set(drop) for f in FEATURES])
     masked = [Sample(s.sequence, s.seed, np.where(keep, s.features, 0.0), s.failed, s.use) for s in samples]
@@ -93,5 +97,29 @@ def leave_one_sequence_out(samples: Sequence[Sample], *, C: float = 1.0,
     for name in sorted({s.sequence for s in masked}):
         train = [s for s in masked if s.sequence != name]
         held = [s for s in masked if s.sequence == name]
-        folds[name] = (fit_model(train, C=C), held)
+        fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C)
+        folds[name] = (fit_model(train, C=fold_C, info={"C": fold_C}), held)
     return folds
+
+
+def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
+    """The regularisation of ``grid`` whose leave-one-sequence-out predictions on ``samples`` are best calibrated.
+
+    Calibration (expected calibration error, 10 bins, pooled over the held-out
+    sequences) is what a reviewer reads off ``p_fail``; ties go to the
+    stronger regularisation (smaller C). The calibration error comes mostly
+    from differences between sequences, so only held-out sequences can show it.
+    """
+    from annotator.evaluation.calibration import expected_calibration_error
+
+    if len({s.sequence for s in samples}) < 2:
+        raise ValueError("choosing C needs samples of at least two sequences")
+    scores = []
+    for value in sorted(float(c) for c in grid):
+        p, y = [], []
+        for model, held in leave_one_sequence_out(samples, C=value).values():
+            for s in held:
+                p.append(model.p_fail(s.features)[s.use])
+                y.append(s.failed[s.use])
+        scores.append((expected_calibration_error(np.concatenate(p), np.concatenate(y)), value))
+    return min(scores)[1]
