@@ -1,0 +1,44 @@
+"""benchmarks/forward_backward.py: where the backward pass starts, and which frames it may replace."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "forward_backward.py"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("forward_backward", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_end_anchor_closes_the_last_run_of_accepted_frames():
+    fb = _module()
+    accepted = np.array([True, True, True, False, True, True, True, False, True])
+    assert fb.end_anchor(accepted, stable=3) == 6
+    assert fb.end_anchor(accepted, stable=2) == 6
+    assert fb.end_anchor(accepted, stable=1) == 8
+    # Frame 0 is the human box, not the tracker's claim: it never counts.
+    assert fb.end_anchor(np.array([True, True, False]), stable=2) is None
+
+
+def test_only_frames_strictly_between_the_first_frame_and_the_anchor_are_merged():
+    fb = _module()
+    n, anchor = 8, 5
+    run = {f"fwd_{k}": v for k, v in _pass(n, box=10.0, confidence=0.2).items()}
+    run.update({f"bwd_{k}": v for k, v in _pass(anchor + 1, box=20.0, confidence=0.9).items()})
+    run["anchor"] = np.array(anchor)
+    boxes = fb.merged_boxes(run, "confidence")
+    assert boxes[:, 0].tolist() == [10, 20, 20, 20, 20, 10, 10, 10]
+    run["anchor"] = np.array(-1)
+    assert (fb.merged_boxes(run, "confidence") == 10).all()
+
+
+def _pass(n: int, *, box: float, confidence: float) -> dict:
+    return dict(boxes_xywh=np.full((n, 4), box), confidence=np.full(n, confidence), log_likelihood=np.zeros(n),
+                accepted=np.ones(n, bool), scoring=np.array(["subspace"] * n, dtype=object), seconds=np.zeros(n))
