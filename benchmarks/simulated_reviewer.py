@@ -61,10 +61,10 @@ Flags come from the failure probability of the installed failure model
 threshold (or ``--flag-threshold``) and the other run defaults of
 :class:`annotator.flagging.FlagParams`; the output names the model (path, its
 ``info`` field, a hash of its canonical JSON). Tracker settings: ``--preset``
-(default ``fast`` when ``sptpt.params.PRESETS`` has it, else ``paper`` with
-``n_particles`` and ``n_negatives`` lowered to ``--particles`` /
-``--negatives`` so that the loop fits in minutes; the figures printed say
-which).
+(default: the tool's default preset, ``annotator.config.DEFAULT_PRESET``;
+``paper`` runs with ``n_particles`` and ``n_negatives`` lowered to
+``--particles`` / ``--negatives`` so that the loop fits in minutes; the
+figures printed say which).
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ sys.path.insert(0, str(HERE))
 
 from _results import machine_line, update_section  # noqa: E402
 
-from annotator.config import RunConfig  # noqa: E402
+from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
@@ -101,7 +101,7 @@ from annotator.review import (  # noqa: E402
     merge_passes,
     retrack_tracks,
 )
-from sptpt.params import PRESETS, get_preset, params_from_mapping  # noqa: E402
+from sptpt.params import get_preset, params_from_mapping  # noqa: E402
 
 DEFAULT_SUBSET = ("Deer", "Skiing", "Crossing", "Couple", "Diving", "Jogging.1", "Bolt2")
 
@@ -407,7 +407,7 @@ def main() -> None:
     parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
     parser.add_argument("--sequences", default=",".join(DEFAULT_SUBSET), help="comma-separated names, or 'all'")
     parser.add_argument("--stop", type=int, default=None, help="only the first N frames of each sequence")
-    parser.add_argument("--preset", default="fast" if "fast" in PRESETS else "paper")
+    parser.add_argument("--preset", default=DEFAULT_PRESET)
     parser.add_argument("--particles", type=int, default=120,
                         help="n_particles when the preset is 'paper' (ignored for other presets)")
     parser.add_argument("--negatives", type=int, default=60,
@@ -467,8 +467,7 @@ def main() -> None:
     preset_text = f"preset `{args.preset}`"
     if args.preset == "paper":
         params = dataclasses.replace(params, n_particles=args.particles, n_negatives=args.negatives)
-        preset_text = (f"preset `paper` with n_particles={args.particles} and n_negatives={args.negatives} "
-                       "(no `fast` preset in sptpt.params.PRESETS)")
+        preset_text = f"preset `paper` with n_particles={args.particles} and n_negatives={args.negatives}"
     # The merge study runs on the first seed only; with --skip-reviewer that is all there is to run.
     jobs = [dict(seq_dir=str(s), params=params.to_dict(), preset=args.preset, seed=seed, stop=args.stop,
                  target=args.target, threshold=args.threshold, budget=args.budget, merge=args.merge,

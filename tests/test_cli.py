@@ -252,7 +252,7 @@ def test_main_run_json(main_run, clip):
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
     assert config["flags"]["threshold"] == 0.001 and config["flags"]["review_budget"] == FlagParams().review_budget  # file, then defaults
-    assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "paper"  # full parameters
+    assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "robust"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}
 
@@ -538,4 +538,4 @@ def test_a_good_box_gets_no_warning(clip, config_file, tmp_path):
 def test_help_names_the_box_layout_and_the_default_preset():
     text = CliRunner().invoke(app, ["track", "--help"], terminal_width=200).stdout
     assert "--box X,Y,W,H" in text and "list[str]" not in text
-    assert "[default: paper" in text
+    assert "[default: robust" in text

@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 import yaml
 
-from annotator.config import ConfigError, RunConfig, load_config_file, resolve_config
+from annotator.config import DEFAULT_PRESET, ConfigError, RunConfig, load_config_file, resolve_config
 from annotator.flagging import FlagParams
 from sptpt.params import get_preset
 
@@ -20,17 +20,17 @@ def write_yaml(tmp_path, text: str, name: str = "run.yaml"):
 
 def test_defaults():
     config = resolve_config()
-    assert config == RunConfig(preset="paper", tracker=get_preset("paper"), flags=FlagParams(), seed=0)
+    assert config == RunConfig(preset="robust", tracker=get_preset("robust"), flags=FlagParams(), seed=0)
 
 
 PRECEDENCE = [
     # file values, command-line keywords, expected (seed, n_particles, merge_gap)
-    ({}, {}, (0, get_preset("paper").n_particles, FlagParams().merge_gap)),
+    ({}, {}, (0, get_preset(DEFAULT_PRESET).n_particles, FlagParams().merge_gap)),
     ({"seed": 5, "tracker": {"n_particles": 80}, "flags": {"merge_gap": 2}}, {}, (5, 80, 2)),
-    ({"seed": 5}, {"seed": 7}, (7, get_preset("paper").n_particles, FlagParams().merge_gap)),
-    ({"seed": 5}, {"seed": 0}, (0, get_preset("paper").n_particles, FlagParams().merge_gap)),  # 0 is a value too
+    ({"seed": 5}, {"seed": 7}, (7, get_preset(DEFAULT_PRESET).n_particles, FlagParams().merge_gap)),
+    ({"seed": 5}, {"seed": 0}, (0, get_preset(DEFAULT_PRESET).n_particles, FlagParams().merge_gap)),  # 0 is a value too
     ({"tracker": {"n_particles": 80}}, {"tracker_overrides": {"n_particles": 90}}, (0, 90, FlagParams().merge_gap)),
-    ({"flags": {"merge_gap": 2}}, {"flag_overrides": {"merge_gap": 4}}, (0, get_preset("paper").n_particles, 4)),
+    ({"flags": {"merge_gap": 2}}, {"flag_overrides": {"merge_gap": 4}}, (0, get_preset(DEFAULT_PRESET).n_particles, 4)),
 ]
 
 
