@@ -4,6 +4,7 @@
     python benchmarks/otb_benchmark.py --trackers paper,csrt --stop 100 --no-record
     python benchmarks/otb_benchmark.py --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
     python benchmarks/otb_benchmark.py --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
+    python benchmarks/otb_benchmark.py --replot /tmp/runs --trackers paper,robust,csrt   # attribute plots, no tracking
 
 For each tracker it runs one-pass evaluation on the same frames (the
 sequence's ``img/`` files, in order), then reports mean success AUC,
@@ -20,6 +21,15 @@ With ``--seeds`` every SPTPT preset runs once per seed and the report adds
 the mean and standard deviation over seeds of the AUC per sequence and
 overall; the peers have no seed and run once. Flags, stage timing and
 plots use the first seed.
+
+After the overall plots come per-attribute success plots: OTB-100's attribute
+labels of these sequences are in ``benchmarks/otb_attributes.json``; each
+attribute held by at least two of the benchmarked sequences gets
+``otb_plots/attributes/<CODE>.png`` (each tracker's success curve as the
+unweighted mean over those sequences, SPTPT presets also averaged over seeds)
+and a column in a table of mean AUC per attribute. ``--replot OUT`` draws these
+from the result files of an earlier run in OUT (its ``seed<N>/`` folders are
+found by themselves) without tracking anything.
 
 Frames per second are measured over frames 2..N (the first frame's
 initialisation excluded) with one sequence at a time unless ``--workers`` is
@@ -46,7 +56,8 @@ sys.path.insert(0, str(HERE))
 
 from _results import machine_line, update_section  # noqa: E402
 
-from annotator.evaluation import evaluate_dataset, write_report  # noqa: E402
+from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
+from annotator.evaluation.report import plot_success  # noqa: E402
 from annotator.evaluation.metrics import iou_xywh  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
@@ -56,6 +67,8 @@ MAIN_ENV_PEERS = ("nanotrack",)  # in OpenCV's main modules: no separate environ
 PEER_ENV = HERE / "_env"
 PEER_REQUIREMENTS = ["opencv-contrib-python-headless", "numpy"]
 STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update")
+ATTRIBUTES_FILE = HERE / "otb_attributes.json"
+MIN_ATTRIBUTE_SEQUENCES = 2  # an attribute held by fewer benchmarked sequences gets no plot
 
 
 def ensure_peer_env() -> Path:
@@ -135,6 +148,11 @@ def main() -> None:
     parser.add_argument("--variant", action="append", default=[],
                         help="NAME=PRESET:key=value,... a preset with changed parameters, run as tracker NAME "
                              "(development comparisons; repeatable)")
+    parser.add_argument("--replot", type=Path, default=None, metavar="OUT",
+                        help="track nothing: draw the per-attribute plots and table from the result files of an "
+                             "earlier run in OUT (--trackers that have results there; seeds from --seeds or OUT's "
+                             "seed<N>/ folders); plots go to otb_plots/attributes, or OUT/plots/attributes with "
+                             "--no-record; RESULTS.md is not touched")
     args = parser.parse_args()
 
     sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
@@ -142,6 +160,10 @@ def main() -> None:
         wanted = set(args.sequences.split(","))
         sequences = [s for s in sequences if s.name in wanted]
     trackers = [t for t in args.trackers.split(",") if t]
+    if args.replot is not None:
+        print(replot(args.replot, trackers, sequences, seeds=[int(v) for v in args.seeds.split(",") if v],
+                     plot_dir=(args.replot / "plots" if args.no_record else HERE / "otb_plots") / "attributes"))
+        return
     try:
         configs = {name: p.to_dict() for name, p in PRESETS.items()} | dict(map(parse_variant, args.variant))
     except ValueError as err:
@@ -166,16 +188,13 @@ def main() -> None:
                   file=sys.stderr)
 
     gts = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in sequences}
-    seed_table = _seed_table(args.out, seeds, trackers, sequences, gts) if len(seeds) > 1 else None
+    per_seed = scores_per_seed(args.out, seeds, trackers, sequences, gts)
+    seed_table = _seed_table(per_seed, seeds, trackers, sequences) if len(seeds) > 1 else None
     if len(seeds) > 1:
         args.out = _seed_root(args.out, seeds, seeds[0])
     scores, rows = [], []
     for tracker in trackers:
-        pairs = {}
-        for s in sequences:
-            pred = read_otb_boxes(args.out / tracker / f"{s.name}.txt")
-            pairs[s.name] = (pred, gts[s.name][: len(pred)])
-        score = evaluate_dataset(pairs, tracker=f"SPTPT-{tracker}" if tracker in configs else tracker.upper())
+        score = per_seed[tracker][0]  # flags, stage timing and plots use the first seed
         scores.append(score)
         recs = records[tracker]
         fps = sum(r["frames"] - 1 for r in recs) / sum(r["seconds_after_first"] for r in recs)
@@ -189,10 +208,12 @@ def main() -> None:
         rows.append(row)
 
     # Trial runs (--no-record) keep their plots beside their results, not over the recorded ones.
-    write_report(args.out / "plots" if args.no_record else HERE / "otb_plots", scores)
+    plot_root = args.out / "plots" if args.no_record else HERE / "otb_plots"
+    write_report(plot_root, scores)
     markdown = render_markdown(args, trackers, sequences, rows, scores, time.time() - started)
     if seed_table:
         markdown += "\n\n" + seed_table
+    markdown += "\n\n" + attribute_section(per_seed, [s.name for s in sequences], plot_root / "attributes", seeds)
     print(markdown)
     if not args.no_record:
         update_section("otb", markdown)
@@ -203,22 +224,30 @@ def _seed_root(out: Path, seeds: list[int], seed: int) -> Path:
     return out if len(seeds) == 1 else out / f"seed{seed}"
 
 
-def _seed_table(out: Path, seeds: list[int], trackers: list[str], sequences: list[Path], gts: dict) -> str:
-    """Success AUC mean +- std over seeds, per sequence and overall (peers: one deterministic run)."""
-    from annotator.evaluation import evaluate_dataset
+def _display_name(tracker: str) -> str:
+    return tracker.upper() if tracker in PEERS else f"SPTPT-{tracker}"
 
-    per: dict[str, np.ndarray] = {}  # tracker -> (n_seeds, n_sequences)
+
+def scores_per_seed(out: Path, seeds: list[int], trackers: list[str], sequences: list[Path],
+                    gts: dict) -> dict[str, list[DatasetScore]]:
+    """Tracker -> one score per seed it ran with (peers: the first seed only), read from the result files."""
+    per: dict[str, list[DatasetScore]] = {}
     for tracker in trackers:
-        runs = []
+        per[tracker] = []
         for seed in (seeds if tracker not in PEERS else seeds[:1]):
             pairs = {}
             for s in sequences:
                 pred = read_otb_boxes(_seed_root(out, seeds, seed) / tracker / f"{s.name}.txt")
                 pairs[s.name] = (pred, gts[s.name][: len(pred)])
-            score = evaluate_dataset(pairs, tracker=tracker)
-            runs.append([score.sequences[s.name].auc for s in sequences])
-        per[tracker] = np.array(runs)
-    names = [t.upper() if t in PEERS else f"SPTPT-{t}" for t in trackers]
+            per[tracker].append(evaluate_dataset(pairs, tracker=_display_name(tracker)))
+    return per
+
+
+def _seed_table(per_seed: dict[str, list[DatasetScore]], seeds: list[int], trackers: list[str],
+                sequences: list[Path]) -> str:
+    """Success AUC mean +- std over seeds, per sequence and overall (peers: one deterministic run)."""
+    per = {t: np.array([[run.sequences[s.name].auc for s in sequences] for run in per_seed[t]]) for t in trackers}
+    names = [_display_name(t) for t in trackers]
 
     def cell(values: np.ndarray) -> str:
         return f"{values.mean():.3f}" if len(values) == 1 else f"{values.mean():.3f} ± {values.std(ddof=1):.3f}"
@@ -229,6 +258,93 @@ def _seed_table(out: Path, seeds: list[int], trackers: list[str], sequences: lis
         lines.append(f"| {s.name} | " + " | ".join(cell(per[t][:, j]) for t in trackers) + " |")
     lines.append("| **mean over sequences** | " + " | ".join(cell(per[t].mean(axis=1)) for t in trackers) + " |")
     return "\n".join(lines)
+
+
+def load_attributes(path: Path = ATTRIBUTES_FILE) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """(attribute code -> name, in OTB's order; sequence -> its attribute codes) from ``otb_attributes.json``."""
+    doc = json.loads(Path(path).read_text())
+    return doc["attributes"], doc["sequences"]
+
+
+def attribute_groups(labels: dict[str, list[str]], sequences: list[str], codes: list[str],
+                     min_sequences: int = MIN_ATTRIBUTE_SEQUENCES) -> dict[str, list[str]]:
+    """Attribute code -> the benchmarked sequences that hold it, for attributes held by at least ``min_sequences``."""
+    groups = {code: [s for s in sequences if code in labels.get(s, ())] for code in codes}
+    return {code: names for code, names in groups.items() if len(names) >= min_sequences}
+
+
+def attribute_score(runs: list[DatasetScore], names: list[str]) -> DatasetScore:
+    """One tracker on the sequences ``names``: unweighted mean over them, then mean over runs (seeds).
+
+    Every run has the same sequences, so the mean over runs of the per-run means is the plain mean over all
+    (run, sequence) pairs, which is what ``DatasetScore.from_sequences`` computes.
+    """
+    return DatasetScore.from_sequences(
+        runs[0].tracker, {f"{name}#{k}": run.sequences[name] for k, run in enumerate(runs) for name in names})
+
+
+def attribute_section(per_seed: dict[str, list[DatasetScore]], sequences: list[str], plot_dir: Path,
+                      seeds: list[int], attributes: Path = ATTRIBUTES_FILE) -> str:
+    """Draw one success plot per attribute held by enough sequences; return the Markdown table of mean AUC."""
+    names, labels = load_attributes(attributes)
+    groups = attribute_groups(labels, sequences, list(names))
+    table: dict[str, list[DatasetScore]] = {}
+    if groups:
+        Path(plot_dir).mkdir(parents=True, exist_ok=True)
+    for code, members in groups.items():
+        table[code] = [attribute_score(runs, members) for runs in per_seed.values()]
+        plot_success(table[code], Path(plot_dir) / f"{code}.png",
+                     title=f"Success plots of OPE - {names[code]} ({len(members)} sequences)")
+    over = "mean over the sequences with the attribute"
+    if len(seeds) > 1:
+        over += ", SPTPT also over seeds " + ", ".join(map(str, seeds))
+    lines = [f"### Success AUC per OTB attribute ({over})", ""]
+    if table:
+        lines += ["| Tracker | " + " | ".join(f"{code} ({len(groups[code])})" for code in table) + " |",
+                  "|---|" + "---:|" * len(table)]
+        for k, tracker in enumerate(per_seed):
+            lines.append(f"| {_display_name(tracker)} | " + " | ".join(f"{table[c][k].auc:.3f}" for c in table) + " |")
+    else:
+        lines.append(f"No attribute is held by {MIN_ATTRIBUTE_SEQUENCES} or more of these sequences.")
+    few = [f"{code} ({', '.join(m) or 'none'})" for code in names if code not in groups
+           for m in [[s for s in sequences if code in labels.get(s, ())]]]
+    unlabelled = [s for s in sequences if s not in labels]
+    lines += ["", f"Labels: `benchmarks/otb_attributes.json` (OTB-100). Fewer than {MIN_ATTRIBUTE_SEQUENCES} "
+              f"sequences, no plot: {'; '.join(few) or 'none'}."
+              + (f" Not labelled: {', '.join(unlabelled)}." if unlabelled else "")]
+    if table:
+        lines.append(f"Plots: `{_shown(Path(plot_dir))}/<CODE>.png`.")
+    return "\n".join(lines)
+
+
+def _shown(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(HERE.parent))
+    except ValueError:
+        return str(path)
+
+
+def replot(out: Path, trackers: list[str], sequences: list[Path], *, seeds: list[int], plot_dir: Path) -> str:
+    """The per-attribute plots and table from the result files of an earlier run in ``out``; tracks nothing."""
+    if not seeds:
+        seeds = sorted(int(p.name[4:]) for p in out.glob("seed*") if p.is_dir() and p.name[4:].isdigit()) or [0]
+    first = _seed_root(out, seeds, seeds[0])
+    found = [t for t in trackers if (first / t).is_dir()]
+    if not found:
+        raise SystemExit(f"--replot {out}: none of {trackers} has results in {first}")
+    missing = [t for t in trackers if t not in found]
+    complete = [s for s in sequences
+                if all((_seed_root(out, seeds, seed) / t / f"{s.name}.txt").is_file()
+                       for t in found for seed in (seeds if t not in PEERS else seeds[:1]))]
+    if not complete:
+        raise SystemExit(f"--replot {out}: no sequence has results for all of {found} at seeds {seeds}")
+    left = [s.name for s in sequences if s not in complete]
+    print(f"replot {out}: trackers {found}, seeds {seeds}, {len(complete)} sequences"
+          + (f"; no results for trackers {missing}" if missing else "")
+          + (f"; sequences without every result left out: {left}" if left else ""), file=sys.stderr)
+    gts = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in complete}
+    per_seed = scores_per_seed(out, seeds, found, complete, gts)
+    return attribute_section(per_seed, [s.name for s in complete], plot_dir, seeds)
 
 
 def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
