@@ -48,15 +48,21 @@ MAX_PIXELS = (1 << 28) - 1
 
 
 @numba.njit(cache=True, inline="always")
+def _u(i):  # pragma: no cover - compiled
+    """An index known to be >= 0, as uint64: numba then skips the negative-index wraparound."""
+    return np.uint64(i)
+
+
+@numba.njit(cache=True, inline="always")
 def _less(heap_d, heap_c, i, j):  # pragma: no cover - compiled
     """Heap order of slots i and j: distance first, then insertion counter.
 
     Non-short-circuit ``&`` / ``|`` so LLVM emits selects, not branches: the
     outcome of a heap comparison is unpredictable.
     """
-    di = heap_d[i]
-    dj = heap_d[j]
-    return (di < dj) | ((di == dj) & (heap_c[i] < heap_c[j]))
+    di = heap_d[_u(i)]
+    dj = heap_d[_u(j)]
+    return (di < dj) | ((di == dj) & (heap_c[_u(i)] < heap_c[_u(j)]))
 
 
 @numba.njit(cache=True, inline="always")
@@ -69,17 +75,17 @@ def _min_child(heap_d, heap_c, first):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, inline="always")
 def _move(heap_d, heap_c, pos, dst, src):  # pragma: no cover - compiled
-    heap_d[dst] = heap_d[src]
-    key = heap_c[src]
-    heap_c[dst] = key
-    pos[key & _PIXEL_MASK] = dst
+    heap_d[_u(dst)] = heap_d[_u(src)]
+    key = heap_c[_u(src)]
+    heap_c[_u(dst)] = key
+    pos[_u(key & _PIXEL_MASK)] = dst
 
 
 @numba.njit(cache=True, inline="always")
 def _place(heap_d, heap_c, pos, slot, d, c):  # pragma: no cover - compiled
-    heap_d[slot] = d
-    heap_c[slot] = c
-    pos[c & _PIXEL_MASK] = slot
+    heap_d[_u(slot)] = d
+    heap_c[_u(slot)] = c
+    pos[_u(c & _PIXEL_MASK)] = slot
 
 
 @numba.njit(cache=True, inline="always")
@@ -91,7 +97,7 @@ def _sift_up(heap_d, heap_c, pos, hole, d, c):  # pragma: no cover - compiled
     """
     while hole > 0:
         parent = (hole - 1) >> 2
-        if d < heap_d[parent]:
+        if d < heap_d[_u(parent)]:
             _move(heap_d, heap_c, pos, hole, parent)
             hole = parent
         else:
@@ -112,8 +118,8 @@ def _replace_root_top_down(heap_d, heap_c, pos, size, d, c):  # pragma: no cover
         if first >= size:
             break
         m = _min_child(heap_d, heap_c, first)
-        md = heap_d[m]
-        if (md < d) | ((md == d) & (heap_c[m] < c)):
+        md = heap_d[_u(m)]
+        if (md < d) | ((md == d) & (heap_c[_u(m)] < c)):
             _move(heap_d, heap_c, pos, hole, m)
             hole = m
         else:
@@ -139,8 +145,8 @@ def _replace_root_bottom_up(heap_d, heap_c, pos, size, d, c):  # pragma: no cove
         hole = m
     while hole > 0:
         parent = (hole - 1) >> 2
-        pd = heap_d[parent]
-        if (d < pd) | ((d == pd) & (c < heap_c[parent])):
+        pd = heap_d[_u(parent)]
+        if (d < pd) | ((d == pd) & (c < heap_c[_u(parent)])):
             _move(heap_d, heap_c, pos, hole, parent)
             hole = parent
         else:
@@ -173,7 +179,7 @@ def grid_tables(height, width):  # pragma: no cover - compiled
     return neighbours, xs, ys
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, width,
               heap_d, heap_c, pos, owner, sums):  # pragma: no cover
     """Grow superpixels from ``seeds`` on one Lab image, writing into ``flat_labels``.
@@ -220,18 +226,18 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
 
         base = 6 * k
         # Online centroid: running sums, as the official code keeps them.
-        flat_sums[base] += flat_lab[3 * p]
-        flat_sums[base + 1] += flat_lab[3 * p + 1]
-        flat_sums[base + 2] += flat_lab[3 * p + 2]
-        flat_sums[base + 3] += xs[p]
-        flat_sums[base + 4] += ys[p]
-        flat_sums[base + 5] += 1.0
-        kl = flat_sums[base]
-        ka = flat_sums[base + 1]
-        kb = flat_sums[base + 2]
-        kx = flat_sums[base + 3]
-        ky = flat_sums[base + 4]
-        ksize = flat_sums[base + 5]
+        flat_sums[_u(base)] += flat_lab[3 * p]
+        flat_sums[_u(base + 1)] += flat_lab[3 * p + 1]
+        flat_sums[_u(base + 2)] += flat_lab[3 * p + 2]
+        flat_sums[_u(base + 3)] += xs[p]
+        flat_sums[_u(base + 4)] += ys[p]
+        flat_sums[_u(base + 5)] += 1.0
+        kl = flat_sums[_u(base)]
+        ka = flat_sums[_u(base + 1)]
+        kb = flat_sums[_u(base + 2)]
+        kx = flat_sums[_u(base + 3)]
+        ky = flat_sums[_u(base + 4)]
+        ksize = flat_sums[_u(base + 5)]
         norm = ksize * ksize
 
         n_new = 0
@@ -263,7 +269,7 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
             if slot >= 0:
                 # Already queued with an older counter: a duplicate push in
                 # the official queue, which matters only if strictly closer.
-                if d < heap_d[slot]:
+                if d < heap_d[_u(slot)]:
                     owner[q] = k
                     _sift_up(heap_d, heap_c, pos, slot, d, c)
             else:
@@ -283,16 +289,16 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
                 if j == best:
                     continue
                 size += 1
-                heap_d[size + 2] = np.inf
-                heap_c[size + 2] = _PAD_COUNTER
+                heap_d[_u(size + 2)] = np.inf
+                heap_c[_u(size + 2)] = _PAD_COUNTER
                 _sift_up(heap_d, heap_c, pos, size - 1, new_d[j], new_c[j])
         else:
             size -= 1
             if size > 0:
-                last_d = heap_d[size]
-                last_c = heap_c[size]
-                heap_d[size] = np.inf
-                heap_c[size] = _PAD_COUNTER
+                last_d = heap_d[_u(size)]
+                last_c = heap_c[_u(size)]
+                heap_d[_u(size)] = np.inf
+                heap_c[_u(size)] = _PAD_COUNTER
                 _replace_root_bottom_up(heap_d, heap_c, pos, size, last_d, last_c)
 
     # Safety net of the official code: copy the left (else upper) label into
