@@ -43,6 +43,7 @@ import argparse
 import json
 import multiprocessing as mp
 import subprocess
+import re
 import sys
 import time
 import venv
@@ -109,7 +110,8 @@ def parse_variant(text: str) -> tuple[str, dict]:
     if not name or preset not in PRESETS:
         raise ValueError(f"--variant {text!r}: expected NAME=PRESET:key=value,... with PRESET one of {sorted(PRESETS)}")
     changes = {}
-    for item in filter(None, overrides.split(",")):
+    # Commas inside [...] belong to a list value (motion_sigma=[0.15,0.15,0.02,0,0,0]).
+    for item in filter(None, re.split(r",(?![^\[]*\])", overrides)):
         key, _, value = item.partition("=")
         changes[key] = yaml.safe_load(value)
     return name, params_from_mapping(changes, base=PRESETS[preset]).to_dict()

@@ -155,3 +155,11 @@ def test_a_benchmark_run_appends_the_attribute_table_and_plots(tmp_path, monkeyp
     assert (out / "seed0" / "plots" / "success_plots.png").is_file()
     # The overall table still uses the first seed, as before.
     assert f"| SPTPT-paper | {(47 / 84 + 20 / 63 + 54 / 105) / 3:.3f} |" in printed
+
+
+def test_a_variant_keeps_commas_inside_a_list_value():
+    name, params = _module().parse_variant("sc=robust:motion_sigma=[0.15,0.15,0.02,0,0.01,0],n_particles=200")
+    assert name == "sc"
+    assert params["motion_sigma"] == [0.15, 0.15, 0.02, 0.0, 0.01, 0.0] and params["n_particles"] == 200
+    with pytest.raises(ValueError, match="motion_sigma"):
+        _module().parse_variant("sc=robust:motion_sigma=[0.15,0.15]")
