@@ -173,9 +173,7 @@ def test_forward_from_the_first_frame_reproduces_the_main_command(first):
     run = track_source(_Source(), [Target(tuple(CLIP.boxes_xywh[0]), 1)], CONFIG)
     ours, theirs = first.tracks[0], run.tracks[0]
     np.testing.assert_array_equal(ours.boxes_xywh, theirs.boxes_xywh)
-    # p_fail is computed frame by frame while tracking and over the whole track by retrack: the same
-    # formula, summed in a different order, so the last bit may differ.
-    np.testing.assert_allclose(ours.confidence, theirs.confidence, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(ours.confidence, theirs.confidence)
     assert ours.reasons == theirs.reasons and ours.keyframe.tolist() == theirs.keyframe.tolist()
 
 

@@ -150,7 +150,10 @@ class FailureModel:
 
     def p_fail(self, features: np.ndarray) -> np.ndarray:
         """``(F,)`` failure probabilities of ``(F, len(FEATURES))`` feature rows."""
-        z = self.intercept + ((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) @ self.coef
+        # A row-wise sum, not a matrix product: BLAS sums a one-row product (OnlineFailure, frame by frame) in
+        # another order than a whole track's (score_track), and the two must give the same bits.
+        standardised = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        z = self.intercept + (standardised * self.coef).sum(axis=1)
         return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
 
     def main_group(self, features: np.ndarray) -> list[str]:
