@@ -309,7 +309,7 @@ def main() -> int:
         f"a held-out recall of 0.788 ± 0.018 (seeds 0 and 1, measured 2026-11-23), and the margin was added after "
         f"seeing that, so the recall below is slightly optimistic. Flags: threshold, then spans merged "
         f"(gap <= {params.merge_gap}, spans >= {params.min_span}). Regularisation: C per held-out fold chosen from "
-        f"{args.C} by leave-one-sequence-out on that fold's 16 training sequences (nested), "
+        f"{args.C} by leave-one-sequence-out on that fold's {len(sequences) - 1} training sequences (nested), "
         f"{dict(sorted(collections.Counter(fold_C.values()).items()))} (value: folds); shipped model C = {chosen_C}.",
         "",
         *table,

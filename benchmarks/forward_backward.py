@@ -1,7 +1,7 @@
 """Does a backward pass pay? Forward, then backward from a late confident frame, merged per frame.
 
     python benchmarks/forward_backward.py --preset robust --seeds 0,1,2 --out benchmarks/_runs/fb
-    python benchmarks/forward_backward.py --rescore benchmarks/_runs/fb      # merge rules again, no tracking
+    python benchmarks/forward_backward.py --seeds 0,1,2 --out benchmarks/_runs/fb --rescore   # merge rules again, no tracking
 
 For every sequence of an OTB-layout root and every seed, the tracker runs
 forward from the ground-truth box of the first frame, exactly as the
@@ -25,7 +25,6 @@ import argparse
 import json
 import sys
 import time
-import zlib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -71,6 +70,7 @@ def track_sequence(job: dict) -> dict:
     import numba
 
     numba.set_num_threads(job["threads"])
+    from _sptpt_runner import _stable_id
     from annotator.frames import open_frames
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker
@@ -80,13 +80,13 @@ def track_sequence(job: dict) -> dict:
     frames = [frame for _, frame in open_frames(seq_dir)]
     params = get_preset(job["preset"])
     # The forward pass uses the benchmark's generator, so it equals otb_benchmark's run of the same seed.
-    rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(name.encode())]))
+    rng = np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)]))
     fwd = _run_pass(Tracker(params, seed=rng), frames, gt[0])
     anchor = end_anchor(fwd["accepted"], job["stable"])
     out = {f"fwd_{k}": v for k, v in fwd.items()}
     out["anchor"] = -1 if anchor is None else anchor
     if anchor is not None:
-        rng_b = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(name.encode()), 1]))
+        rng_b = np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name), 1]))
         bwd = _run_pass(Tracker(params, seed=rng_b), frames[anchor::-1], fwd["boxes_xywh"][anchor])
         out.update({f"bwd_{k}": v[::-1] for k, v in bwd.items()})  # frame order 0..anchor
     path = Path(job["out"]) / f"{name}.s{seed}.npz"
@@ -161,9 +161,17 @@ def main() -> None:
     args = parser.parse_args()
     sequences = {p.name: p for p in sorted(Path(args.otb).iterdir()) if (p / "groundtruth_rect.txt").is_file()}
     if args.sequences:
+        unknown = [name for name in args.sequences.split(",") if name not in sequences]
+        if unknown:
+            parser.error(f"--sequences: {unknown} are not in {args.otb}; choose from {', '.join(sequences)}")
         sequences = {name: sequences[name] for name in args.sequences.split(",")}
     seeds = [int(s) for s in args.seeds.split(",")]
     out = Path(args.out)
+    if args.rescore:
+        missing = [f"{n}.s{s}.npz" for s in seeds for n in sequences if not (out / f"{n}.s{s}.npz").is_file()]
+        if missing:
+            parser.error(f"--rescore: {out} lacks the stored passes {missing[:3]}{' ...' if len(missing) > 3 else ''}; "
+                         "track them first (the same command without --rescore)")
     out.mkdir(parents=True, exist_ok=True)
     if not args.rescore:
         jobs = [dict(seq_dir=str(d), name=n, seed=s, preset=args.preset, stable=args.stable, out=str(out),

@@ -42,8 +42,8 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import subprocess
 import re
+import subprocess
 import sys
 import time
 import venv
