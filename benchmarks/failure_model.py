@@ -188,7 +188,12 @@ def main() -> int:
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
     started = time.time()
-    C = [float(c) for c in args.C.split(",")]
+    try:
+        C = [float(c) for c in args.C.split(",")]
+    except ValueError:
+        parser.error(f"--C {args.C!r}: expected a number or comma-separated numbers such as {C_GRID}")
+    if any(not np.isfinite(c) or c <= 0 for c in C):
+        parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
     C = C[0] if len(C) == 1 else C
     samples, aucs, confidence = load_samples(args.runs, args.otb)
     seeds = sorted({s.seed for s in samples})

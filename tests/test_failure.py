@@ -259,3 +259,18 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
     assert code == 4 and "m.json is not a sptpt-annotate failure model" in output
     code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "nope.json")
     assert code == 3 and "nope.json cannot be read" in output
+
+
+@pytest.mark.parametrize("value, message", [
+    ("abc", "expected a number or comma-separated numbers such as 1,0.1,0.01,0.003,0.001"),
+    ("0,1", "every value must be a finite number > 0"),
+])
+def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "failure_model.py"
+    done = subprocess.run([sys.executable, str(script), "--C", value], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1] == f"failure_model.py: error: --C {value!r}: {message}"
