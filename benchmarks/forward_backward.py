@@ -89,11 +89,16 @@ def track_sequence(job: dict) -> dict:
         rng_b = np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name), 1]))
         bwd = _run_pass(Tracker(params, seed=rng_b), frames[anchor::-1], fwd["boxes_xywh"][anchor])
         out.update({f"bwd_{k}": v[::-1] for k, v in bwd.items()})  # frame order 0..anchor
-    path = Path(job["out"]) / f"{name}.s{seed}.npz"
+    path = pass_path(Path(job["out"]), name, seed)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, **out)
     tmp.replace(path)
     return {"name": name, "seed": seed}
+
+
+def pass_path(out: Path, name: str, seed: int) -> Path:
+    """Where the forward and backward passes of one sequence and seed are stored."""
+    return out / f"{name}.s{seed}.npz"
 
 
 def merged_boxes(run: dict, method: str) -> np.ndarray:
@@ -115,7 +120,7 @@ def score(out: Path, sequences: dict[str, Path], seeds: list[int]) -> dict:
     for name, seq_dir in sequences.items():
         gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")
         for seed in seeds:
-            run = dict(np.load(out / f"{name}.s{seed}.npz", allow_pickle=True))
+            run = dict(np.load(pass_path(out, name, seed), allow_pickle=True))
             methods = {"forward": run["fwd_boxes_xywh"]}
             methods.update({m: merged_boxes(run, m) for m in MERGES})
             for method, boxes in methods.items():
@@ -161,14 +166,15 @@ def main() -> None:
     args = parser.parse_args()
     sequences = {p.name: p for p in sorted(Path(args.otb).iterdir()) if (p / "groundtruth_rect.txt").is_file()}
     if args.sequences:
-        unknown = [name for name in args.sequences.split(",") if name not in sequences]
+        names = args.sequences.split(",")
+        unknown = [name for name in names if name not in sequences]
         if unknown:
             parser.error(f"--sequences: {unknown} are not in {args.otb}; choose from {', '.join(sequences)}")
-        sequences = {name: sequences[name] for name in args.sequences.split(",")}
+        sequences = {name: sequences[name] for name in names}
     seeds = [int(s) for s in args.seeds.split(",")]
     out = Path(args.out)
     if args.rescore:
-        missing = [f"{n}.s{s}.npz" for s in seeds for n in sequences if not (out / f"{n}.s{s}.npz").is_file()]
+        missing = [pass_path(out, n, s).name for s in seeds for n in sequences if not pass_path(out, n, s).is_file()]
         if missing:
             parser.error(f"--rescore: {out} lacks the stored passes {missing[:3]}{' ...' if len(missing) > 3 else ''}; "
                          "track them first (the same command without --rescore)")
