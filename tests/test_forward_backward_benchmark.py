@@ -42,3 +42,37 @@ def test_only_frames_strictly_between_the_first_frame_and_the_anchor_are_merged(
 def _pass(n: int, *, box: float, confidence: float) -> dict:
     return dict(boxes_xywh=np.full((n, 4), box), confidence=np.full(n, confidence), log_likelihood=np.zeros(n),
                 accepted=np.ones(n, bool), scoring=np.array(["subspace"] * n, dtype=object), seconds=np.zeros(n))
+
+
+def _otb_root(tmp_path: Path) -> Path:
+    """Two sequences in OTB layout; the script only lists them before it refuses."""
+    for name in ("Alpha", "Beta"):
+        (tmp_path / "otb" / name).mkdir(parents=True)
+        (tmp_path / "otb" / name / "groundtruth_rect.txt").write_text("1,1,4,4\n")
+    return tmp_path / "otb"
+
+
+def _refusal(*args: str) -> tuple[int, str]:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120)
+    return done.returncode, done.stderr.strip().splitlines()[-1]
+
+
+def test_unknown_sequences_are_refused_in_one_line(tmp_path):
+    code, line = _refusal("--otb", str(_otb_root(tmp_path)), "--sequences", "Alpha,Gamma", "--out", str(tmp_path / "o"))
+    assert code == 2
+    assert line == f"forward_backward.py: error: --sequences: ['Gamma'] are not in {tmp_path / 'otb'}; choose from Alpha, Beta"
+    assert not (tmp_path / "o").exists()
+
+
+def test_rescore_without_stored_passes_is_refused_in_one_line(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "Alpha.s0.npz").write_bytes(b"kept")
+    code, line = _refusal("--otb", str(_otb_root(tmp_path)), "--seeds", "0", "--out", str(out), "--rescore")
+    assert code == 2
+    assert line == (f"forward_backward.py: error: --rescore: {out} lacks the stored passes ['Beta.s0.npz']; "
+                    "track them first (the same command without --rescore)")
+    assert (out / "Alpha.s0.npz").read_bytes() == b"kept"  # nothing already written is touched
