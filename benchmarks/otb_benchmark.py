@@ -67,7 +67,7 @@ PEERS = ("csrt", "kcf", "mil", "nanotrack")
 MAIN_ENV_PEERS = ("nanotrack",)  # in OpenCV's main modules: no separate environment needed
 PEER_ENV = HERE / "_env"
 PEER_REQUIREMENTS = ["opencv-contrib-python-headless", "numpy"]
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update")
+STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale")
 ATTRIBUTES_FILE = HERE / "otb_attributes.json"
 MIN_ATTRIBUTE_SEQUENCES = 2  # an attribute held by fewer benchmarked sequences gets no plot
 

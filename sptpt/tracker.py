@@ -24,6 +24,7 @@ from sptpt.features import superpixel_features
 from sptpt.params import TrackerParams, get_preset
 from sptpt.results import FrameResult, confidence_from_log_likelihood
 from sptpt.sampling import draw_candidates, draw_negatives
+from sptpt.scale import ScaleFilter
 from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
 
@@ -166,6 +167,11 @@ class Tracker:
         self._levels: list[float] = []
         self._misses = 0
         self._anchor = self._state.copy()
+        self._scale_filter: ScaleFilter | None = None
+        if p.scale_filter:
+            with self._time("scale"):
+                self._scale_filter = ScaleFilter(p.template_size)
+                self._scale_filter.init(rgb, self._state)
         return FrameResult(
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
@@ -196,7 +202,13 @@ class Tracker:
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
-        self._state = states[best]
+        self._state = states[best].copy()
+        if self._scale_filter is not None:
+            # The candidates chose the centre; the scale filter sets the size there. The winner's codes, which
+            # the models learn from below, stay those of its own template (a scale step of at most 1.02**16).
+            with self._time("scale"):
+                self._state[2] = max(self._state[2] * self._scale_filter.factor(rgb, self._state),
+                                     1.0 / p.template_size)
         log_likelihood = float(scores[best])
         accepted = bool(log_likelihood > p.accept_threshold)
         if scoring == "subspace" and p.level_window > 0:
@@ -209,6 +221,9 @@ class Tracker:
             self._misses = 0 if accepted else self._misses + 1
         if accepted:
             self._anchor = self._state.copy()
+            if self._scale_filter is not None:
+                with self._time("scale"):
+                    self._scale_filter.update(rgb, self._state)
             if scoring == "subspace" and p.level_window > 0:
                 self._levels.append(log_likelihood)
                 del self._levels[: -p.level_window]

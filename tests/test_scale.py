@@ -1,0 +1,128 @@
+"""The DSST scale filter (``sptpt.scale``): its features against a slow reference, and scale changes it must find."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from annotator.synthetic import _texture
+from sptpt.affine import state_from_box_xywh
+from sptpt.params import get_preset
+from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histograms
+from sptpt.tracker import Tracker
+
+
+def slow_orientation_histograms(templates: np.ndarray) -> np.ndarray:
+    """Pixel by pixel, as the docstring of orientation_histograms says."""
+    out = []
+    for template in np.asarray(templates, dtype=np.float64):
+        grey = 0.299 * template[..., 0] + 0.587 * template[..., 1] + 0.114 * template[..., 2]
+        size = grey.shape[0]
+        cells = size // CELL
+        hist = np.zeros((cells, cells, BINS))
+        for r in range(size):
+            for c in range(size):
+                gx = grey[r, c + 1] - grey[r, c - 1] if 0 < c < size - 1 else 0.0
+                gy = grey[r + 1, c] - grey[r - 1, c] if 0 < r < size - 1 else 0.0
+                magnitude = math.hypot(gx, gy)
+                position = (math.atan2(gy, gx) % math.pi) * BINS / math.pi
+                lower = math.floor(position)
+                weight = position - lower
+                cr, cc = min(r // CELL, cells - 1), min(c // CELL, cells - 1)
+                hist[cr, cc, lower % BINS] += magnitude * (1 - weight)
+                hist[cr, cc, (lower + 1) % BINS] += magnitude * weight
+        for cr in range(cells):
+            for cc in range(cells):
+                norm = math.sqrt(float((hist[cr, cc] ** 2).sum())) + 1e-3
+                hist[cr, cc] = np.minimum(hist[cr, cc] / norm, CLIP)
+        out.append(hist.reshape(-1))
+    return np.array(out)
+
+
+def test_orientation_histograms_match_the_slow_reference():
+    rng = np.random.default_rng(0)
+    templates = rng.integers(0, 256, size=(3, 32, 32, 3), dtype=np.uint8)
+    templates[1] = 128  # flat: every histogram is 0
+    fast = orientation_histograms(templates)
+    np.testing.assert_allclose(fast, slow_orientation_histograms(templates), rtol=1e-12, atol=1e-12)
+    assert fast.shape == (3, (32 // CELL) ** 2 * BINS)
+    assert not fast[1].any()
+
+
+def _scene(side_scale: float, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A 48x40 textured object scaled by ``side_scale`` about the point (160, 120) of a textured background."""
+    rng = np.random.default_rng(seed)
+    background = _texture(rng, 240, 320, 16, np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120]], np.float32))
+    pattern = _texture(rng, 40, 48, 6, np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240]],
+                                                np.float32))
+    w, h = 48 * side_scale, 40 * side_scale
+    x, y = 160 - w / 2, 120 - h / 2
+    m = np.array([[side_scale, 0, x], [0, side_scale, y]], np.float32)
+    warped = cv2.warpAffine(pattern, m, (320, 240), flags=cv2.INTER_LINEAR)
+    mask = cv2.warpAffine(np.ones((40, 48), np.float32), m, (320, 240), flags=cv2.INTER_LINEAR)[..., None]
+    frame = np.clip(np.rint(background * (1 - mask) + warped * mask), 0, 255).astype(np.uint8)
+    return frame, np.array([x, y, w, h])
+
+
+@pytest.mark.parametrize("change", [0.9, 1.0, 1.12])
+def test_scale_filter_finds_a_known_scale_change(change):
+    first, box = _scene(1.0)
+    later, _ = _scene(change)
+    scale_filter = ScaleFilter(32)
+    state = state_from_box_xywh(box, 32)
+    scale_filter.init(first, state)
+    factor = scale_filter.factor(later, state)
+    assert abs(math.log(factor / change)) <= 1.5 * math.log(STEP), factor
+
+
+def test_scale_filter_is_deterministic_and_needs_init():
+    first, box = _scene(1.0)
+    later, _ = _scene(1.1)
+    state = state_from_box_xywh(box, 32)
+    with pytest.raises(RuntimeError, match="before init"):
+        ScaleFilter(32).factor(later, state)
+    factors = []
+    for _ in range(2):
+        scale_filter = ScaleFilter(32)
+        scale_filter.init(first, state)
+        scale_filter.update(later, state)
+        factors.append(scale_filter.factor(later, state))
+    assert factors[0] == factors[1]
+
+
+def growing_clip(n_frames: int = 50, growth: float = 1.6):
+    """The object's side grows smoothly by ``growth`` while its centre moves 1 px a frame."""
+    rng = np.random.default_rng(7)
+    background = _texture(rng, 240, 320, 16, np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120]], np.float32))
+    pattern = _texture(rng, 36, 44, 8, np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240]],
+                                                np.float32))
+    frames, boxes = [], []
+    for k in range(n_frames):
+        s = growth ** (k / (n_frames - 1))
+        w, h = 44 * s, 36 * s
+        x, y = 130 + k - w / 2, 120 - h / 2
+        m = np.array([[s, 0, x], [0, s, y]], np.float32)
+        warped = cv2.warpAffine(pattern, m, (320, 240), flags=cv2.INTER_LINEAR)
+        mask = cv2.warpAffine(np.ones((36, 44), np.float32), m, (320, 240), flags=cv2.INTER_LINEAR)[..., None]
+        image = background * (1 - mask) + warped * mask + rng.normal(0, 3.0, background.shape)
+        frames.append(np.clip(np.rint(image), 0, 255).astype(np.uint8))
+        boxes.append([x, y, w, h])
+    return np.array(frames), np.array(boxes)
+
+
+def test_tracker_with_the_scale_filter_follows_a_growing_object():
+    import dataclasses
+
+    frames, boxes = growing_clip()
+    params = dataclasses.replace(get_preset("robust"), scale_filter=True)
+    tracker = Tracker(params, seed=0)
+    tracker.init(frames[0], boxes[0])
+    tracked = np.array([tracker.update(frame).box_xywh for frame in frames[1:]])
+    side = np.sqrt(tracked[:, 2] * tracked[:, 3] / (boxes[1:, 2] * boxes[1:, 3]))
+    assert np.all(np.abs(np.log(side[-10:])) < math.log(1.15)), side.round(2)
+    again = Tracker(params, seed=0)
+    again.init(frames[0], boxes[0])
+    np.testing.assert_array_equal(tracked, [again.update(frame).box_xywh for frame in frames[1:]])
