@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _sequences import SequenceError, select_sequences  # noqa: E402
 from annotator.evaluation.metrics import evaluate_sequence  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review.merge import MERGES, PassResult, merge_passes  # noqa: E402
@@ -164,13 +165,10 @@ def main() -> None:
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "_runs" / "fb"))
     parser.add_argument("--rescore", action="store_true", help="score stored passes only")
     args = parser.parse_args()
-    sequences = {p.name: p for p in sorted(Path(args.otb).iterdir()) if (p / "groundtruth_rect.txt").is_file()}
-    if args.sequences:
-        names = args.sequences.split(",")
-        unknown = [name for name in names if name not in sequences]
-        if unknown:
-            parser.error(f"--sequences: {unknown} are not in {args.otb}; choose from {', '.join(sequences)}")
-        sequences = {name: sequences[name] for name in names}
+    try:
+        sequences = {p.name: p for p in select_sequences(args.otb, args.sequences)}
+    except SequenceError as err:
+        parser.error(str(err))
     seeds = [int(s) for s in args.seeds.split(",")]
     out = Path(args.out)
     if args.rescore:

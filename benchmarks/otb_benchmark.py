@@ -56,6 +56,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _results import machine_line, update_section  # noqa: E402
+from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.report import plot_success  # noqa: E402
@@ -157,10 +158,10 @@ def main() -> None:
                              "--no-record; RESULTS.md is not touched")
     args = parser.parse_args()
 
-    sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
-    if args.sequences:
-        wanted = set(args.sequences.split(","))
-        sequences = [s for s in sequences if s.name in wanted]
+    try:
+        sequences = sorted(select_sequences(args.otb, args.sequences))
+    except SequenceError as err:
+        parser.error(str(err))
     trackers = [t for t in args.trackers.split(",") if t]
     if args.replot is not None:
         print(replot(args.replot, trackers, sequences, seeds=[int(v) for v in args.seeds.split(",") if v],

@@ -86,6 +86,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _results import machine_line, update_section  # noqa: E402
+from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
@@ -455,14 +456,10 @@ def main() -> None:
                   f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, other flag settings the run "
                   "defaults")
 
-    all_sequences = sorted(p for p in args.otb.iterdir() if (p / "groundtruth_rect.txt").is_file())
-    if args.sequences != "all":
-        wanted = [s for s in args.sequences.split(",") if s]
-        names = {p.name: p for p in all_sequences}
-        missing = [s for s in wanted if s not in names]
-        if missing:
-            parser.error(f"unknown sequences {missing}; found {sorted(names)}")
-        all_sequences = [names[s] for s in wanted]
+    try:
+        all_sequences = select_sequences(args.otb, args.sequences)
+    except SequenceError as err:
+        parser.error(str(err))
     params = get_preset(args.preset)
     preset_text = f"preset `{args.preset}`"
     if args.preset == "paper":

@@ -1,0 +1,39 @@
+"""The OTB sequences a benchmark runs on: every one under a root, or the ones named by ``--sequences``.
+
+One rule for every benchmark: a name that is not a sequence of the root is
+refused (a typo must not shrink a benchmark silently to the sequences that
+happen to match).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["SequenceError", "select_sequences"]
+
+
+class SequenceError(ValueError):
+    """``--sequences`` or the OTB root cannot be used; the message says why and what to give instead."""
+
+
+def select_sequences(root: str | Path, names: str | None) -> list[Path]:
+    """The sequence folders (those holding ``groundtruth_rect.txt``) of ``root``.
+
+    ``names`` is a comma-separated list (kept in its order, duplicates dropped),
+    or ``None``, ``""`` or ``"all"`` for every sequence in name order. Raises
+    :class:`SequenceError` when the root holds no sequence or a name is not one.
+    """
+    root = Path(root)
+    found = {p.name: p for p in sorted(root.iterdir()) if (p / "groundtruth_rect.txt").is_file()} \
+        if root.is_dir() else {}
+    if not found:
+        raise SequenceError(f"--otb {root}: no sequence folders (with groundtruth_rect.txt) there; "
+                            "give the folder that holds the OTB sequences, such as ../shared/otb")
+    if not names or names == "all":
+        return list(found.values())
+    wanted = list(dict.fromkeys(n for n in names.split(",") if n))
+    unknown = [n for n in wanted if n not in found]
+    if unknown or not wanted:
+        raise SequenceError(f"--sequences: {unknown or repr(names)} are not in {root}; choose from "
+                            f"{', '.join(found)}")
+    return [found[n] for n in wanted]
