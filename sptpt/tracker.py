@@ -13,6 +13,7 @@ is refitted from samples drawn around it.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from typing import Callable, ContextManager
 
 import numpy as np
@@ -94,6 +95,12 @@ class Tracker:
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self._time = stage_timer or _no_timer
         p = self.params
+        # Several independent runs: each a one-run tracker with a random stream of its own, drawn from this one.
+        self._runs: list[Tracker] = []
+        if p.independent_runs > 1:
+            single = dataclasses.replace(p, independent_runs=1)
+            child_seeds = self._rng.integers(0, 2**63 - 1, size=p.independent_runs)
+            self._runs = [Tracker(single, seed=int(s), stage_timer=stage_timer) for s in child_seeds]
         self.n_superpixels = seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
         if p.ranks[1] > self.n_superpixels:
             raise ValueError(
@@ -121,6 +128,10 @@ class Tracker:
         FrameResult
             The given box, with confidence 1 and ``scoring='init'``.
         """
+        if self._runs:
+            results = [run.init(frame, box_xywh) for run in self._runs]
+            self._frame_shape = self._runs[0]._frame_shape
+            return results[0]
         with _single_threaded_blas():
             return self._init(frame, box_xywh)
 
@@ -139,6 +150,10 @@ class Tracker:
         -------
         FrameResult
         """
+        if self._runs:
+            if self._frame_shape is None:
+                raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
+            return _more_confident([run.update(frame, details=details) for run in self._runs])
         with _single_threaded_blas():
             return self._update(frame, details=details)
 
@@ -366,6 +381,23 @@ class Tracker:
         codes, _ = self._codes(rgb, negatives)
         with self._time("negative_update"):
             return TensorSubspace.fit(codes, p.ranks)
+
+
+def _more_confident(results: list[FrameResult]) -> FrameResult:
+    """The result of the run whose winner scores highest; subspace scores outrank bootstrap ones, first run on ties.
+
+    The two stages score on different scales (``RE- - RE+`` against the intersection with the first frame's
+    codes), so only results of the same stage are compared by their log-likelihood.
+    """
+    def rank(result: FrameResult) -> tuple[int, float]:
+        ll = result.log_likelihood if np.isfinite(result.log_likelihood) else -np.inf
+        return (1 if result.scoring == "subspace" else 0, ll)
+
+    best = results[0]
+    for result in results[1:]:
+        if rank(result) > rank(best):
+            best = result
+    return best
 
 
 def _size(state: np.ndarray, template_size: int) -> float:
