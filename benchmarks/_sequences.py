@@ -31,9 +31,12 @@ def select_sequences(root: str | Path, names: str | None) -> list[Path]:
                             "give the folder that holds the OTB sequences, such as ../shared/otb")
     if not names or names == "all":
         return list(found.values())
-    wanted = list(dict.fromkeys(n for n in names.split(",") if n))
+    wanted = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
+    if not wanted:
+        raise SequenceError(f"--sequences {names!r} names no sequence: give comma-separated names such as "
+                            f"{','.join(list(found)[:2])}, or 'all'")
     unknown = [n for n in wanted if n not in found]
-    if unknown or not wanted:
-        raise SequenceError(f"--sequences: {unknown or repr(names)} are not in {root}; choose from "
-                            f"{', '.join(found)}")
+    if unknown:
+        raise SequenceError(f"--sequences: {', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not in "
+                            f"{root}; choose from {', '.join(found)}")
     return [found[n] for n in wanted]

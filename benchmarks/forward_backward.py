@@ -158,7 +158,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--otb", default=str(ROOT.parent / "shared" / "otb"))
     parser.add_argument("--preset", default="robust")
-    parser.add_argument("--sequences", default=None, help="comma-separated names (default: every sequence)")
+    parser.add_argument("--sequences", default=None, help="comma-separated names, or 'all' (the default: every sequence)")
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--stable", type=int, default=10, help="accepted frames in a row that make the end anchor")
     parser.add_argument("--workers", type=int, default=1)

@@ -141,7 +141,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
     parser.add_argument("--trackers", default="paper,fast,robust,csrt,kcf,mil,nanotrack")
-    parser.add_argument("--sequences", default="", help="comma-separated names (default: every sequence)")
+    parser.add_argument("--sequences", default="", help="comma-separated names, or 'all' (the default: every sequence)")
     parser.add_argument("--stop", type=int, default=None, help="only the first N frames of each sequence")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
@@ -159,7 +159,7 @@ def main() -> None:
     args = parser.parse_args()
 
     try:
-        sequences = sorted(select_sequences(args.otb, args.sequences))
+        sequences = sorted(select_sequences(args.otb, args.sequences))  # the tables list sequences by name
     except SequenceError as err:
         parser.error(str(err))
     trackers = [t for t in args.trackers.split(",") if t]

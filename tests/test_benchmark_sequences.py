@@ -27,14 +27,22 @@ def test_every_sequence_in_name_order_or_the_named_ones_in_their_order(tmp_path)
     for everything in (None, "", "all"):
         assert [p.name for p in select_sequences(root, everything)] == ["Alpha", "Beta"]
     assert [p.name for p in select_sequences(root, "Beta,Alpha,Beta")] == ["Beta", "Alpha"]
+    assert [p.name for p in select_sequences(root, "Alpha, Beta")] == ["Alpha", "Beta"]  # spaces after commas
     assert select_sequences(root, "Alpha")[0] == root / "Alpha"
 
 
-@pytest.mark.parametrize("names", ["Alpha,Gamma", "notes", ","])
-def test_a_name_that_is_not_a_sequence_is_refused(tmp_path, names):
+@pytest.mark.parametrize("names, unknown", [("Alpha,Gamma", "Gamma is"), ("notes,Delta", "notes, Delta are")])
+def test_a_name_that_is_not_a_sequence_is_refused(tmp_path, names, unknown):
     root = _otb_root(tmp_path)
-    with pytest.raises(SequenceError, match=r"^--sequences: .* are not in .*; choose from Alpha, Beta$"):
+    with pytest.raises(SequenceError) as refused:
         select_sequences(root, names)
+    assert str(refused.value) == f"--sequences: {unknown} not in {root}; choose from Alpha, Beta"
+
+
+def test_an_empty_list_is_refused(tmp_path):
+    with pytest.raises(SequenceError, match=r"^--sequences ', ' names no sequence: give comma-separated names such as "
+                                            r"Alpha,Beta, or 'all'$"):
+        select_sequences(_otb_root(tmp_path), ", ")
 
 
 def test_a_root_without_sequences_is_refused(tmp_path):
@@ -49,5 +57,5 @@ def test_each_benchmark_refuses_an_unknown_sequence_in_one_line(tmp_path, script
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines()[-1] == \
-        f"{script}: error: --sequences: ['Gamma'] are not in {root}; choose from Alpha, Beta"
+        f"{script}: error: --sequences: Gamma is not in {root}; choose from Alpha, Beta"
     assert not (tmp_path / "o").exists()
