@@ -63,12 +63,12 @@ from annotator.evaluation.report import plot_success  # noqa: E402
 from annotator.evaluation.metrics import iou_xywh  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
+from sptpt.tracker import STAGES  # noqa: E402
 
 PEERS = ("csrt", "kcf", "mil", "nanotrack")
 MAIN_ENV_PEERS = ("nanotrack",)  # in OpenCV's main modules: no separate environment needed
 PEER_ENV = HERE / "_env"
 PEER_REQUIREMENTS = ["opencv-contrib-python-headless", "numpy"]
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale")
 ATTRIBUTES_FILE = HERE / "otb_attributes.json"
 MIN_ATTRIBUTE_SEQUENCES = 2  # an attribute held by fewer benchmarked sequences gets no plot
 
@@ -369,11 +369,13 @@ def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
         lines.append(f"| {row['tracker']} | {row['auc']:.3f} | {row['precision_20']:.3f} | {row['fps']:.1f} |")
     sptpt_rows = [r for r in rows if "stages_ms" in r]
     if sptpt_rows:
+        # Stages no benchmarked preset runs (the scale filter, off in every preset) get no column.
+        stages = [s for s in STAGES if any(r["stages_ms"][s] > 0 for r in sptpt_rows)]
         lines += ["", "### SPTPT per stage (ms per frame, frames 2..N) and memory", "",
-                  "| Preset | " + " | ".join(STAGES) + " | peak RSS (MiB) |",
-                  "|---|" + "---:|" * (len(STAGES) + 1)]
+                  "| Preset | " + " | ".join(stages) + " | peak RSS (MiB) |",
+                  "|---|" + "---:|" * (len(stages) + 1)]
         for r in sptpt_rows:
-            lines.append(f"| {r['tracker']} | " + " | ".join(f"{r['stages_ms'][s]:.1f}" for s in STAGES)
+            lines.append(f"| {r['tracker']} | " + " | ".join(f"{r['stages_ms'][s]:.1f}" for s in stages)
                          + f" | {r['peak_rss_mib']:.0f} |")
     lines += ["", "### Per sequence (success AUC)", "",
               "| Sequence | " + " | ".join(s.tracker for s in scores) + " |",

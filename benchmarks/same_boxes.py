@@ -29,10 +29,9 @@ import numpy as np
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from sptpt.params import get_preset
-from sptpt.tracker import Tracker
+from sptpt.tracker import STAGES, Tracker
 
 DEFAULT_SEQUENCES = ("Deer", "Crossing", "Coke", "Dog1")
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update")
 
 
 def track(seq_dir: Path, preset: str, seed: int, frames: int) -> tuple[dict, dict, float, int]:
@@ -110,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name}: {verdict}; max box diff {diff:.3g} px; max log-likelihood diff {loglik_diff:.3g}; "
               f"acceptance {'same' if same_accept else 'DIFFERENT'}")
         ok &= diff <= args.tol and same_accept
-    per_frame = {k: 1000.0 * all_stages.get(k, 0.0) / max(all_frames, 1) for k in STAGES}
+    per_frame = {k: 1000.0 * all_stages[k] / max(all_frames, 1) for k in STAGES if k in all_stages}
     print("ms/frame (frames 2..N): " + ", ".join(f"{k} {v:.1f}" for k, v in per_frame.items())
           + f"; total {1000.0 * all_seconds / max(all_frames, 1):.1f} ({all_frames / max(all_seconds, 1e-9):.2f} frames/s)")
     return 0 if ok else 1

@@ -72,10 +72,14 @@ class TrackerParams:
 
     independent_runs: int = 1
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
-    dictionary, candidates, negatives and models; each frame reports the run whose winner scores higher (a run
-    scoring by its subspace models before one still in bootstrap). Runs lose the target at different moments
-    (robust's AUC on Singer2 is 0.04 in one seed and 0.68 in another), and a run that has lost it mostly scores
-    lower there. Costs one run's time per run. [ours, benchmarks/RESULTS.md "robust"]"""
+    dictionary, candidates, negatives and models; each frame reports the run whose winner scores higher (a
+    subspace score ranks above a bootstrap one). Runs lose the target at different moments (robust's AUC on
+    Singer2 is 0.04 in one seed and 0.68 in another). Measured and not used by any preset: on ``../shared/otb``
+    two runs beat the mean of the same two runs tracked alone by about 0.025 AUC (six pairs, all positive),
+    but 0.504 ± 0.016 over 3 seeds is no better than robust's 0.508 ± 0.033 with other seeds, at half the
+    speed; on Human9 the run that has lost the target scores higher. Costs one run's time per run. Kept as a
+    switch for that comparison. [ours, benchmarks/RESULTS.md "robust
+    development"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""

@@ -15,11 +15,15 @@ over the scale axis, learned in the Fourier domain and updated with a
 running average. The scale whose response peaks is the new scale. All
 constants are the paper's (33 scales, step 1.02, Gaussian label of
 ``sqrt(33) / 4`` scales, learning rate 0.025, regularisation 0.01), except
-the features: HOG-like histograms of 9 unsigned orientations over 4-pixel
-cells of the 32x32 grey template the tracker already warps (DSST: fHOG over
-a patch of at most 512 pixels). Measured with ground-truth centres on
-``../shared/otb``: the side stays within 0.8-1.25 of the truth on 95% of
-frames (Girl, whose box changes its aspect, is the exception).
+the sampling and the features. Samples are the 32x32 templates the tracker
+already warps: bilinear, without anti-aliasing, 0 outside the frame (DSST
+resizes with area averaging and repeats the border pixels), and the scale
+has no upper bound (DSST's is the image size). Features are HOG-like
+histograms of 9 unsigned orientations over 4-pixel cells of the grey
+template (DSST: fHOG over a patch of at most 512 pixels). A prototype of
+this filter (OpenCV sampling, script not kept), run with ground-truth
+centres on ``../shared/otb``, kept the side within 0.8-1.25 of the truth on
+95% of the frames.
 """
 
 from __future__ import annotations
@@ -39,17 +43,19 @@ LEARNING_RATE = 0.025
 REGULARISATION = 0.01
 CELL = 4  # px of the template per histogram cell
 BINS = 9  # unsigned orientations over [0, pi)
-CLIP = 0.2  # per-cell normalised histogram values are clipped here (as in HOG), so one strong edge cannot dominate
+# Per-cell normalised values are clipped here (HOG's clip, without its renormalisation), so that one strong edge
+# cannot dominate a cell.
+CLIP = 0.2
 _GREY = np.array([0.299, 0.587, 0.114])  # ITU-R BT.601 luma
 
 
-def orientation_histograms(templates: np.ndarray, cell: int = CELL, bins: int = BINS) -> np.ndarray:
+def orientation_histograms(templates: np.ndarray, *, cell: int = CELL, bins: int = BINS) -> np.ndarray:
     """``(N, T, T, 3)`` uint8 templates -> ``(N, (T // cell) ** 2 * bins)`` gradient-orientation histograms.
 
     Central-difference gradients of the grey template (0 on its border),
     magnitude split linearly between the two nearest of ``bins`` unsigned
-    orientations, summed per ``cell x cell`` cell, each cell's histogram
-    L2-normalised and clipped at :data:`CLIP`.
+    orientations, summed per ``cell x cell`` cell (pixels past the last whole
+    cell join it), each cell's histogram L2-normalised and clipped at :data:`CLIP`.
     """
     grey = np.asarray(templates, dtype=np.float64) @ _GREY
     n, size, _ = grey.shape
@@ -64,8 +70,9 @@ def orientation_histograms(templates: np.ndarray, cell: int = CELL, bins: int = 
     lower = lower.astype(np.int64) % bins
     upper = (lower + 1) % bins
     cells = size // cell
-    rows = np.minimum(np.arange(size) // cell, cells - 1)
-    cell_index = (rows[:, None] * cells + rows[None, :])[None] + (np.arange(n) * cells * cells)[:, None, None]
+    cell_of_pixel = np.minimum(np.arange(size) // cell, cells - 1)  # along either side of the square template
+    cell_index = ((cell_of_pixel[:, None] * cells + cell_of_pixel[None, :])[None]
+                  + (np.arange(n) * cells * cells)[:, None, None])
     total = n * cells * cells * bins
     hist = np.bincount((cell_index * bins + lower).ravel(), (magnitude * (1 - upper_weight)).ravel(), total)
     hist += np.bincount((cell_index * bins + upper).ravel(), (magnitude * upper_weight).ravel(), total)
@@ -90,20 +97,27 @@ class ScaleFilter:
         self._denominator: np.ndarray | None = None
 
     def _spectrum(self, rgb: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """``(features, N_SCALES)`` Fourier transform over the scale axis of the samples around ``state``."""
+        """``(features, N_SCALES)`` Fourier transform over the scale axis of the samples around ``state``.
+
+        ``rgb`` is the ``(H, W, 3)`` uint8 frame, ``state`` the ``(6,)`` affine state (``sptpt.affine``); the
+        windowed samples are DSST's ``f``, one column per scale.
+        """
         states = np.repeat(np.asarray(state, dtype=np.float64)[None], N_SCALES, axis=0)
         states[:, 2] *= self.factors
         samples = orientation_histograms(warp_candidates(rgb, states, self.template_size))
         return np.fft.fft(samples.T * self._window[None], axis=1)
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
-        """Learn the filter from the samples around the first state."""
+        """Learn the filter from the samples around the first state: ``A = conj(G) F``, ``B = sum conj(F) F``."""
         spectrum = self._spectrum(rgb, state)
         self._numerator = np.conj(self._label)[None] * spectrum
         self._denominator = (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def factor(self, rgb: np.ndarray, state: np.ndarray) -> float:
-        """The scale change (a factor of ``state``'s scale) whose samples the filter answers most strongly."""
+        """The scale change (a factor of ``state``'s scale) whose samples the filter answers most strongly.
+
+        Response ``y = IFFT(sum conj(A) Z / (B + lambda))`` over the scales, as in DSST; its peak's factor.
+        """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.factor() before init()")
         spectrum = self._spectrum(rgb, state)
@@ -112,7 +126,10 @@ class ScaleFilter:
         return float(self.factors[int(np.argmax(response))])
 
     def update(self, rgb: np.ndarray, state: np.ndarray) -> None:
-        """Blend the samples around ``state`` (the accepted estimate) into the filter at :data:`LEARNING_RATE`."""
+        """Blend the samples around ``state`` (the accepted estimate) into ``A`` and ``B``, as in DSST.
+
+        The running average weighs the new samples by :data:`LEARNING_RATE`.
+        """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.update() before init()")
         spectrum = self._spectrum(rgb, state)

@@ -29,7 +29,10 @@ from sptpt.scale import ScaleFilter
 from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
 
-__all__ = ["Tracker"]
+__all__ = ["STAGES", "Tracker"]
+
+#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter``).
+STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale")
 
 StageTimer = Callable[[str], ContextManager]
 
@@ -70,9 +73,8 @@ class Tracker:
         seed and frames give bit-identical results.
     stage_timer : callable, optional
         ``stage_timer(name)`` returns a context manager wrapped around each
-        stage (``warp``, ``snic``, ``features``, ``coding``, ``scoring``,
-        ``positive_update``, ``negative_update``); benchmarks use it to time
-        stages without the tracker measuring anything itself.
+        stage of :data:`STAGES`; benchmarks use it to time stages without the
+        tracker measuring anything itself.
 
     Examples
     --------
@@ -219,8 +221,10 @@ class Tracker:
         best = int(np.argmax(scores))
         self._state = states[best].copy()
         if self._scale_filter is not None:
-            # The candidates chose the centre; the scale filter sets the size there. The winner's codes, which
-            # the models learn from below, stay those of its own template (a scale step of at most 1.02**16).
+            # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
+            # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
+            # its own template, up to 1.02**16 = 1.37x larger or smaller than the returned box: the switch was
+            # measured this way (RESULTS.md, "robust development").
             with self._time("scale"):
                 self._state[2] = max(self._state[2] * self._scale_filter.factor(rgb, self._state),
                                      1.0 / p.template_size)
@@ -250,7 +254,9 @@ class Tracker:
             confidence = float(np.clip(log_likelihood / self._first_mass, 0.0, 1.0)) if self._first_mass > 0 else 0.0
         extra = {}
         if details:
-            frame_labels, origin = template_labels_to_frame(labels[best], self._state, self._frame_shape)
+            # The labels are the winner's template's, so they are placed with the winner's state (before any
+            # scale filter step).
+            frame_labels, origin = template_labels_to_frame(labels[best], states[best], self._frame_shape)
             extra = dict(
                 particles_xywh=box_xywh_from_states(states, p.template_size),
                 particle_scores=scores,
@@ -387,7 +393,9 @@ def _more_confident(results: list[FrameResult]) -> FrameResult:
     """The result of the run whose winner scores highest; subspace scores outrank bootstrap ones, first run on ties.
 
     The two stages score on different scales (``RE- - RE+`` against the intersection with the first frame's
-    codes), so only results of the same stage are compared by their log-likelihood.
+    codes), so a subspace score always outranks a bootstrap one. Two bootstrap scores (the first
+    ``update_every`` frames) are compared as they are, although each run's intersection is on the scale of
+    its own dictionary's first-frame codes: the switch was measured so.
     """
     def rank(result: FrameResult) -> tuple[int, float]:
         ll = result.log_likelihood if np.isfinite(result.log_likelihood) else -np.inf

@@ -51,16 +51,16 @@ def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_se
     assert 0 < picked_second < len(clip.frames) - 1  # the clip exercises both runs
 
 
-def test_same_seed_same_boxes_and_one_run_is_the_single_tracker():
+def test_same_seed_same_boxes():
     clip = make_clip(15, seed=3)
 
-    def boxes(params, seed):
-        tracker = Tracker(params, seed=seed)
+    def boxes(seed):
+        tracker = Tracker(_params(2), seed=seed)
         tracker.init(clip.frames[0], clip.boxes_xywh[0])
         return np.array([tracker.update(frame).box_xywh for frame in clip.frames[1:]])
 
-    np.testing.assert_array_equal(boxes(_params(2), 4), boxes(_params(2), 4))
-    np.testing.assert_array_equal(boxes(_params(1), 4), boxes(get_preset("robust"), 4))
+    np.testing.assert_array_equal(boxes(4), boxes(4))
+    assert not np.array_equal(boxes(4), boxes(5))
 
 
 def test_update_before_init_and_a_bad_count_are_refused():
