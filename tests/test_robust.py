@@ -108,7 +108,7 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
 
 
 @pytest.mark.parametrize("preset", ["paper", "fast", "robust"])
-def test_paper_and_fast_boxes_are_unchanged(preset):
+def test_preset_boxes_are_unchanged(preset):
     # robust's boxes were recorded later, before the scale_filter and independent_runs switches (off in it).
     clip = make_clip(40, seed=3)
     recorded = np.loadtxt(GOLDEN / f"{preset}_clip3_seed5_boxes.txt")
