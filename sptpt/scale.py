@@ -107,11 +107,14 @@ class ScaleFilter:
         samples = orientation_histograms(warp_candidates(rgb, states, self.template_size))
         return np.fft.fft(samples.T * self._window[None], axis=1)
 
-    def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
-        """Learn the filter from the samples around the first state: ``A = conj(G) F``, ``B = sum conj(F) F``."""
+    def _terms(self, rgb: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filter learned from the samples around ``state`` alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
         spectrum = self._spectrum(rgb, state)
-        self._numerator = np.conj(self._label)[None] * spectrum
-        self._denominator = (np.conj(spectrum) * spectrum).real.sum(axis=0)
+        return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
+
+    def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
+        """Learn the filter from the samples around the first state."""
+        self._numerator, self._denominator = self._terms(rgb, state)
 
     def factor(self, rgb: np.ndarray, state: np.ndarray) -> float:
         """The scale change (a factor of ``state``'s scale) whose samples the filter answers most strongly.
@@ -132,8 +135,6 @@ class ScaleFilter:
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.update() before init()")
-        spectrum = self._spectrum(rgb, state)
-        self._numerator = ((1 - LEARNING_RATE) * self._numerator
-                           + LEARNING_RATE * np.conj(self._label)[None] * spectrum)
-        self._denominator = ((1 - LEARNING_RATE) * self._denominator
-                             + LEARNING_RATE * (np.conj(spectrum) * spectrum).real.sum(axis=0))
+        numerator, denominator = self._terms(rgb, state)
+        self._numerator = (1 - LEARNING_RATE) * self._numerator + LEARNING_RATE * numerator
+        self._denominator = (1 - LEARNING_RATE) * self._denominator + LEARNING_RATE * denominator

@@ -131,9 +131,7 @@ class Tracker:
             The given box, with confidence 1 and ``scoring='init'``.
         """
         if self._runs:
-            results = [run.init(frame, box_xywh) for run in self._runs]
-            self._frame_shape = self._runs[0]._frame_shape
-            return results[0]
+            return [run.init(frame, box_xywh) for run in self._runs][0]
         with _single_threaded_blas():
             return self._init(frame, box_xywh)
 
@@ -153,8 +151,7 @@ class Tracker:
         FrameResult
         """
         if self._runs:
-            if self._frame_shape is None:
-                raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
+            # Each run checks the frame (and that init came first) itself.
             return _more_confident([run.update(frame, details=details) for run in self._runs])
         with _single_threaded_blas():
             return self._update(frame, details=details)
@@ -401,11 +398,7 @@ def _more_confident(results: list[FrameResult]) -> FrameResult:
         ll = result.log_likelihood if np.isfinite(result.log_likelihood) else -np.inf
         return (1 if result.scoring == "subspace" else 0, ll)
 
-    best = results[0]
-    for result in results[1:]:
-        if rank(result) > rank(best):
-            best = result
-    return best
+    return max(results, key=rank)  # max keeps the first of equal ranks
 
 
 def _size(state: np.ndarray, template_size: int) -> float:
