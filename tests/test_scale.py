@@ -54,18 +54,29 @@ def test_orientation_histograms_match_the_slow_reference(size, cell, bins):
     assert not fast[1].any()
 
 
+def _background_and_object(rng: np.random.Generator, width: int, height: int, cell: int):
+    """A 320x240 textured background and a ``width x height`` textured object, drawn from ``rng`` in that order."""
+    background = _texture(rng, 240, 320, 16, np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120]], np.float32))
+    pattern = _texture(rng, height, width, cell,
+                       np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240]], np.float32))
+    return background, pattern
+
+
+def _paste(background: np.ndarray, pattern: np.ndarray, scale: float, x: float, y: float) -> np.ndarray:
+    """``pattern`` scaled by ``scale`` with its top-left corner at ``(x, y)`` over ``background`` (float image)."""
+    m = np.array([[scale, 0, x], [0, scale, y]], np.float32)
+    size = (background.shape[1], background.shape[0])
+    warped = cv2.warpAffine(pattern, m, size, flags=cv2.INTER_LINEAR)
+    mask = cv2.warpAffine(np.ones(pattern.shape[:2], np.float32), m, size, flags=cv2.INTER_LINEAR)[..., None]
+    return background * (1 - mask) + warped * mask
+
+
 def _scene(side_scale: float, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """A 48x40 textured object scaled by ``side_scale`` about the point (160, 120) of a textured background."""
-    rng = np.random.default_rng(seed)
-    background = _texture(rng, 240, 320, 16, np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120]], np.float32))
-    pattern = _texture(rng, 40, 48, 6, np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240]],
-                                                np.float32))
+    background, pattern = _background_and_object(np.random.default_rng(seed), 48, 40, 6)
     w, h = 48 * side_scale, 40 * side_scale
     x, y = 160 - w / 2, 120 - h / 2
-    m = np.array([[side_scale, 0, x], [0, side_scale, y]], np.float32)
-    warped = cv2.warpAffine(pattern, m, (320, 240), flags=cv2.INTER_LINEAR)
-    mask = cv2.warpAffine(np.ones((40, 48), np.float32), m, (320, 240), flags=cv2.INTER_LINEAR)[..., None]
-    frame = np.clip(np.rint(background * (1 - mask) + warped * mask), 0, 255).astype(np.uint8)
+    frame = np.clip(np.rint(_paste(background, pattern, side_scale, x, y)), 0, 255).astype(np.uint8)
     return frame, np.array([x, y, w, h])
 
 
@@ -97,18 +108,13 @@ def test_scale_filter_answers_one_on_the_frame_it_learned_and_needs_init():
 def growing_clip(n_frames: int = 50, growth: float = 1.6):
     """The object's side grows smoothly by ``growth`` while its centre moves 1 px a frame."""
     rng = np.random.default_rng(7)
-    background = _texture(rng, 240, 320, 16, np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120]], np.float32))
-    pattern = _texture(rng, 36, 44, 8, np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240]],
-                                                np.float32))
+    background, pattern = _background_and_object(rng, 44, 36, 8)
     frames, boxes = [], []
     for k in range(n_frames):
         s = growth ** (k / (n_frames - 1))
         w, h = 44 * s, 36 * s
         x, y = 130 + k - w / 2, 120 - h / 2
-        m = np.array([[s, 0, x], [0, s, y]], np.float32)
-        warped = cv2.warpAffine(pattern, m, (320, 240), flags=cv2.INTER_LINEAR)
-        mask = cv2.warpAffine(np.ones((36, 44), np.float32), m, (320, 240), flags=cv2.INTER_LINEAR)[..., None]
-        image = background * (1 - mask) + warped * mask + rng.normal(0, 3.0, background.shape)
+        image = _paste(background, pattern, s, x, y) + rng.normal(0, 3.0, background.shape)
         frames.append(np.clip(np.rint(image), 0, 255).astype(np.uint8))
         boxes.append([x, y, w, h])
     return np.array(frames), np.array(boxes)
