@@ -3,7 +3,9 @@
 Used by ``benchmarks/otb_benchmark.py``; one process per sequence. For each
 sequence it writes ``<out>/<Seq>.txt`` (OTB, 1-based), ``<out>/times/<Seq>_time.txt``
 and ``<out>/<Seq>.frames.npz`` (per-frame log-likelihood, confidence, accepted,
-scoring) so that flagging can be re-scored without re-tracking.
+scoring, and with several independent runs every run's box, ``run_boxes``,
+(frames, runs, 4) 0-based) so that flagging can be re-scored and each run
+scored alone (``benchmarks/paired_runs.py``) without re-tracking.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
 
     tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)])),
                       stage_timer=timer)
-    boxes, seconds, loglik, conf, accepted, scoring = [], [], [], [], [], []
+    boxes, seconds, loglik, conf, accepted, scoring, run_boxes = [], [], [], [], [], [], []
     source = open_frames(seq_dir, stop=stop)
     for position, (_, frame) in enumerate(source):
         tic = time.perf_counter()
@@ -55,14 +57,16 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
         conf.append(result.confidence)
         accepted.append(result.accepted)
         scoring.append(result.scoring)
+        run_boxes.append(result.run_boxes_xywh)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "times").mkdir(exist_ok=True)
     write_otb_boxes(out_dir / f"{name}.txt", np.array(boxes), origin=1)
     write_otb_times(out_dir / "times" / f"{name}_time.txt", np.array(seconds))
     with atomic_path(out_dir / f"{name}.frames.npz") as tmp:
         with open(tmp, "wb") as handle:
+            per_run = {} if run_boxes[0] is None else {"run_boxes": np.stack(run_boxes)}
             np.savez(handle, log_likelihood=np.array(loglik), confidence=np.array(conf),
-                     accepted=np.array(accepted), scoring=np.array(scoring))
+                     accepted=np.array(accepted), scoring=np.array(scoring), **per_run)
     return {
         "sequence": name,
         "frames": len(boxes),

@@ -73,13 +73,12 @@ class TrackerParams:
     independent_runs: int = 1
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
     dictionary, candidates, negatives and models; each frame reports the run whose winner scores higher (a
-    subspace score ranks above a bootstrap one). Runs lose the target at different moments (robust's AUC on
-    Singer2 is 0.04 in one seed and 0.68 in another). Measured and not used by any preset: on ``../shared/otb``
-    two runs beat the mean of the same two runs tracked alone by about 0.025 AUC (six pairs, all positive),
-    but 0.504 ± 0.016 over 3 seeds is no better than robust's 0.508 ± 0.033 with other seeds, at half the
-    speed; on Human9 the run that has lost the target scores higher. Costs one run's time per run. Kept as a
-    switch for that comparison. [ours, benchmarks/RESULTS.md "robust
-    development"]"""
+    subspace score ranks above a bootstrap one), and ``FrameResult.run_boxes_xywh`` carries every run's box.
+    Runs lose the target at different moments (one run of robust scores 0.04 on Singer2 with one seed and
+    0.68 with another). On ``../shared/otb`` two runs beat the mean of the same two runs tracked alone by
+    about 0.025 AUC (six pairs, all positive) and, over six seeds, 0.506 ± 0.013 against one run's
+    0.481 ± 0.035: a third of the seed spread. Costs one run's time per run; on Human9 the run that has lost
+    the target scores higher. 2 in ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
@@ -204,12 +203,13 @@ PRESETS: dict[str, TrackerParams] = {
     # Keeping the target on ordinary videos (issue #10): the fast preset's candidates, plus acceptance
     # relative to a running level (the paper's absolute Phi freezes the positive model after the first
     # batch), motion proportional to the object's size, and a wide re-detection search once the target
-    # has been rejected for several frames. Each departure is measured in benchmarks/RESULTS.md.
+    # has been rejected for several frames; two independent runs, each frame from the more confident.
+    # Each departure is measured in benchmarks/RESULTS.md.
     "robust": TrackerParams(
         n_particles=150, refine_particles=75, n_negatives=100, negative_every=4,
         relative_motion=True, motion_sigma=(0.15, 0.15, 0.01, 0.0, 0.0, 0.0),
         level_window=20, level_min_count=5, accept_drop=3.0,
-        redetect_after=5, redetect_particles=150, redetect_sigma=1.0,
+        redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=2,
     ),
 }
 

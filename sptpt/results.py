@@ -54,6 +54,10 @@ class FrameResult:
         Only when asked for.
     superpixel_origin_xy : (2,) int64 ndarray or None
         0-based frame column and row of ``superpixel_labels[0, 0]``.
+    run_boxes_xywh : (R, 4) float64 ndarray or None
+        With ``independent_runs`` R > 1: every run's box this frame, in run
+        order (``box_xywh`` is one of them). Where the runs disagree, at
+        least one has lost the target. None for a single run.
     """
 
     box_xywh: np.ndarray
@@ -65,6 +69,7 @@ class FrameResult:
     particle_scores: np.ndarray | None = None
     superpixel_labels: np.ndarray | None = None
     superpixel_origin_xy: np.ndarray | None = None
+    run_boxes_xywh: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         box = np.asarray(self.box_xywh, dtype=np.float64)
@@ -88,3 +93,8 @@ class FrameResult:
             object.__setattr__(self, "particle_scores", scores)
         if (self.superpixel_labels is None) != (self.superpixel_origin_xy is None):
             raise ValueError("superpixel_labels and superpixel_origin_xy come together or not at all")
+        if self.run_boxes_xywh is not None:
+            runs = np.asarray(self.run_boxes_xywh, dtype=np.float64)
+            if runs.ndim != 2 or runs.shape[1] != 4 or len(runs) < 2:
+                raise ValueError(f"run_boxes_xywh must be (R, 4) with R >= 2, got {runs.shape}")
+            object.__setattr__(self, "run_boxes_xywh", runs)

@@ -131,7 +131,7 @@ class Tracker:
             The given box, with confidence 1 and ``scoring='init'``.
         """
         if self._runs:
-            return [run.init(frame, box_xywh) for run in self._runs][0]
+            return _with_run_boxes([run.init(frame, box_xywh) for run in self._runs], 0)
         with _single_threaded_blas():
             return self._init(frame, box_xywh)
 
@@ -152,7 +152,8 @@ class Tracker:
         """
         if self._runs:
             # Each run checks the frame (and that init came first) itself.
-            return _more_confident([run.update(frame, details=details) for run in self._runs])
+            results = [run.update(frame, details=details) for run in self._runs]
+            return _with_run_boxes(results, _more_confident(results))
         with _single_threaded_blas():
             return self._update(frame, details=details)
 
@@ -386,8 +387,13 @@ class Tracker:
             return TensorSubspace.fit(codes, p.ranks)
 
 
-def _more_confident(results: list[FrameResult]) -> FrameResult:
-    """The result of the run whose winner scores highest; subspace scores outrank bootstrap ones, first run on ties.
+def _with_run_boxes(results: list[FrameResult], chosen: int) -> FrameResult:
+    """``results[chosen]`` carrying every run's box (``FrameResult.run_boxes_xywh``)."""
+    return dataclasses.replace(results[chosen], run_boxes_xywh=np.stack([r.box_xywh for r in results]))
+
+
+def _more_confident(results: list[FrameResult]) -> int:
+    """Index of the run whose winner scores highest; subspace scores outrank bootstrap ones, first run on ties.
 
     The two stages score on different scales (``RE- - RE+`` against the intersection with the first frame's
     codes), so a subspace score always outranks a bootstrap one. Two bootstrap scores (the first
@@ -398,7 +404,7 @@ def _more_confident(results: list[FrameResult]) -> FrameResult:
         ll = result.log_likelihood if np.isfinite(result.log_likelihood) else -np.inf
         return (1 if result.scoring == "subspace" else 0, ll)
 
-    return max(results, key=rank)  # max keeps the first of equal ranks
+    return max(range(len(results)), key=lambda i: rank(results[i]))  # max keeps the first of equal ranks
 
 
 def _size(state: np.ndarray, template_size: int) -> float:

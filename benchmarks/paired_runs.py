@@ -1,0 +1,119 @@
+"""Independent runs, paired: does the per-frame choice beat the same runs tracked alone?
+
+    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust
+    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust --sequences Girl,Human9
+
+A tracker with ``independent_runs`` R > 1 (``robust``) tracks R one-run
+trackers side by side and reports, each frame, the more confident run's box.
+The runs never see each other's results, so each run's boxes are exactly what
+that run would have given alone (``tests/test_independent_runs.py`` checks
+this). ``benchmarks/_sptpt_runner.py`` stores them (``run_boxes`` in
+``<Seq>.frames.npz``), so the comparison that separates the choice from the
+luck of the seeds costs no extra tracking: for every seed folder of an
+``otb_benchmark.py`` run, the success AUC of the choice, of each run alone,
+and of the choice minus the mean of its runs, per seed and per sequence.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _sequences import SequenceError, select_sequences  # noqa: E402
+
+from annotator.evaluation.metrics import evaluate_sequence  # noqa: E402
+from annotator.otb import read_otb_boxes  # noqa: E402
+
+
+class PairedError(ValueError):
+    """A run folder that holds no per-run boxes; the message says what to run first."""
+
+
+def seed_folders(out: Path) -> list[Path]:
+    """``out/seed<k>`` folders in seed order, or ``out`` itself for a single-seed run."""
+    folders = sorted(out.glob("seed*"), key=lambda p: int(p.name[4:]) if p.name[4:].isdigit() else -1)
+    return [p for p in folders if p.name[4:].isdigit()] or [out]
+
+
+def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Sequence -> AUC of ``[choice, run 1 alone, run 2 alone, ...]`` from one seed's stored results."""
+    aucs = {}
+    for name, truth in gt.items():
+        frames = folder / tracker / f"{name}.frames.npz"
+        if not frames.is_file():
+            raise PairedError(f"{frames}: missing; run benchmarks/otb_benchmark.py with --out {folder.parent} first")
+        with np.load(frames) as stored:
+            if "run_boxes" not in stored:
+                raise PairedError(f"{frames}: no per-run boxes; the tracker {tracker!r} has one run, or the file "
+                                  "predates them: track again with benchmarks/otb_benchmark.py")
+            runs = stored["run_boxes"]
+        choice = read_otb_boxes(folder / tracker / f"{name}.txt")
+        truth = truth[: len(choice)]
+        boxes = [choice, *(runs[:, r] for r in range(runs.shape[1]))]
+        aucs[name] = np.array([evaluate_sequence(b, truth, name=name).auc for b in boxes])
+    return aucs
+
+
+def paired_table(per_seed: dict[Path, dict[str, np.ndarray]]) -> str:
+    """Markdown: per seed, the choice, each run alone, and the choice minus the mean of its runs."""
+    n_runs = len(next(iter(next(iter(per_seed.values())).values()))) - 1
+    head = "| seed folder | choice | " + " | ".join(f"run {r + 1} alone" for r in range(n_runs)) + \
+           " | choice minus the mean of its runs |"
+    lines = [head, "|---|" + "---:|" * (n_runs + 2)]
+    gains = []
+    for folder, aucs in per_seed.items():
+        mean = np.mean(list(aucs.values()), axis=0)
+        gains.append(mean[0] - mean[1:].mean())
+        lines.append(f"| {folder.name} | " + " | ".join(f"{v:.3f}" for v in mean) + f" | {gains[-1]:+.3f} |")
+    all_means = np.array([np.mean(list(a.values()), axis=0) for a in per_seed.values()])
+    singles = all_means[:, 1:].ravel()
+    lines.append(f"| **mean ± std** | {all_means[:, 0].mean():.3f} ± {all_means[:, 0].std():.3f} | "
+                 + " | ".join(["all single runs: " + f"{singles.mean():.3f} ± {singles.std():.3f}"]
+                              + [""] * (n_runs - 1))
+                 + f" | {np.mean(gains):+.3f} ({sum(g > 0 for g in gains)} of {len(gains)} positive) |")
+    return "\n".join(lines)
+
+
+def sequence_table(per_seed: dict[Path, dict[str, np.ndarray]]) -> str:
+    """Markdown: per sequence, over seeds, the choice against the mean of its runs."""
+    names = list(next(iter(per_seed.values())))
+    lines = ["| sequence | choice | mean of its runs alone | difference |", "|---|---:|---:|---:|"]
+    for name in names:
+        choice = np.array([a[name][0] for a in per_seed.values()])
+        alone = np.array([a[name][1:].mean() for a in per_seed.values()])
+        lines.append(f"| {name} | {choice.mean():.3f} | {alone.mean():.3f} | {choice.mean() - alone.mean():+.3f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("out", type=Path, help="an otb_benchmark.py --out folder (with seed<k>/ folders or not)")
+    parser.add_argument("--tracker", default="robust", help="the SPTPT tracker name in that run (default robust)")
+    parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
+    parser.add_argument("--sequences", default="", help="comma-separated names, or 'all' (the default)")
+    args = parser.parse_args(argv)
+    try:
+        sequences = select_sequences(args.otb, args.sequences)
+        if not args.out.is_dir():
+            raise PairedError(f"{args.out}: not a folder; give the --out folder of an otb_benchmark.py run")
+        gt = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in sequences}
+        per_seed = {folder: sequence_aucs(folder, args.tracker, gt) for folder in seed_folders(args.out)}
+    except (SequenceError, PairedError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"Success AUC of `{args.tracker}`'s per-frame choice and of each of its runs alone ({args.out}, "
+          f"{len(sequences)} sequences):\n")
+    print(paired_table(per_seed))
+    print("\nPer sequence, mean over seed folders:\n")
+    print(sequence_table(per_seed))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
