@@ -60,6 +60,11 @@ def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict
     return aucs
 
 
+def _mean_std(values: np.ndarray) -> str:
+    """Mean ± sample standard deviation (as otb_benchmark.py reports seeds); the mean alone for one value."""
+    return f"{values.mean():.3f}" if len(values) == 1 else f"{values.mean():.3f} ± {values.std(ddof=1):.3f}"
+
+
 def paired_table(per_seed: dict[Path, dict[str, np.ndarray]]) -> str:
     """Markdown: per seed, the choice, each run alone, and the choice minus the mean of its runs."""
     n_runs = len(next(iter(next(iter(per_seed.values())).values()))) - 1
@@ -73,8 +78,8 @@ def paired_table(per_seed: dict[Path, dict[str, np.ndarray]]) -> str:
         lines.append(f"| {folder.name} | " + " | ".join(f"{v:.3f}" for v in mean) + f" | {gains[-1]:+.3f} |")
     all_means = np.array([np.mean(list(a.values()), axis=0) for a in per_seed.values()])
     singles = all_means[:, 1:].ravel()
-    lines.append(f"| **mean ± std** | {all_means[:, 0].mean():.3f} ± {all_means[:, 0].std():.3f} | "
-                 + " | ".join(["all single runs: " + f"{singles.mean():.3f} ± {singles.std():.3f}"]
+    lines.append(f"| **mean ± std** | {_mean_std(all_means[:, 0])} | "
+                 + " | ".join([f"all single runs: {_mean_std(singles)}"]
                               + [""] * (n_runs - 1))
                  + f" | {np.mean(gains):+.3f} ({sum(g > 0 for g in gains)} of {len(gains)} positive) |")
     return "\n".join(lines)

@@ -74,11 +74,11 @@ class TrackerParams:
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
     dictionary, candidates, negatives and models; each frame reports the run whose winner scores higher (a
     subspace score ranks above a bootstrap one), and ``FrameResult.run_boxes_xywh`` carries every run's box.
-    Runs lose the target at different moments (one run of robust scores 0.04 on Singer2 with one seed and
-    0.68 with another). On ``../shared/otb`` two runs beat the mean of the same two runs tracked alone by
-    about 0.025 AUC (six pairs, all positive) and, over six seeds, 0.506 ± 0.013 against one run's
-    0.481 ± 0.035: a third of the seed spread. Costs one run's time per run; on Human9 the run that has lost
-    the target scores higher. 2 in ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
+    One run of robust keeps or loses a sequence depending on the seed (Singer2 0.04 with one seed, 0.68 with
+    another). On ``../shared/otb`` over six seeds two runs score 0.506 ± 0.015 against 0.494 ± 0.033 for the
+    same twelve runs alone: +0.012 paired (5 of 6 seeds), and half the seed spread. Costs one run's time per
+    run; on Human9 and Singer2 the run that has lost the target scores higher. 2 in ``robust``.
+    [ours, benchmarks/RESULTS.md "OTB, 6 seeds"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
