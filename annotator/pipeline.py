@@ -257,7 +257,8 @@ def track_source(
         else:
             signals = meters[tid].next(frame, result.box_xywh, log_likelihood=result.log_likelihood,
                                        scoring=result.scoring, accepted=result.accepted,
-                                       particles_xywh=result.particles_xywh, particle_scores=result.particle_scores)
+                                       particles_xywh=result.particles_xywh, particle_scores=result.particle_scores,
+                                       run_boxes_xywh=result.run_boxes_xywh)
         recorders[tid].append(
             frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
             accepted=result.accepted, seconds=seconds, keyframe=first, scoring=result.scoring,

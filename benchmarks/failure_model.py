@@ -18,7 +18,10 @@ threshold chosen on those 16 too): AUROC of p_fail for failure frames
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
 measures each signal group's worth (AUROC with the group left out) and the
-tracker's own confidence as a baseline. ``--write`` refits on everything,
+tracker's own confidence as a baseline. ``--select-groups`` lets each fold
+leave out the signal groups that backward elimination picks on its training
+sequences (nested; off by default: measured, it does not pay). ``--write``
+refits on everything,
 writes ``annotator/data/failure_model.json`` and the calibration plot, and
 records the figures in ``benchmarks/RESULTS.md``.
 """
@@ -41,7 +44,8 @@ sys.path.insert(0, str(ROOT))
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
-from annotator.failure.fit import MIN_RECALL, Sample, choose_C, fit_model, leave_one_sequence_out  # noqa: E402
+from annotator.failure.fit import (MIN_GROUP_GAIN, MIN_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,  # noqa: E402
+                                   group_features)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES  # noqa: E402
 from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
@@ -115,15 +119,28 @@ def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each
     return ms, ms / tracking_ms
 
 
-def held_out(samples: list[Sample], *, C, drop=()) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict]:
-    """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample; C of each fold."""
-    out, fold_C = [], {}
-    for name, (model, held) in leave_one_sequence_out(samples, C=C, drop=drop).items():
+def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1
+             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict, dict]:
+    """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample; C and the groups
+    left out, of each fold. Folds run in ``workers`` processes."""
+    import functools
+    from concurrent.futures import ProcessPoolExecutor
+
+    names = sorted({s.sequence for s in samples})
+    fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups)
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            folds = dict(zip(names, pool.map(fold, names)))
+    else:
+        folds = {name: fold(name) for name in names}
+    out, fold_C, fold_groups = [], {}, {}
+    for name, (model, held) in folds.items():
         fold_C[name] = model.info["C"]
+        fold_groups[name] = tuple(model.info.get("dropped_groups", ()))
         for s in held:
             p = model.p_fail(s.features)
             out.append((s, np.where(s.use, p, 0.0), model.main_group(s.features), model.threshold))
-    return out, fold_C
+    return out, fold_C, fold_groups
 
 
 def flag_metrics(results, aucs, params: FlagParams) -> dict[int, dict[str, float]]:
@@ -185,6 +202,11 @@ def main() -> int:
                         help="inverse L2 strength of the logistic regression, or a comma-separated grid: each held-out "
                              "fold then chooses its own on its training sequences (nested leave-one-sequence-out), "
                              f"and the shipped model chooses on all of them (default: {C_GRID})")
+    parser.add_argument("--select-groups", action="store_true",
+                        help="each fold, and the shipped model, leave out the signal groups that backward "
+                             "elimination by leave-one-sequence-out AUROC picks on their training sequences "
+                             "(measured 2026-11-24: no better held out than every group, see RESULTS.md)")
+    parser.add_argument("--workers", type=int, default=2, help="processes for the held-out folds (default 2)")
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
     started = time.time()
@@ -203,10 +225,14 @@ def main() -> int:
     print(f"{len(samples)} runs: {len(sequences)} sequences x seeds {seeds}; {frames} frames scored", flush=True)
 
     params = FlagParams()
-    results, fold_C = held_out(samples, C=C)
+    select = args.select_groups
+    results, fold_C, fold_groups = held_out(samples, C=C, select_groups=select, workers=args.workers)
     # The diagnostics below (what each signal group is worth) use the value chosen on all sequences.
     chosen_C = C if np.ndim(C) == 0 else choose_C(samples, C)
     print(f"C per held-out fold: {fold_C}; chosen on all sequences: {chosen_C}", flush=True)
+    dropped = choose_groups(samples, C=chosen_C) if select else ()
+    if select:
+        print(f"groups left out per held-out fold: {fold_groups}; on all sequences: {list(dropped)}", flush=True)
     prob = per_seed_probability(results)
     flags = flag_metrics(results, aucs, params)
     pooled_p = np.concatenate([p[s.use] for s, p, _, _ in results])
@@ -220,13 +246,13 @@ def main() -> int:
         base.append((1.0 - c[keep], s.failed[keep]))
     base_auroc = auroc(np.concatenate([b[0] for b in base]), np.concatenate([b[1] for b in base]))
 
-    # What each group of signals is worth: held-out AUROC without it.
+    # Every figure at the same C (chosen on all sequences), the baseline too: per-fold C choices shift each fold's
+    # probabilities and cost pooled AUROC by themselves.
     worth = {}
-    for group in sorted(set(FEATURE_GROUPS.values())):
-        drop = [f for f in FEATURES if FEATURE_GROUPS[f] == group]
-        r, _ = held_out(samples, C=chosen_C, drop=drop)
-        worth[group] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
-                             np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
+    for group in ["", *sorted(set(FEATURE_GROUPS.values()))]:
+        r, _, _ = held_out(samples, C=chosen_C, drop=group_features([group]), workers=args.workers)
+        worth[group or "nothing"] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
+                                          np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
     single = {}
     X = np.concatenate([s.features[s.use] for s in samples])
     y = np.concatenate([s.failed[s.use] for s in samples])
@@ -258,16 +284,17 @@ def main() -> int:
     if not args.write:
         return 0
     command = "python benchmarks/failure_model.py --runs " + " ".join(f"'{g}'" for g in args.runs) + \
-              (f" --C {args.C}" if args.C != C_GRID else "") + " --write"
+              (f" --C {args.C}" if args.C != C_GRID else "") + (" --select-groups" if select else "") + " --write"
     info = {
         "fitted_by": command,
         "data": {"runs": args.runs, "sequences": sequences, "seeds": seeds, "frames": frames,
                  "preset": preset, "range": "first 150 frames of each sequence"},
         "C": chosen_C,
+        "dropped_groups": list(dropped),
         "held_out": {"auroc": mean_std(prob, "auroc"), "ece": mean_std(prob, "ece"),
                      "precision": mean_std(flags, "precision"), "recall": mean_std(flags, "recall")},
     }
-    model = fit_model(samples, C=chosen_C, info=info)
+    model = fit_model(samples, C=chosen_C, info=info, drop=group_features(dropped))
     from annotator.atomic import write_text_atomic
 
     write_text_atomic(MODEL_FILE, json.dumps(model.to_json(), indent=1) + "\n")
@@ -297,7 +324,7 @@ def main() -> int:
         per_seed.append(f"| {seed} | {prob[seed]['auroc']:.3f} | {prob[seed]['ece']:.3f} | "
                         f"{flags[seed]['precision']:.3f} | {flags[seed]['recall']:.3f} | "
                         f"{flags[seed]['flagged_share']:.3f} | {flags[seed]['good_flagged_share']:.3f} |")
-    worth_rows = ["| left out | held-out AUROC |", "|---|---:|", f"| nothing | {auroc(pooled_p, pooled_y):.3f} |"]
+    worth_rows = ["| left out | held-out AUROC |", "|---|---:|"]
     worth_rows += [f"| {g} | {v:.3f} |" for g, v in worth.items()]
     single_rows = ["| feature | AUROC alone (either direction, all frames) |", "|---|---:|"]
     single_rows += [f"| {n} | {v:.3f} |" for n, v in sorted(single.items(), key=lambda kv: -kv[1])]
@@ -315,7 +342,13 @@ def main() -> int:
         f"seeing that, so the recall below is slightly optimistic. Flags: threshold, then spans merged "
         f"(gap <= {params.merge_gap}, spans >= {params.min_span}). Regularisation: C per held-out fold chosen from "
         f"{args.C} by leave-one-sequence-out on that fold's {len(sequences) - 1} training sequences (nested), "
-        f"{dict(sorted(collections.Counter(fold_C.values()).items()))} (value: folds); shipped model C = {chosen_C}.",
+        f"{dict(sorted(collections.Counter(fold_C.values()).items()))} (value: folds); shipped model C = {chosen_C}. "
+        + (f"Signal groups: each fold leaves out the groups that greedy backward elimination (a group goes when "
+           f"its absence raises the leave-one-sequence-out AUROC by >= {MIN_GROUP_GAIN}) picks on that fold's "
+           f"training sequences, with that fold's C (nested): "
+           f"{dict(sorted(collections.Counter('+'.join(g) or 'none' for g in fold_groups.values()).items()))} "
+           f"(groups: folds); the shipped model leaves out {'+'.join(dropped) or 'none'} (weight 0)."
+           if select else "Every signal group is used (--select-groups leaves some out by nested selection)."),
         "",
         *table,
         "",
@@ -326,7 +359,8 @@ def main() -> int:
         "",
         *per_seed,
         "",
-        "What each group of signals is worth (held-out AUROC, pooled, with the group's features left out):",
+        f"What each group of signals is worth (held-out AUROC, pooled over seeds, with the group's features left out; "
+        f"every row at C = {chosen_C} in every fold, so 'nothing' differs from the nested figure above):",
         "",
         *worth_rows,
         "",

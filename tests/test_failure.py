@@ -24,7 +24,8 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import Sample, choose_C, fit_model, leave_one_sequence_out
+from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, fit_model, group_features,
+                                   leave_one_sequence_out)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -69,6 +70,31 @@ def test_flow_appearance_and_motion_signals_move_where_the_box_slides_onto_backg
     assert failed["ncc_first"][FAIL_AT] < truth["ncc_first"][before].min() - 0.2
     assert failed["ncc_prev"][FAIL_AT] < truth["ncc_prev"][before].min() - 0.2
     assert failed["jump"][FAIL_AT] > 1.0 > truth["jump"][before].max()
+
+
+def test_run_agreement_falls_where_one_run_slides_onto_background(clip):
+    lost = clip.boxes_xywh.copy()
+    for k in range(FAIL_AT, len(lost)):
+        lost[k] = background_box(clip, k)
+    meter = SignalMeter()
+    meter.first(clip.frames[0], clip.boxes_xywh[0])
+    agreement = []
+    for k in range(1, len(clip.frames)):
+        # The tracker reports the true box (the first run) while its second run has lost the object.
+        runs = np.stack([clip.boxes_xywh[k], lost[k]])
+        agreement.append(meter.next(clip.frames[k], clip.boxes_xywh[k], log_likelihood=5.0, scoring="subspace",
+                                    accepted=True, run_boxes_xywh=runs)["run_iou"])
+    agreement = np.array(agreement)
+    np.testing.assert_allclose(agreement[: FAIL_AT - 1], 1.0)  # both runs on the object: full agreement
+    assert agreement[FAIL_AT - 1:].max() < 0.1
+    # One run: nothing to disagree with, the neutral value.
+    assert measure(clip, lost)["run_iou"].tolist() == [1.0] * len(clip.frames)
+    # Three runs: the lowest agreement with any of them.
+    box = np.array([0.0, 0.0, 10.0, 10.0])
+    meter.first(clip.frames[0], box)
+    three = meter.next(clip.frames[1], box, log_likelihood=5.0, scoring="subspace", accepted=True,
+                       run_boxes_xywh=np.array([box, [5.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 5.0]]))
+    assert three["run_iou"] == pytest.approx(1 / 3)
 
 
 def test_the_object_swapped_for_background_lowers_the_appearance_signals(clip):
@@ -158,7 +184,10 @@ def test_the_shipped_model_loads_with_its_fields_and_versions():
 @pytest.mark.parametrize("edit, fragment", [
     (lambda d: d.update(format="something else"), "is not a sptpt-annotate failure model"),
     (lambda d: d.update(version=99), "has version 99"),
-    (lambda d: d.update(features=d["features"][:-1]), "is for features"),
+    (lambda d: d.update(features=d["features"][:-1]), f"(it lacks {FEATURES[-1]})"),
+    (lambda d: d.update(features=[*d["features"][:-1], "tea_leaves"]),
+     f"(it lacks {FEATURES[-1]}; has tea_leaves, which this version does not compute)"),
+    (lambda d: d.update(features=d["features"][::-1]), "(it lists them in another order)"),
     (lambda d: d.update(coef=d["coef"][:3]), "coef must be"),
     (lambda d: d.update(threshold=1.5), "threshold in (0, 1)"),
     (lambda d: d.pop("intercept"), "lacks or garbles"),
@@ -227,6 +256,42 @@ def test_nested_folds_choose_C_without_seeing_their_held_out_sequence():
         train = [s for s in samples if s.sequence != name]
         assert model.info["C"] == choose_C(train, grid)
     assert json.dumps(folds["B"][0].to_json()) != json.dumps(again["B"][0].to_json())
+
+
+def test_backward_elimination_drops_the_group_whose_absence_scores_best_while_it_gains_enough():
+    table = {(): 0.80, ("a",): 0.79, ("b",): 0.85, ("c",): 0.84,
+             ("b", "a"): 0.70, ("b", "c"): 0.851, ("c", "a"): 0.0}
+    score = lambda dropped: table[tuple(dropped)]  # noqa: E731
+    assert backward_elimination(["a", "b", "c"], score, min_gain=0.002) == ("b",)  # c's extra 0.001 is too little
+    assert backward_elimination(["a", "b", "c"], score, min_gain=0.0) == ("b", "c")  # and one group always stays
+    assert backward_elimination(["a", "b", "c"], score, min_gain=0.1) == ()
+
+
+def test_dropped_features_get_weight_zero_and_are_ignored():
+    samples = small_samples()
+    drop = group_features(["flow", "appearance"])
+    assert "flow_iou" in drop and "ncc_first" in drop and "log_likelihood" not in drop
+    model = fit_model(samples, C=0.1, drop=drop)
+    cols = [FEATURES.index(f) for f in drop]
+    assert np.all(model.coef[cols] == 0.0) and np.all(model.mean[cols] == 0.0) and np.all(model.scale[cols] == 1.0)
+    features = samples[0].features.copy()
+    changed = features.copy()
+    changed[:, cols] += 100.0
+    np.testing.assert_array_equal(model.p_fail(features), model.p_fail(changed))
+
+
+def test_nested_folds_choose_groups_without_seeing_their_held_out_sequence():
+    samples = small_samples()
+    folds = leave_one_sequence_out(samples, C=0.1, select_groups=True)
+    flipped = [Sample(s.sequence, s.seed, s.features, ~s.failed if s.sequence == "A" else s.failed, s.use)
+               for s in samples]
+    again = leave_one_sequence_out(flipped, C=0.1, select_groups=True)
+    assert json.dumps(folds["A"][0].to_json()) == json.dumps(again["A"][0].to_json())
+    for name, (model, _) in folds.items():
+        train = [s for s in samples if s.sequence != name]
+        assert model.info["dropped_groups"] == list(choose_groups(train, C=0.1))
+        assert "flow" not in model.info["dropped_groups"]  # the one group that separates failures stays
+    assert any(model.info["dropped_groups"] for model, _ in folds.values())  # noise groups do go
 
 
 def test_auroc_and_calibration_error_on_hand_made_numbers():

@@ -140,6 +140,21 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
+def test_reflag_reads_a_track_stored_before_a_signal_existed_as_if_it_were_neutral():
+    from annotator.failure import SIGNALS
+    from annotator.failure.signals import NEUTRAL
+
+    n = 10
+    rng = np.random.default_rng(2)
+    signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
+    old = {name: v for name, v in signals.items() if name != "run_iou"}  # a store from before run_iou
+    signals["run_iou"] = np.full(n, NEUTRAL["run_iou"])
+    keyframe, outside = np.zeros(n, bool), np.zeros(n, bool)
+    keyframe[0] = True
+    for got, want in zip(reflag(old, keyframe, outside, CONFIG), reflag(signals, keyframe, outside, CONFIG)):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
 # --------------------------------------------------------------------------- the algorithm
 
 

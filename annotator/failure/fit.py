@@ -8,13 +8,17 @@ check the result is reproduced.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.model import FEATURES, FailureModel, model_from_fit
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, model_from_fit
 
-__all__ = ["Sample", "choose_C", "choose_threshold", "fit_model", "leave_one_sequence_out"]
+__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model", "group_features",
+           "leave_one_sequence_out"]
+
+#: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
+MIN_GROUP_GAIN = 0.002
 
 
 @dataclass(frozen=True)
@@ -69,9 +73,24 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
 
-def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, Any] | None = None) -> FailureModel:
-    """Fit on every sample's usable frames; the threshold maximises F1 on those same training frames."""
-    X, y = _stack(samples)
+def group_features(groups: Sequence[str]) -> list[str]:
+    """The :data:`FEATURES` of the named signal groups (:data:`~annotator.failure.model.FEATURE_GROUPS`)."""
+    return [f for f in FEATURES if FEATURE_GROUPS[f] in set(groups)]
+
+
+def _masked(samples: Sequence[Sample], drop: Sequence[str]) -> list[Sample]:
+    keep = np.array([f not in set(drop) for f in FEATURES])
+    return [Sample(s.sequence, s.seed, np.where(keep, s.features, 0.0), s.failed, s.use) for s in samples]
+
+
+def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, Any] | None = None,
+              drop: Sequence[str] = ()) -> FailureModel:
+    """Fit on every sample's usable frames; the threshold keeps :data:`MIN_RECALL` of their failures.
+
+    Features named in ``drop`` get weight 0 (their columns are zeroed for the fit, so the regression leaves
+    their coefficients at exactly 0, with mean 0 and scale 1): the model reads them and ignores them.
+    """
+    X, y = _stack(_masked(samples, drop))
     if len(np.unique(y)) < 2:
         raise ValueError("the training frames must hold both failed and good frames")
     mean, scale, coef, intercept = _fit(X, y, C)
@@ -81,7 +100,8 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
 
 
 def leave_one_sequence_out(samples: Sequence[Sample], *, C: float | Sequence[float] = 1.0,
-                           drop: Sequence[str] = ()) -> dict[str, tuple[FailureModel, list[Sample]]]:
+                           drop: Sequence[str] = (), select_groups: bool = False
+                           ) -> dict[str, tuple[FailureModel, list[Sample]]]:
     """For each sequence: the model fitted on all *other* sequences (every seed), and that sequence's samples.
 
     ``C`` is the regularisation, or a grid of values: then each fold chooses
@@ -89,17 +109,67 @@ def leave_one_sequence_out(samples: Sequence[Sample], *, C: float | Sequence[flo
     (nested cross-validation), and the chosen value is in the model's
     ``info["C"]``. ``drop`` names features to leave out (their columns are
     zeroed in training and scoring alike), for measuring what a group of
-    signals is worth.
+    signals is worth. With ``select_groups`` each fold also leaves out the
+    signal groups :func:`choose_groups` picks on its training sequences alone
+    (``info["dropped_groups"]``).
     """
-    keep = np.array([f not in set(drop) for f in FEATURES])
-    masked = [Sample(s.sequence, s.seed, np.where(keep, s.features, 0.0), s.failed, s.use) for s in samples]
-    folds = {}
-    for name in sorted({s.sequence for s in masked}):
-        train = [s for s in masked if s.sequence != name]
-        held = [s for s in masked if s.sequence == name]
-        fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C)
-        folds[name] = (fit_model(train, C=fold_C, info={"C": fold_C}), held)
-    return folds
+    return {name: fit_fold(samples, name, C=C, drop=drop, select_groups=select_groups)
+            for name in sorted({s.sequence for s in samples})}
+
+
+def fit_fold(samples: Sequence[Sample], held_out: str, *, C: float | Sequence[float] = 1.0,
+             drop: Sequence[str] = (), select_groups: bool = False) -> tuple[FailureModel, list[Sample]]:
+    """One fold of :func:`leave_one_sequence_out`: the model fitted without ``held_out``, and its samples."""
+    masked = _masked(samples, drop)
+    train = [s for s in masked if s.sequence != held_out]
+    held = [s for s in masked if s.sequence == held_out]
+    fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C)
+    dropped = choose_groups(train, C=fold_C) if select_groups else ()
+    model = fit_model(train, C=fold_C, drop=group_features(dropped),
+                      info={"C": fold_C, **({"dropped_groups": list(dropped)} if select_groups else {})})
+    return model, held
+
+
+def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_GROUP_GAIN) -> tuple[str, ...]:
+    """Signal groups to leave out: greedy backward elimination on the leave-one-sequence-out AUROC of ``samples``.
+
+    Each step leaves out the group whose absence raises the AUROC (pooled over
+    the held-out sequences) most, as long as it rises by ``min_gain``. Signals
+    whose level differs between sequences more than between good and failed
+    frames teach the model which sequence it is looking at; only held-out
+    sequences show that, so the choice is made by cross-validation, and, in
+    :func:`leave_one_sequence_out`, on the training sequences of each fold alone.
+    """
+    from annotator.evaluation.calibration import auroc
+
+    def score(dropped: Sequence[str]) -> float:
+        p, y = [], []
+        for model, held in leave_one_sequence_out(samples, C=C, drop=group_features(dropped)).values():
+            for s in held:
+                p.append(model.p_fail(s.features)[s.use])
+                y.append(s.failed[s.use])
+        return auroc(np.concatenate(p), np.concatenate(y))
+
+    return backward_elimination(sorted(set(FEATURE_GROUPS.values())), score, min_gain=min_gain)
+
+
+def backward_elimination(groups: Sequence[str], score: Callable[[Sequence[str]], float], *,
+                         min_gain: float = MIN_GROUP_GAIN) -> tuple[str, ...]:
+    """Greedy backward elimination: ``score(dropped)`` for the groups left out; at least one group stays.
+
+    Each step leaves out the group whose absence scores highest (ties: the first in ``groups``), if that beats
+    the current score by ``min_gain``; otherwise it stops. Returns the groups left out, in order.
+    """
+    dropped: list[str] = []
+    best = score(dropped)
+    while len(dropped) < len(groups) - 1:
+        trials = [(score([*dropped, g]), -k, g) for k, g in enumerate(groups) if g not in dropped]
+        value, _, group = max(trials)
+        if value < best + min_gain:
+            break
+        dropped.append(group)
+        best = value
+    return tuple(dropped)
 
 
 def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:

@@ -62,7 +62,7 @@ MODEL_PATH = "data/failure_model.json"
 LOOKAHEAD = 2  # frames after a frame that its features read
 LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
 TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
-_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace")
+_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou")
 
 FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED))
 
@@ -75,6 +75,7 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "scale_drift": "drift", "aspect_drift": "drift", "since_anchor": "drift",
     "flow_iou": "flow", "flow_fb": "flow", "flow_kept": "flow", "flow_iou_w5": "flow",
     "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance",
+    "run_iou": "runs", "run_iou_w5": "runs",
 }
 
 
@@ -111,7 +112,8 @@ def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -
 
 def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:
     names = list(SIGNALS)
-    cols = [raw[:, names.index("flow_iou")], raw[:, names.index("ncc_first")], causal[:, 0]]
+    cols = [raw[:, names.index("flow_iou")], raw[:, names.index("ncc_first")], causal[:, 0],
+            raw[:, names.index("run_iou")]]
     return np.stack(cols, axis=1)
 
 
@@ -187,9 +189,12 @@ class FailureModel:
             raise FailureModelError(f"{where} lacks or garbles a field ({type(exc).__name__}: {exc}); refit it "
                                     "with benchmarks/failure_model.py") from None
         if features != FEATURES:
-            raise FailureModelError(f"{where} is for features {list(features)[:4]}..., this version computes "
-                                    f"{list(FEATURES)[:4]}... ({len(FEATURES)}): refit it with "
-                                    "benchmarks/failure_model.py")
+            lacks, extra = [f for f in FEATURES if f not in features], [f for f in features if f not in FEATURES]
+            differs = (f"lacks {', '.join(lacks)}" if lacks else "") + ("; " if lacks and extra else "") + \
+                (f"has {', '.join(extra)}, which this version does not compute" if extra else "") or \
+                "lists them in another order"
+            raise FailureModelError(f"{where} is for other features than the {len(FEATURES)} this version computes "
+                                    f"(it {differs}): refit it with benchmarks/failure_model.py")
         for key, values in arrays.items():
             if values.shape != (len(FEATURES),) or not np.all(np.isfinite(values)):
                 raise FailureModelError(f"{where}: {key} must be {len(FEATURES)} finite numbers")

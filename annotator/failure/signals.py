@@ -16,7 +16,9 @@ checks independent of SPTPT's model, both from OpenCV:
 The rest come from the tracker: its log-likelihood and scoring stage, the
 gap between its best candidate and the next best ones (a flat posterior
 cannot tell the target from its surroundings), the spatial spread of its best
-candidates, and jumps of position, scale and aspect ratio.
+candidates, jumps of position, scale and aspect ratio, and, when it tracks
+several independent runs (``robust``), how far they agree (``run_iou``):
+runs that put the box in different places cannot all be right.
 
 Signals are the raw material; :mod:`annotator.failure.model` turns them into
 features (running levels, short windows) and a failure probability. Every
@@ -53,13 +55,14 @@ SIGNALS: Mapping[str, str] = {
     "flow_kept": "share of flow points whose forward-backward error was small (1 when no flow)",
     "ncc_first": "normalised cross-correlation of the box's grey patch with the first frame's, in [-1, 1]",
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
+    "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (1 with one run)",
 }
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
 NEUTRAL: Mapping[str, float] = {
     "log_likelihood": 0.0, "bootstrap": 0.0, "accepted": 1.0, "score_gap": 0.0, "particle_spread": 0.0, "jump": 0.0,
     "scale_change": 0.0, "scale_drift": 0.0, "aspect_drift": 0.0, "flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0,
-    "ncc_first": 1.0, "ncc_prev": 1.0,
+    "ncc_first": 1.0, "ncc_prev": 1.0, "run_iou": 1.0,
 }
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
@@ -139,7 +142,8 @@ class SignalMeter:
         return {**NEUTRAL, "ncc_first": 1.0 if self._first_patch is not None else 0.0}
 
     def next(self, frame_rgb: np.ndarray, box_xywh, *, log_likelihood: float, scoring: str, accepted: bool,
-             particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None) -> dict[str, float]:
+             particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None,
+             run_boxes_xywh: np.ndarray | None = None) -> dict[str, float]:
         if self._prev_grey is None:
             raise RuntimeError("SignalMeter.next() before first(): start the pass with first(frame, box)")
         grey = _grey(frame_rgb)
@@ -168,6 +172,7 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
+            "run_iou": 1.0 if run_boxes_xywh is None else min(_iou(box, other) for other in np.asarray(run_boxes_xywh)),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
         return signals

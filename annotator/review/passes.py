@@ -228,7 +228,7 @@ class _SegmentRun:
         target.seconds[row] = seconds
         signals = meter.next(frame, result.box_xywh, log_likelihood=result.log_likelihood, scoring=result.scoring,
                              accepted=result.accepted, particles_xywh=result.particles_xywh,
-                             particle_scores=result.particle_scores)
+                             particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
         target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
 
