@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "forward_backward.py"
+from _benchmark_scripts import BENCHMARKS, load_script
+
+SCRIPT = BENCHMARKS / "forward_backward.py"
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("forward_backward", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("forward_backward")
 
 
 def test_the_end_anchor_closes_the_last_run_of_accepted_frames():

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -10,14 +9,11 @@ import pytest
 
 from annotator.otb import write_otb_boxes
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "paired_runs.py"
+from _benchmark_scripts import load_script
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("paired_runs", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("paired_runs")
 
 
 def _write_run(tmp_path: Path, *, per_run: bool = True):

@@ -7,22 +7,17 @@ frames looked at, corrections and costs are checked against hand counts.
 
 from __future__ import annotations
 
-import importlib.util
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "simulated_reviewer.py"
+from _benchmark_scripts import load_script
 
 
 @pytest.fixture(scope="module")
 def sr():
-    spec = importlib.util.spec_from_file_location("simulated_reviewer", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("simulated_reviewer")
 
 
 N = 20
