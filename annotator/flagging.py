@@ -36,7 +36,7 @@ REASONS: Mapping[str, str] = {
     "doubt:drift": "the box's size or shape drifted from the first frame's, or it is far from the last human box",
     "doubt:flow": "optical flow moved the previous box somewhere else, or could not follow its points",
     "doubt:appearance": "the image under the box no longer looks like the object in the first frame",
-    "doubt:runs": "the tracker's independent runs put the box in different places: at least one has lost the object",
+    "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
     "span": "between two doubtful frames a few frames apart: flagged so the span is reviewed in one go",
     "budget": "among the most doubtful frames of the track (--review-budget)",
     "outside": "the object is marked absent from this frame (a correction said so)",

@@ -249,10 +249,11 @@ def main() -> int:
     # Every figure at the same C (chosen on all sequences), the baseline too: per-fold C choices shift each fold's
     # probabilities and cost pooled AUROC by themselves.
     worth = {}
-    for group in ["", *sorted(set(FEATURE_GROUPS.values()))]:
-        r, _, _ = held_out(samples, C=chosen_C, drop=group_features([group]), workers=args.workers)
-        worth[group or "nothing"] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
-                                          np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
+    left_out = {"nothing": [], **{g: [g] for g in sorted(set(FEATURE_GROUPS.values()))}}
+    for name, groups in left_out.items():
+        r, _, _ = held_out(samples, C=chosen_C, drop=group_features(groups), workers=args.workers)
+        worth[name] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
+                            np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
     single = {}
     X = np.concatenate([s.features[s.use] for s in samples])
     y = np.concatenate([s.failed[s.use] for s in samples])

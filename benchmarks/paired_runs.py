@@ -47,7 +47,8 @@ def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict
     for name, truth in gt.items():
         frames = folder / tracker / f"{name}.frames.npz"
         if not frames.is_file():
-            raise PairedError(f"{frames}: missing; run benchmarks/otb_benchmark.py with --out {folder.parent} first")
+            raise PairedError(f"{frames}: missing; track it first with benchmarks/otb_benchmark.py --trackers {tracker} "
+                              "--out pointing at the folder given here")
         with np.load(frames) as stored:
             if "run_boxes" not in stored:
                 raise PairedError(f"{frames}: no per-run boxes; the tracker {tracker!r} has one run, or the file "

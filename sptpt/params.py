@@ -66,7 +66,7 @@ class TrackerParams:
     and that filter learns from accepted frames; SPTPT's candidates still choose the centre. The subspace score
     is not peaked at the true scale on real frames, so scale drifts (Dog1 0.6x, Human9 1.8x its side). Measured
     and not used by any preset: on ``../shared/otb`` (3 seeds) it holds the size (Dog1 0.79 against robust's
-    0.63) but the mean falls, 0.478 and 0.485 (with and without scale particles) against robust's 0.508, as
+    0.63) but the mean falls, 0.478 and 0.485 (with and without scale particles) against one-run robust's 0.508, as
     the tighter box loses the centre on Car4 and Bolt2. Kept as a switch for that comparison.
     [ours, benchmarks/RESULTS.md "robust development"]"""
 

@@ -87,14 +87,42 @@ def test_run_agreement_falls_where_one_run_slides_onto_background(clip):
     agreement = np.array(agreement)
     np.testing.assert_allclose(agreement[: FAIL_AT - 1], 1.0)  # both runs on the object: full agreement
     assert agreement[FAIL_AT - 1:].max() < 0.1
-    # One run: nothing to disagree with, the neutral value.
-    assert measure(clip, lost)["run_iou"].tolist() == [1.0] * len(clip.frames)
+    # One run: nothing to compare, not measured (NaN), and not measured on the given box either.
+    assert np.isnan(measure(clip, lost)["run_iou"]).all()
     # Three runs: the lowest agreement with any of them.
     box = np.array([0.0, 0.0, 10.0, 10.0])
     meter.first(clip.frames[0], box)
     three = meter.next(clip.frames[1], box, log_likelihood=5.0, scoring="subspace", accepted=True,
                        run_boxes_xywh=np.array([box, [5.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 5.0]]))
     assert three["run_iou"] == pytest.approx(1 / 3)
+
+
+def test_a_signal_not_measured_neither_raises_nor_lowers_p_fail():
+    model = load_model()
+    n = 12
+    rng = np.random.default_rng(5)
+    signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
+    keyframe = np.zeros(n, bool)
+    keyframe[0] = True
+    one_run = {**signals, "run_iou": np.full(n, np.nan)}
+    features = feature_matrix(one_run, keyframe)
+    cols = [FEATURES.index("run_iou"), FEATURES.index("run_iou_w5")]
+    assert np.isnan(features[:, cols]).all()
+    # The same as the run features sitting at the model's training mean: they add nothing to the log-odds.
+    at_mean = features.copy()
+    at_mean[:, cols] = model.mean[cols]
+    np.testing.assert_array_equal(model.p_fail(features), model.p_fail(at_mean))
+    # Partly measured windows average what was measured: frame 0 (a given box) is NaN, frames 1-2 are not.
+    two_runs = {**signals, "run_iou": np.concatenate([[np.nan], signals["run_iou"][1:]])}
+    w5 = feature_matrix(two_runs, keyframe)[:, FEATURES.index("run_iou_w5")]
+    assert w5[0] == pytest.approx(two_runs["run_iou"][1:3].mean())
+    # Online, frame by frame, the same bits.
+    online = OnlineFailure(model)
+    scored = []
+    for t in range(n):
+        scored += online.push({k: v[t] for k, v in one_run.items()}, keyframe=bool(keyframe[t]))
+    scored += online.finish()
+    np.testing.assert_array_equal([p for _, p, _ in scored], model.p_fail(features))
 
 
 def test_the_object_swapped_for_background_lowers_the_appearance_signals(clip):
@@ -260,7 +288,7 @@ def test_nested_folds_choose_C_without_seeing_their_held_out_sequence():
 
 def test_backward_elimination_drops_the_group_whose_absence_scores_best_while_it_gains_enough():
     table = {(): 0.80, ("a",): 0.79, ("b",): 0.85, ("c",): 0.84,
-             ("b", "a"): 0.70, ("b", "c"): 0.851, ("c", "a"): 0.0}
+             ("b", "a"): 0.70, ("b", "c"): 0.851}
     score = lambda dropped: table[tuple(dropped)]  # noqa: E731
     assert backward_elimination(["a", "b", "c"], score, min_gain=0.002) == ("b",)  # c's extra 0.001 is too little
     assert backward_elimination(["a", "b", "c"], score, min_gain=0.0) == ("b", "c")  # and one group always stays

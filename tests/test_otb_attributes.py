@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+from _benchmark_scripts import BENCHMARKS as BENCH, load_script
 CODES = {"IV", "SV", "OCC", "DEF", "MB", "FM", "IPR", "OPR", "OV", "BC", "LR"}
 SEQUENCES = {"Bolt2", "Car4", "CarDark", "Coke", "Couple", "Crossing", "David", "Deer", "Diving", "Dog1", "Girl",
              "Human9", "Jogging.1", "Jogging.2", "Singer2", "Skiing", "Tiger1"}
@@ -33,10 +32,7 @@ RUNS = {
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("otb_benchmark_under_test", BENCH / "otb_benchmark.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("otb_benchmark")
 
 
 def _auc(rows: list[str]) -> float:

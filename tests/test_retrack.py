@@ -140,19 +140,23 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
-def test_reflag_reads_a_track_stored_before_a_signal_existed_as_if_it_were_neutral():
-    from annotator.failure import SIGNALS
-    from annotator.failure.signals import NEUTRAL
+def test_reflag_reads_run_iou_not_measured_as_the_models_mean():
+    """A one-run track (or a store from before run_iou) has NaN there: the model neither raises nor lowers p_fail."""
+    from annotator.failure import FEATURES, SIGNALS, feature_matrix, load_model
 
     n = 10
     rng = np.random.default_rng(2)
     signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
-    old = {name: v for name, v in signals.items() if name != "run_iou"}  # a store from before run_iou
-    signals["run_iou"] = np.full(n, NEUTRAL["run_iou"])
     keyframe, outside = np.zeros(n, bool), np.zeros(n, bool)
     keyframe[0] = True
-    for got, want in zip(reflag(old, keyframe, outside, CONFIG), reflag(signals, keyframe, outside, CONFIG)):
-        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    missing = {**signals, "run_iou": np.full(n, np.nan)}
+    model = load_model()
+    features = feature_matrix(missing, keyframe)
+    cols = [FEATURES.index("run_iou"), FEATURES.index("run_iou_w5")]
+    features[:, cols] = model.mean[cols]  # where the model reads a feature not measured
+    p_missing = reflag(missing, keyframe, outside, CONFIG)[2]
+    np.testing.assert_allclose(p_missing, np.where(keyframe, 0.0, model.p_fail(features)), rtol=0, atol=1e-12)
+    assert not np.allclose(p_missing, reflag({**signals, "run_iou": np.ones(n)}, keyframe, outside, CONFIG)[2])
 
 
 # --------------------------------------------------------------------------- the algorithm

@@ -65,7 +65,10 @@ def choose_threshold(p_fail: np.ndarray, failed: np.ndarray, *, min_recall: floa
 def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     from sklearn.linear_model import LogisticRegression
 
-    mean = X.mean(axis=0)
+    # NaN (a signal not measured) sits at the mean, as FailureModel.p_fail reads it.
+    measured = ~np.isnan(X)
+    mean = np.where(measured, X, 0.0).sum(axis=0) / np.maximum(measured.sum(axis=0), 1)
+    X = np.where(measured, X, mean)
     scale = X.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
     model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs")

@@ -106,8 +106,14 @@ class _Causal:
 
 def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -> np.ndarray:
     """One feature row: raw signals, causal features, and the centred means over ``window`` (<= 5 rows)."""
-    smoothed = [window[:, k].mean() for k in range(window.shape[1])]
+    # NaN (a signal not measured) is left out of a mean, and stays NaN where nothing in the window was measured.
+    smoothed = [_nanmean(window[:, k]) for k in range(window.shape[1])]
     return np.concatenate([raw, causal, smoothed])
+
+
+def _nanmean(values: np.ndarray) -> float:
+    measured = values[~np.isnan(values)]
+    return float(measured.mean()) if len(measured) else math.nan
 
 
 def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:
@@ -154,17 +160,21 @@ class FailureModel:
         """``(F,)`` failure probabilities of ``(F, len(FEATURES))`` feature rows."""
         # A row-wise sum, not a matrix product: BLAS sums a one-row product (OnlineFailure, frame by frame) in
         # another order than a whole track's (score_track), and the two must give the same bits.
-        standardised = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
-        z = self.intercept + (standardised * self.coef).sum(axis=1)
+        z = self.intercept + self._contributions(features).sum(axis=1)
         return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
 
     def main_group(self, features: np.ndarray) -> list[str]:
         """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most."""
-        contrib = ((np.asarray(features, dtype=np.float64) - self.mean) / self.scale) * self.coef
+        contrib = self._contributions(features)
         groups = sorted(set(FEATURE_GROUPS.values()))
         by_group = np.stack([contrib[:, [i for i, f in enumerate(self.features) if FEATURE_GROUPS[f] == g]].sum(axis=1)
                              for g in groups], axis=1)
         return [groups[int(k)] for k in np.argmax(by_group, axis=1)]
+
+    def _contributions(self, features: np.ndarray) -> np.ndarray:
+        """Per row and feature, the term of the log-odds; a NaN feature (not measured) sits at the training mean: 0."""
+        standardised = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        return np.where(np.isnan(standardised), 0.0, standardised) * self.coef
 
     def to_json(self) -> dict[str, Any]:
         return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),
@@ -190,9 +200,12 @@ class FailureModel:
                                     "with benchmarks/failure_model.py") from None
         if features != FEATURES:
             lacks, extra = [f for f in FEATURES if f not in features], [f for f in features if f not in FEATURES]
-            differs = (f"lacks {', '.join(lacks)}" if lacks else "") + ("; " if lacks and extra else "") + \
-                (f"has {', '.join(extra)}, which this version does not compute" if extra else "") or \
-                "lists them in another order"
+            parts = []
+            if lacks:
+                parts.append(f"lacks {', '.join(lacks)}")
+            if extra:
+                parts.append(f"has {', '.join(extra)}, which this version does not compute")
+            differs = "; ".join(parts) or "lists them in another order"
             raise FailureModelError(f"{where} is for other features than the {len(FEATURES)} this version computes "
                                     f"(it {differs}): refit it with benchmarks/failure_model.py")
         for key, values in arrays.items():

@@ -18,13 +18,17 @@ gap between its best candidate and the next best ones (a flat posterior
 cannot tell the target from its surroundings), the spatial spread of its best
 candidates, jumps of position, scale and aspect ratio, and, when it tracks
 several independent runs (``robust``), how far they agree (``run_iou``):
-runs that put the box in different places cannot all be right.
+runs that put the box in different places have likely not all kept the
+object.
 
 Signals are the raw material; :mod:`annotator.failure.model` turns them into
-features (running levels, short windows) and a failure probability. Every
-signal is finite; where one cannot be measured (the first frame, a box
-outside the image) it takes its "nothing wrong" value, documented per name
-in :data:`SIGNALS`.
+features (running levels, short windows) and a failure probability. Where a
+signal cannot be measured on a frame (the first frame, a box outside the
+image) it takes its "nothing wrong" value, documented per name in
+:data:`SIGNALS`. One signal can be missing for a whole track: ``run_iou`` is
+NaN when the tracker has one run (``paper``, ``fast``), because "nothing to
+compare with" is not "the runs agree"; the model reads a NaN feature as its
+training mean, so it neither raises nor lowers ``p_fail``.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
+__all__ = ["MAY_BE_MISSING", "NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -55,15 +59,20 @@ SIGNALS: Mapping[str, str] = {
     "flow_kept": "share of flow points whose forward-backward error was small (1 when no flow)",
     "ncc_first": "normalised cross-correlation of the box's grey patch with the first frame's, in [-1, 1]",
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
-    "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (1 with one run)",
+    "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (NaN with one run: "
+               "not measured)",
 }
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
 NEUTRAL: Mapping[str, float] = {
     "log_likelihood": 0.0, "bootstrap": 0.0, "accepted": 1.0, "score_gap": 0.0, "particle_spread": 0.0, "jump": 0.0,
     "scale_change": 0.0, "scale_drift": 0.0, "aspect_drift": 0.0, "flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0,
-    "ncc_first": 1.0, "ncc_prev": 1.0, "run_iou": 1.0,
+    "ncc_first": 1.0, "ncc_prev": 1.0,
+    # Not measured: a given box has no runs to compare, and a one-run tracker none at all (module docstring).
+    "run_iou": math.nan,
 }
+#: Signals that may be NaN (not measured); the model reads a NaN feature as its training mean.
+MAY_BE_MISSING = ("run_iou",)
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
@@ -172,7 +181,7 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
-            "run_iou": 1.0 if run_boxes_xywh is None else min(_iou(box, other) for other in np.asarray(run_boxes_xywh)),
+            "run_iou": math.nan if run_boxes_xywh is None else min(_iou(box, other) for other in np.asarray(run_boxes_xywh)),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
         return signals
