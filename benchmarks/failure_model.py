@@ -30,10 +30,12 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import glob
 import json
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -44,8 +46,8 @@ sys.path.insert(0, str(ROOT))
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
-from annotator.failure.fit import (MIN_GROUP_GAIN, MIN_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,  # noqa: E402
-                                   group_features)
+from annotator.failure.fit import (  # noqa: E402
+    MIN_GROUP_GAIN, MIN_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model, group_features)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES  # noqa: E402
 from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
@@ -123,9 +125,6 @@ def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers:
              ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict, dict]:
     """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample; C and the groups
     left out, of each fold. Folds run in ``workers`` processes."""
-    import functools
-    from concurrent.futures import ProcessPoolExecutor
-
     names = sorted({s.sequence for s in samples})
     fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups)
     if workers > 1:
@@ -141,6 +140,12 @@ def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers:
             p = model.p_fail(s.features)
             out.append((s, np.where(s.use, p, 0.0), model.main_group(s.features), model.threshold))
     return out, fold_C, fold_groups
+
+
+def pooled(results) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out ``(p_fail, failed)`` of every usable frame of :func:`held_out`'s results, seeds pooled."""
+    return (np.concatenate([p[s.use] for s, p, _, _ in results]),
+            np.concatenate([s.failed[s.use] for s, _, _, _ in results]))
 
 
 def flag_metrics(results, aucs, params: FlagParams) -> dict[int, dict[str, float]]:
@@ -235,8 +240,7 @@ def main() -> int:
         print(f"groups left out per held-out fold: {fold_groups}; on all sequences: {list(dropped)}", flush=True)
     prob = per_seed_probability(results)
     flags = flag_metrics(results, aucs, params)
-    pooled_p = np.concatenate([p[s.use] for s, p, _, _ in results])
-    pooled_y = np.concatenate([s.failed[s.use] for s, _, _, _ in results])
+    pooled_p, pooled_y = pooled(results)
 
     # Baseline: the tracker's own confidence, where it is on the subspace scale.
     base = []
@@ -252,8 +256,7 @@ def main() -> int:
     left_out = {"nothing": [], **{g: [g] for g in sorted(set(FEATURE_GROUPS.values()))}}
     for name, groups in left_out.items():
         r, _, _ = held_out(samples, C=chosen_C, drop=group_features(groups), workers=args.workers)
-        worth[name] = auroc(np.concatenate([p[s.use] for s, p, _, _ in r]),
-                            np.concatenate([s.failed[s.use] for s, _, _, _ in r]))
+        worth[name] = auroc(*pooled(r))
     single = {}
     X = np.concatenate([s.features[s.use] for s in samples])
     y = np.concatenate([s.failed[s.use] for s in samples])

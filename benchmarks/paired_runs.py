@@ -37,8 +37,8 @@ class PairedError(ValueError):
 
 def seed_folders(out: Path) -> list[Path]:
     """``out/seed<k>`` folders in seed order, or ``out`` itself for a single-seed run."""
-    folders = sorted(out.glob("seed*"), key=lambda p: int(p.name[4:]) if p.name[4:].isdigit() else -1)
-    return [p for p in folders if p.name[4:].isdigit()] or [out]
+    folders = [p for p in out.glob("seed*") if p.name[4:].isdigit()]
+    return sorted(folders, key=lambda p: int(p.name[4:])) or [out]
 
 
 def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -47,8 +47,8 @@ def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict
     for name, truth in gt.items():
         frames = folder / tracker / f"{name}.frames.npz"
         if not frames.is_file():
-            raise PairedError(f"{frames}: missing; track it first with benchmarks/otb_benchmark.py --trackers {tracker} "
-                              "--out pointing at the folder given here")
+            raise PairedError(f"{frames}: missing; track it first with benchmarks/otb_benchmark.py "
+                              f"--trackers {tracker} --out pointing at the folder given here")
         with np.load(frames) as stored:
             if "run_boxes" not in stored:
                 raise PairedError(f"{frames}: no per-run boxes; the tracker {tracker!r} has one run, or the file "

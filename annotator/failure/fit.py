@@ -14,8 +14,8 @@ import numpy as np
 
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, model_from_fit
 
-__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model", "group_features",
-           "leave_one_sequence_out"]
+__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
+           "group_features", "leave_one_sequence_out"]
 
 #: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
 MIN_GROUP_GAIN = 0.002
@@ -146,12 +146,7 @@ def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_
     from annotator.evaluation.calibration import auroc
 
     def score(dropped: Sequence[str]) -> float:
-        p, y = [], []
-        for model, held in leave_one_sequence_out(samples, C=C, drop=group_features(dropped)).values():
-            for s in held:
-                p.append(model.p_fail(s.features)[s.use])
-                y.append(s.failed[s.use])
-        return auroc(np.concatenate(p), np.concatenate(y))
+        return auroc(*_held_out_predictions(samples, C=C, drop=group_features(dropped)))
 
     return backward_elimination(sorted(set(FEATURE_GROUPS.values())), score, min_gain=min_gain)
 
@@ -187,12 +182,16 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
 
     if len({s.sequence for s in samples}) < 2:
         raise ValueError("choosing C needs samples of at least two sequences")
-    scores = []
-    for value in sorted(float(c) for c in grid):
-        p, y = [], []
-        for model, held in leave_one_sequence_out(samples, C=value).values():
-            for s in held:
-                p.append(model.p_fail(s.features)[s.use])
-                y.append(s.failed[s.use])
-        scores.append((expected_calibration_error(np.concatenate(p), np.concatenate(y)), value))
+    scores = [(expected_calibration_error(*_held_out_predictions(samples, C=value)), value)
+              for value in sorted(float(c) for c in grid)]
     return min(scores)[1]
+
+
+def _held_out_predictions(samples: Sequence[Sample], **fold_options) -> tuple[np.ndarray, np.ndarray]:
+    """``(p_fail, failed)`` of every usable frame, each sequence scored by the model fitted without it."""
+    p, y = [], []
+    for model, held in leave_one_sequence_out(samples, **fold_options).values():
+        for s in held:
+            p.append(model.p_fail(s.features)[s.use])
+            y.append(s.failed[s.use])
+    return np.concatenate(p), np.concatenate(y)

@@ -39,7 +39,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-__all__ = ["MAY_BE_MISSING", "NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
+__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -71,8 +71,6 @@ NEUTRAL: Mapping[str, float] = {
     # Not measured: a given box has no runs to compare, and a one-run tracker none at all (module docstring).
     "run_iou": math.nan,
 }
-#: Signals that may be NaN (not measured); the model reads a NaN feature as its training mean.
-MAY_BE_MISSING = ("run_iou",)
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
@@ -181,7 +179,7 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
-            "run_iou": math.nan if run_boxes_xywh is None else min(_iou(box, other) for other in np.asarray(run_boxes_xywh)),
+            "run_iou": math.nan if run_boxes_xywh is None else min(_iou(box, other) for other in run_boxes_xywh),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
         return signals

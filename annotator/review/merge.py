@@ -119,8 +119,7 @@ def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.
     model = load_model(config.failure_model)
     # NaN means "not measured" (rows no pass scored; run_iou of a one-run tracker or of a store written before
     # it existed): the neutral value, which for run_iou is NaN itself (the model reads it as its training mean).
-    filled = {name: np.where(np.isnan(values := np.asarray(signals[name], dtype=np.float64)), NEUTRAL[name], values)
-              for name in SIGNALS}
+    filled = {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
     p_fail, groups = score_track(filled, keyframe | outside, outside, model)
     threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
     result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)
