@@ -222,6 +222,8 @@ def main() -> int:
     if any(not np.isfinite(c) or c <= 0 for c in C):
         parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
     C = C[0] if len(C) == 1 else C
+    if args.workers < 1:
+        parser.error(f"--workers {args.workers}: expected an integer >= 1 (processes for the held-out folds)")
     samples, aucs, confidence = load_samples(args.runs, args.otb)
     seeds = sorted({s.seed for s in samples})
     preset = run_preset(args.runs)

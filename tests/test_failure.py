@@ -367,3 +367,18 @@ def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
     done = subprocess.run([sys.executable, str(script), "--C", value], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1] == f"failure_model.py: error: --C {value!r}: {message}"
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--workers", "0"], "--workers 0: expected an integer >= 1"),
+    (["--C", "0"], "--C '0': every value must be a finite number > 0"),
+])
+def test_the_refit_script_refuses_bad_options_in_one_line(argv, fragment):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "failure_model.py"
+    done = subprocess.run([sys.executable, str(script), *argv], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert fragment in done.stderr.strip().splitlines()[-1]
