@@ -76,6 +76,10 @@ class Tracker:
         stage of :data:`STAGES`; benchmarks use it to time stages without the
         tracker measuring anything itself.
 
+    With ``params.independent_runs`` R > 1 the tracker follows the object with R
+    independent runs and reports, each frame, the more confident one; every
+    run's box is in ``FrameResult.run_boxes_xywh``.
+
     Examples
     --------
     >>> tracker = Tracker(seed=0)                      # doctest: +SKIP
@@ -94,26 +98,17 @@ class Tracker:
         self.params = get_preset("paper") if params is None else params
         if not isinstance(self.params, TrackerParams):
             raise TypeError(f"params must be a TrackerParams, got {type(self.params).__name__}")
-        self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        self._time = stage_timer or _no_timer
-        p = self.params
-        # Several independent runs: each a one-run tracker with a random stream of its own, drawn from this one.
-        self._runs: list[Tracker] = []
-        if p.independent_runs > 1:
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        p, timer = self.params, stage_timer or _no_timer
+        if p.independent_runs == 1:
+            # One run draws from the tracker's own stream, so a one-run preset's boxes depend on nothing else.
+            self._runs = [_Run(p, rng, timer)]
+        else:
+            # Each run gets a random stream of its own, seeded from the tracker's.
             single = dataclasses.replace(p, independent_runs=1)
-            child_seeds = self._rng.integers(0, 2**63 - 1, size=p.independent_runs)
-            self._runs = [Tracker(single, seed=int(s), stage_timer=stage_timer) for s in child_seeds]
-        self.n_superpixels = seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
-        if p.ranks[1] > self.n_superpixels:
-            raise ValueError(
-                f"parameter ranks={p.ranks!r} is invalid: the superpixel rank {p.ranks[1]} exceeds the "
-                f"{self.n_superpixels} superpixels per template; lower it"
-            )
-        self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
-        # Column of the state that a relative motion std multiplies: cx, cy by the size, scale by the scale.
-        self._frame_shape: tuple[int, int] | None = None
+            child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
+            self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
 
-    # ------------------------------------------------------------------ public API
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
 
@@ -130,10 +125,9 @@ class Tracker:
         FrameResult
             The given box, with confidence 1 and ``scoring='init'``.
         """
-        if self._runs:
-            return _with_run_boxes([run.init(frame, box_xywh) for run in self._runs], 0)
         with _single_threaded_blas():
-            return self._init(frame, box_xywh)
+            results = [run.init(frame, box_xywh) for run in self._runs]
+        return _reported(results, 0)
 
     def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
         """Track the object into the next frame.
@@ -150,14 +144,29 @@ class Tracker:
         -------
         FrameResult
         """
-        if self._runs:
+        with _single_threaded_blas():
             # Each run checks the frame (and that init came first) itself.
             results = [run.update(frame, details=details) for run in self._runs]
-            return _with_run_boxes(results, _more_confident(results))
-        with _single_threaded_blas():
-            return self._update(frame, details=details)
+        return _reported(results, _more_confident(results))
 
-    def _init(self, frame: np.ndarray, box_xywh) -> FrameResult:
+
+class _Run:
+    """One SPTPT run: its random stream, dictionary, candidates, models and state."""
+
+    def __init__(self, params: TrackerParams, rng: np.random.Generator, time: StageTimer) -> None:
+        self.params = p = params
+        self._rng = rng
+        self._time = time
+        self.n_superpixels = seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
+        if p.ranks[1] > self.n_superpixels:
+            raise ValueError(
+                f"parameter ranks={p.ranks!r} is invalid: the superpixel rank {p.ranks[1]} exceeds the "
+                f"{self.n_superpixels} superpixels per template; lower it"
+            )
+        self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
+        self._frame_shape: tuple[int, int] | None = None
+
+    def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         rgb = _as_rgb(frame)
         box = _validate_box(box_xywh, rgb.shape[:2])
         p = self.params
@@ -191,7 +200,7 @@ class Tracker:
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
 
-    def _update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
+    def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
         if self._frame_shape is None:
             raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
         rgb = _as_rgb(frame)
@@ -387,8 +396,10 @@ class Tracker:
             return TensorSubspace.fit(codes, p.ranks)
 
 
-def _with_run_boxes(results: list[FrameResult], chosen: int) -> FrameResult:
-    """``results[chosen]`` carrying every run's box (``FrameResult.run_boxes_xywh``)."""
+def _reported(results: list[FrameResult], chosen: int) -> FrameResult:
+    """``results[chosen]``, carrying every run's box (``FrameResult.run_boxes_xywh``) when there are several."""
+    if len(results) == 1:
+        return results[0]
     return dataclasses.replace(results[chosen], run_boxes_xywh=np.stack([r.box_xywh for r in results]))
 
 

@@ -142,9 +142,10 @@ def test_repeated_states_are_computed_once_with_identical_results(clip):
     frames = clip.frames
     tracker = Tracker(get_preset("paper"), seed=5)
     tracker.init(frames[0], clip.boxes_xywh[0])
-    states = tracker._draw(tracker._state, 6, tracker._sigma)
+    run = tracker._runs[0]
+    states = run._draw(run._state, 6, run._sigma)
     repeated = states[[0, 1, 2, 1, 3, 0, 4, 5]]
-    codes, labels = tracker._codes(frames[1], repeated)
-    features, want_labels = tracker._features(frames[1], repeated)
-    assert np.array_equal(codes, tracker._code(features))
+    codes, labels = run._codes(frames[1], repeated)
+    features, want_labels = run._features(frames[1], repeated)
+    assert np.array_equal(codes, run._code(features))
     assert np.array_equal(labels, want_labels)
