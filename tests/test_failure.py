@@ -25,7 +25,7 @@ from annotator.failure import (
     score_track,
 )
 from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, fit_model, group_features,
-                                   leave_one_sequence_out)
+                                   leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -207,6 +207,7 @@ def test_the_shipped_model_loads_with_its_fields_and_versions():
     data = json.loads(json.dumps(model.to_json()))
     assert data["format"] == MODEL_FORMAT and data["version"] == MODEL_VERSION
     assert "fitted_by" in model.info or "note" in model.info  # says how it was made
+    assert model.info["calibration"]["slope"] > 0  # recalibrated on held-out sequences (fit_model)
 
 
 @pytest.mark.parametrize("edit, fragment", [
@@ -257,18 +258,83 @@ def test_refitting_on_fixed_input_reproduces_the_model_file():
                           first.info).to_json() == first.to_json()
 
 
-def test_choose_C_takes_the_grid_value_with_the_best_calibrated_held_out_sequences():
+def test_choose_C_takes_the_grid_value_that_ranks_held_out_failures_best():
     samples = small_samples()
     grid = [1.0, 0.01, 0.0001]
-    errors = {}
-    for c in grid:  # the reference: leave-one-sequence-out by hand, pooled calibration error
+    scores = {}
+    for c in grid:  # the reference: leave-one-sequence-out by hand, pooled AUROC of the uncalibrated folds
         p, y = [], []
-        for model, held in leave_one_sequence_out(samples, C=c).values():
+        for model, held in leave_one_sequence_out(samples, C=c, calibrate=False).values():
             p += [model.p_fail(s.features)[s.use] for s in held]
             y += [s.failed[s.use] for s in held]
-        errors[c] = expected_calibration_error(np.concatenate(p), np.concatenate(y))
-    assert len(set(errors.values())) == 3  # the grid matters on these samples
-    assert choose_C(samples, grid) == min(grid, key=lambda c: (errors[c], c))
+        scores[c] = auroc(np.concatenate(p), np.concatenate(y))
+    assert len(set(scores.values())) == 3  # the grid matters on these samples
+    assert choose_C(samples, grid) == max(grid, key=lambda c: (scores[c], -c))
+
+
+def test_platt_recovers_a_known_slope_and_offset():
+    rng = np.random.default_rng(3)
+    logit = rng.normal(0, 2, 20000)
+    failed = rng.random(20000) < 1 / (1 + np.exp(-(1.5 * logit - 0.5)))
+    slope, offset = platt(1 / (1 + np.exp(-logit)), failed)
+    assert abs(slope - 1.5) < 0.08 and abs(offset + 0.5) < 0.08
+    with pytest.raises(ValueError, match="both failed and good"):
+        platt(np.full(5, 0.3), np.zeros(5, bool))
+
+
+def test_fit_model_folds_the_recalibration_into_its_coefficients():
+    samples = small_samples()
+    raw = fit_model(samples, C=0.01, calibrate=False)
+    calibrated = fit_model(samples, C=0.01)
+    slope, offset = calibrated.info["calibration"]["slope"], calibrated.info["calibration"]["offset"]
+    # The slope and offset are Platt's on the same samples' held-out predictions ...
+    p, y = [], []
+    for model, held in leave_one_sequence_out(samples, C=0.01, calibrate=False).values():
+        p += [model.p_fail(s.features)[s.use] for s in held]
+        y += [s.failed[s.use] for s in held]
+    assert (slope, offset) == platt(np.concatenate(p), np.concatenate(y))
+    # ... the strong regularisation left the raw model underconfident, so the slope is above 1 ...
+    assert slope > 1
+    # ... and the calibrated model is the raw one's log-odds, scaled and shifted: same ranking, other numbers.
+    features = samples[0].features
+    q = raw.p_fail(features)
+    want = 1 / (1 + np.exp(-(slope * np.log(q / (1 - q)) + offset)))
+    np.testing.assert_allclose(calibrated.p_fail(features), want, rtol=1e-9, atol=1e-12)
+    assert "calibration" not in raw.info
+    # One sequence has no held-out predictions to calibrate on: the model stays raw.
+    assert "calibration" not in fit_model(samples[:1], C=0.01).info
+
+
+def test_a_model_whose_held_out_sequences_rank_backwards_is_not_turned_around():
+    # flow_iou marks failures in A and good frames in B: each fold ranks the other sequence backwards.
+    a, b = small_samples()[:2]
+    column = FEATURES.index("flow_iou")
+    flipped = b.features.copy()
+    flipped[:, column] += 4.0 * b.failed
+    samples = [a, Sample("B", 0, flipped, b.failed, b.use)]
+    raw = fit_model(samples, C=0.01, calibrate=False)
+    model = fit_model(samples, C=0.01)
+    assert "is not positive" in model.info["calibration"]["skipped"]
+    np.testing.assert_array_equal(model.p_fail(a.features), raw.p_fail(a.features))
+
+
+def test_recalibration_lowers_the_held_out_calibration_error_of_an_underconfident_model():
+    # One clear signal, six sequences; C = 0.01 shrinks the log-odds to about a quarter of what the data say.
+    rng = np.random.default_rng(12)
+    samples = []
+    for k in range(6):
+        failed = rng.random(200) < 0.3
+        features = rng.normal(0, 1, (200, len(FEATURES)))
+        features[:, FEATURES.index("flow_iou")] -= 3.0 * failed
+        samples.append(Sample(f"S{k}", 0, features, failed, np.ones(200, bool)))
+    errors = {}
+    for calibrate in (False, True):
+        p, y = [], []
+        for model, held in leave_one_sequence_out(samples, C=0.01, calibrate=calibrate).values():
+            p += [model.p_fail(s.features)[s.use] for s in held]
+            y += [s.failed[s.use] for s in held]
+        errors[calibrate] = expected_calibration_error(np.concatenate(p), np.concatenate(y))
+    assert errors[False] > 0.1 and errors[True] < 0.03
 
 
 def test_nested_folds_choose_C_without_seeing_their_held_out_sequence():
@@ -355,7 +421,7 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
 
 
 @pytest.mark.parametrize("value, message", [
-    ("abc", "expected a number or comma-separated numbers such as 1,0.1,0.01,0.003,0.001"),
+    ("abc", "expected a number or comma-separated numbers such as 1,0.1,0.01,0.003,0.001,0.0003,0.0001"),
     ("0,1", "every value must be a finite number > 0"),
 ])
 def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
