@@ -36,10 +36,10 @@ from sptpt.subspace import reconstruction_error  # noqa: E402
 from sptpt.tracker import Tracker  # noqa: E402
 
 
-def _errors(tracker: Tracker, codes: np.ndarray) -> dict[str, np.ndarray]:
-    p = tracker.params
+def _errors(run, codes: np.ndarray) -> dict[str, np.ndarray]:
+    p = run.params
     out = {}
-    for name, model in (("pos", tracker._positive), ("neg", tracker._negative)):
+    for name, model in (("pos", run._positive), ("neg", run._negative)):
         if model is None:
             out[f"{name}_modes"] = out[f"{name}_sample"] = out[f"{name}_re"] = np.full(len(codes), np.nan)
             continue
@@ -55,6 +55,7 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
     gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")
     # Same seeding as benchmarks/_sptpt_runner.py, so the boxes equal the benchmark's.
     tracker = Tracker(params, seed=np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())])))
+    run = tracker._runs[0]  # the one run (main() refuses several): its models and state
     rows: dict[str, list] = {k: [] for k in (
         "iou", "log_likelihood", "accepted", "scoring", "pos_modes", "pos_sample", "neg_modes", "neg_sample",
         "gt_log_likelihood", "spread_px", "scale", "gt_scale", "positive_batches", "pos_rank3", "neg_rank3",
@@ -64,9 +65,9 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
         if k == 0:
             result = tracker.init(frame, gt[0])
             continue
-        had_positive = tracker._positive
+        had_positive = run._positive
         result = tracker.update(frame, details=True)
-        if tracker._positive is not had_positive:
+        if run._positive is not had_positive:
             batches += 1
         box = result.box_xywh
         rows["iou"].append(float(iou_xywh(box[None], gt[k][None])[0]))
@@ -78,10 +79,10 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
         # update would mix two models; re-scoring the winner with the current models is close enough for
         # a diagnosis and identical whenever the frame was rejected.
         rgb = np.ascontiguousarray(frame if frame.ndim == 3 else np.repeat(frame[:, :, None], 3, axis=2))
-        states = np.stack([tracker._state, state_from_box_xywh(gt[k], params.template_size)])
-        features, _ = tracker._features(rgb, states)
-        codes = tracker._code(features)
-        errs = _errors(tracker, codes)
+        states = np.stack([run._state, state_from_box_xywh(gt[k], params.template_size)])
+        features, _ = run._features(rgb, states)
+        codes = run._code(features)
+        errs = _errors(run, codes)
         for key in ("pos_modes", "pos_sample", "neg_modes", "neg_sample"):
             rows[key].append(float(errs[key][0]))
         rows["gt_log_likelihood"].append(float(errs["neg_re"][1] - errs["pos_re"][1]))
@@ -94,8 +95,8 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
         rows["scale"].append(float(box[2] * box[3]) ** 0.5)
         rows["gt_scale"].append(float(gt[k][2] * gt[k][3]) ** 0.5)
         rows["positive_batches"].append(batches)
-        rows["pos_rank3"].append(0 if tracker._positive is None else tracker._positive.sample.basis.shape[1])
-        rows["neg_rank3"].append(0 if tracker._negative is None else tracker._negative.sample.basis.shape[1])
+        rows["pos_rank3"].append(0 if run._positive is None else run._positive.sample.basis.shape[1])
+        rows["neg_rank3"].append(0 if run._negative is None else run._negative.sample.basis.shape[1])
     return {k: np.array(v) for k, v in rows.items()}
 
 
@@ -135,6 +136,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=HERE / "_runs" / "diagnosis")
     args = parser.parse_args()
     params = params_from_mapping(json.loads(args.set), base=get_preset(args.preset))
+    if params.independent_runs != 1:
+        parser.error(f"--preset {args.preset} tracks {params.independent_runs} independent runs; this diagnosis "
+                     "reads one run's models: add --set '{\"independent_runs\": 1}'")
     out = args.out / (args.label or args.preset)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.sequences.split(","):

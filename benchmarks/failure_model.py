@@ -379,7 +379,7 @@ def main() -> int:
         *per_seed,
         "",
         f"What each group of signals is worth (held-out AUROC, pooled over seeds, with the group's features left out; "
-        f"every row at C = {chosen_C} in every fold, so 'nothing' differs from the nested figure above):",
+        f"every row at C = {chosen_C} in every fold; pooled, so 'nothing' differs from the per-seed mean above):",
         "",
         *worth_rows,
         "",

@@ -3,6 +3,7 @@
     python benchmarks/simulated_reviewer.py  # default subset, seeds 0,1,2, records RESULTS.md
     python benchmarks/simulated_reviewer.py --sequences Deer,Crossing --stop 100 --seeds 0 --no-record
     python benchmarks/simulated_reviewer.py --sequences all --budget 40
+    python benchmarks/simulated_reviewer.py --policy spans  # records its own section
 
 Human time (issue #9 item 6): ``--inspect-seconds`` (1 s) per frame a person
 looks at, ``--correct-seconds`` (6 s) per box a person draws. Per OTB
@@ -17,11 +18,15 @@ sequence and seed (frames held in memory, the tracker driven through
    If at least ``--target`` (95%) of the frames have IoU >= 0.5 with the
    ground truth, or ``--budget`` corrections per 100 frames are spent, it
    stops (the flags of the final round are looked at too: a reviewer checks
-   them before stopping). Otherwise it corrects the flagged frame with the
-   highest failure probability (lowest confidence; 6 s) and the tool
-   re-tracks the spans it affects (forward and backward between anchors, as
-   ``sptpt-annotate retrack`` does). When no frame is flagged but the target
-   is not met, the tool gives no hint; the reviewer then
+   them before stopping). Otherwise it corrects (6 s a box) and the tool
+   re-tracks the spans the corrections affect (forward and backward between
+   anchors, as ``sptpt-annotate retrack`` does). ``--policy worst``
+   (default) corrects one box a round, on the flagged frame with the highest
+   failure probability; ``--policy spans`` corrects, in every flagged span,
+   the first frame whose box is wrong, all before one re-track (the README's
+   workflow: one fixes.csv for the whole report, one ``retrack``). When no
+   frame is flagged (``spans``: no flagged box is wrong) but the target is
+   not met, the tool gives no hint; the reviewer then
    (``--fallback first-wrong``, default) scrubs the overlay from the start
    and corrects the first frame whose box is wrong (IoU < 0.5), looking at
    every frame up to it (same rule: boxes already seen are free), or
@@ -91,7 +96,7 @@ from _sequences import SequenceError, select_sequences  # noqa: E402
 from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
-from annotator.flagging import FlagParams  # noqa: E402
+from annotator.flagging import FlagParams, spans_from_mask  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import (  # noqa: E402
@@ -175,16 +180,30 @@ def merge_study(frames, gt, config: RunConfig, every: int, threshold: float) -> 
     return out
 
 
+#: How the reviewer corrects, each round:
+#:
+#: * ``worst``: one box, on the flagged frame with the highest p_fail, then the tool re-tracks (an interactive
+#:   loop: one correction, one re-track);
+#: * ``spans``: in every flagged span, the first frame whose box is wrong, all at once, then one re-track (the
+#:   README's workflow: read the report, write the fixes of every span into one CSV, run ``retrack`` once).
+#:   A span whose boxes are all right gets no correction.
+POLICIES = ("worst", "spans")
+NOTHING_TO_CORRECT = {"worst": "nothing is flagged", "spans": "no flagged box is wrong"}
+POLICY_TEXT = {"worst": "the flagged frame with the highest p_fail",
+               "spans": "the first wrong box (IoU < the threshold) of every flagged span, all before one re-track"}
+
+
 def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: float, threshold: float,
-                       budget: int, fallback: str) -> dict:
+                       budget: int, fallback: str, policy: str = "worst") -> dict:
     """The review loop against the ground truth; counts what a person looks at and what they correct.
 
     Each round the reviewer is shown the flagged frames and looks at every
     one whose box it has not seen yet (``inspected``; a frame is seen again
     only when a re-track changed its box), then stops if the target is met,
-    else corrects one frame and the tool re-tracks. ``inspected_every_round``
-    counts every flagged frame again in every round instead (an upper bound:
-    a reviewer who does not remember what it already checked).
+    else corrects (see :data:`POLICIES`) and the tool re-tracks.
+    ``inspected_every_round`` counts every flagged frame again in every round
+    instead (an upper bound: a reviewer who does not remember what it already
+    checked).
     """
     n = len(frames)
     provider = ArrayFrames(frames)
@@ -211,10 +230,16 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
         look(candidates)  # also in the last round: the reviewer checks what is flagged before it stops
         if curve[-1] >= target or len(corrections) >= budget:
             break
-        if candidates.any():
-            position = int(np.argmin(np.where(candidates, track.confidence, np.inf)))
-        else:
-            # Nothing flagged, target not met: the tool gave no hint.
+        picks = []
+        if policy == "spans":
+            # The reviewer has just looked at every flagged frame, so it knows which boxes are wrong.
+            wrong = iou_rows(track.boxes_xywh, gt) < threshold
+            picks = [int(lo + np.argmax(wrong[lo:hi])) for lo, hi in spans_from_mask(candidates) if wrong[lo:hi].any()]
+            picks = picks[: budget - len(corrections)]
+        elif candidates.any():
+            picks = [int(np.argmin(np.where(candidates, track.confidence, np.inf)))]
+        if not picks:
+            # Nothing flagged (or, with "spans", nothing flagged is wrong), target not met: the tool gave no hint.
             fallbacks += 1
             if fallback == "first-wrong":  # the reviewer scrubs the overlay and fixes the first wrong box
                 wrong = (iou_rows(track.boxes_xywh, gt) < threshold) & ~track.keyframe
@@ -228,8 +253,9 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
                     break
                 position = int(np.argmin(np.where(pool, track.confidence, np.inf)))
                 look(indices == position)
-        corrections.append(position)
-        result = retrack_tracks(provider, indices, {1: {position: tuple(gt[position])}}, config, merge=merge,
+            picks = [position]
+        corrections += picks
+        result = retrack_tracks(provider, indices, {1: {p: tuple(gt[p]) for p in picks}}, config, merge=merge,
                                 previous={1: PreviousTrack(track, scoring)}, pass_cache=cache)
         calls += result.frames_tracked
         track, scoring = result.tracks[0], result.scoring[1]
@@ -270,7 +296,8 @@ def run_sequence(job: dict) -> dict:
     if not job["skip_reviewer"]:
         budget = max(1, math.ceil(job["budget"] * len(frames) / 100))
         record["reviewer"] = simulated_reviewer(frames, gt, config, merge=job["merge"], target=job["target"],
-                                                threshold=job["threshold"], budget=budget, fallback=job["fallback"])
+                                                threshold=job["threshold"], budget=budget, fallback=job["fallback"],
+                                                policy=job["policy"])
     print(json.dumps({k: v for k, v in record.items() if k != "merge_study"} | {
         "reviewer": {k: v for k, v in record.get("reviewer", {}).items() if k not in ("curve",)}}), file=sys.stderr,
         flush=True)
@@ -332,8 +359,9 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                          if args.fallback == "first-wrong" else "corrects the least confident non-anchor frame")
         lines += [f"Human time: {i_s:g} s per frame looked at, {c_s:g} s per box drawn. **Reviewer**: each round it "
                   f"looks at every flagged frame whose box it has not seen (a frame counts again only after a "
-                  f"re-track changed its box), stops if the target is met, else corrects the flagged frame with the "
-                  f"highest p_fail (when nothing is flagged it {fallback_text}; 'fallback picks'), and the tool "
+                  f"re-track changed its box), stops if the target is met, else corrects {POLICY_TEXT[args.policy]} "
+                  f"(policy `{args.policy}`; when {NOTHING_TO_CORRECT[args.policy]} "
+                  f"it {fallback_text}; 'fallback picks'), and the tool "
                   f"re-tracks forward and backward between anchors (merge `{args.merge}`). **Baseline**: a person "
                   f"boxes every k-th frame and the last, the tool interpolates x, y, w, h linearly; the k with the "
                   f"fewest keyframes that reaches the target (its best case: a real user does not know k); each "
@@ -416,6 +444,10 @@ def main() -> None:
     parser.add_argument("--merge", default=DEFAULT_MERGE, choices=MERGES)
     parser.add_argument("--merge-study", type=int, default=0, metavar="M",
                         help="also compare merges with ground truth every M frames (0: skip)")
+    parser.add_argument("--policy", default="worst", choices=POLICIES,
+                        help="how the reviewer corrects each round (see POLICIES): 'worst' one box on the most "
+                             "doubtful flagged frame; 'spans' the first wrong box of every flagged span at once "
+                             "(default worst; each policy records its own RESULTS.md section)")
     parser.add_argument("--fallback", default="first-wrong", choices=("first-wrong", "lowest-confidence"),
                         help="the reviewer's pick when no frame is flagged but the target is not met")
     parser.add_argument("--skip-reviewer", action="store_true", help="only the baseline and the merge study")
@@ -431,9 +463,16 @@ def main() -> None:
     parser.add_argument("--flag-threshold", type=float, default=None,
                         help="flag frames with p_fail above this (default: the failure model's threshold)")
     parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=HERE / "_runs" / "simulated_reviewer.json")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON of every record (default: benchmarks/_runs/simulated_reviewer[-POLICY].json)")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = parser.parse_args()
+    if args.policy == "spans" and args.fallback == "lowest-confidence":
+        # Its fallback starts when every flagged box was seen to be right, and would pick one of those again.
+        parser.error("--policy spans needs --fallback first-wrong: the least confident frame is then a flagged "
+                     "frame the reviewer has just seen to be right")
+    if args.out is None:
+        args.out = HERE / "_runs" / f"simulated_reviewer{'' if args.policy == 'worst' else '-' + args.policy}.json"
     try:
         seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
     except ValueError:
@@ -469,7 +508,8 @@ def main() -> None:
     jobs = [dict(seq_dir=str(s), params=params.to_dict(), preset=args.preset, seed=seed, stop=args.stop,
                  target=args.target, threshold=args.threshold, budget=args.budget, merge=args.merge,
                  merge_study=args.merge_study if seed == seeds[0] else 0, skip_reviewer=args.skip_reviewer,
-                 fallback=args.fallback, failure_model=model_path, flag_threshold=args.flag_threshold,
+                 fallback=args.fallback, policy=args.policy, failure_model=model_path,
+                 flag_threshold=args.flag_threshold,
                  threads=1 if args.workers > 1 else 0)
             for seed in (seeds[:1] if args.skip_reviewer else seeds) for s in all_sequences]
     started = time.perf_counter()
@@ -492,7 +532,9 @@ def main() -> None:
             update_section("simulated-reviewer-merge-study",
                            text.replace("## Simulated reviewer", "## Simulated reviewer: merge study", 1))
         else:
-            update_section("simulated-reviewer", text)
+            key = "simulated-reviewer" if args.policy == "worst" else f"simulated-reviewer-{args.policy}"
+            heading = "## Simulated reviewer" + ("" if args.policy == "worst" else f" (policy `{args.policy}`)")
+            update_section(key, text.replace("## Simulated reviewer", heading, 1))
 
 
 if __name__ == "__main__":

@@ -24,8 +24,8 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, fit_model, group_features,
-                                   leave_one_sequence_out, platt)
+from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, choose_threshold, fit_model,
+                                   group_features, leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -301,8 +301,21 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients():
     want = 1 / (1 + np.exp(-(slope * np.log(q / (1 - q)) + offset)))
     np.testing.assert_allclose(calibrated.p_fail(features), want, rtol=1e-9, atol=1e-12)
     assert "calibration" not in raw.info
+    # The threshold is chosen on the calibrated probabilities.
+    X = np.concatenate([s.features[s.use] for s in samples])
+    y = np.concatenate([s.failed[s.use] for s in samples])
+    assert calibrated.threshold == choose_threshold(calibrated.p_fail(X), y) != raw.threshold
     # One sequence has no held-out predictions to calibrate on: the model stays raw.
     assert "calibration" not in fit_model(samples[:1], C=0.01).info
+
+
+def test_calibration_is_skipped_when_a_fold_has_frames_of_one_kind():
+    a, b = small_samples()[:2]
+    all_good = Sample("B", 0, b.features, np.zeros_like(b.failed), b.use)
+    model = fit_model([a, all_good], C=0.01)  # the fold that holds A out trains on good frames only
+    assert "both failed and good" in model.info["calibration"]["skipped"]
+    np.testing.assert_array_equal(model.p_fail(a.features), fit_model([a, all_good], C=0.01, calibrate=False)
+                                  .p_fail(a.features))
 
 
 def test_a_model_whose_held_out_sequences_rank_backwards_is_not_turned_around():

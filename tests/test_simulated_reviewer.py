@@ -50,12 +50,12 @@ def fake_retrack(false_alarm: int | None):
     return retrack
 
 
-def run(sr, monkeypatch, false_alarm, fallback="first-wrong"):
-    monkeypatch.setattr(sr, "retrack_tracks", fake_retrack(false_alarm))
+def run(sr, monkeypatch, false_alarm, fallback="first-wrong", policy="worst", retrack=None):
+    monkeypatch.setattr(sr, "retrack_tracks", retrack or fake_retrack(false_alarm))
     monkeypatch.setattr(sr, "PreviousTrack", lambda track, scoring: types.SimpleNamespace(track=track))
     frames = [np.zeros((4, 4, 3), np.uint8)] * N
     return sr.simulated_reviewer(frames, GT, None, merge="anchored", target=0.95, threshold=0.5, budget=5,
-                                 fallback=fallback)
+                                 fallback=fallback, policy=policy)
 
 
 def test_flagged_frames_are_looked_at_once_per_box(sr, monkeypatch):
@@ -94,3 +94,101 @@ def test_baseline_takes_the_fewest_keyframes(sr):
     zigzag = GT.copy()
     zigzag[1::2, 0] += 100.0
     assert sr.interpolation_baseline(zigzag, 1.0, 0.5) == {"k": 1, "keyframes": N - 1, "success": 1.0}
+
+
+def two_losses_retrack(calls: list):
+    """Wrong boxes on 3..5 and on 12..16, each until an anchor lands in it; the spans flagged are 2..6 (its first
+    frame right) and 12..16, and a right frame, 9, is flagged alone. Records the anchors of every call."""
+    def retrack(frames, indices, anchors, config, *, previous=None, **_):
+        calls.append(sorted(anchors[1]))
+        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
+        keyframe[list(anchors[1])] = True
+        boxes, flagged = GT.copy(), np.zeros(N, bool)
+        flagged[9] = True
+        for lo, hi, shown in ((3, 6, (2, 7)), (12, 17, (12, 17))):
+            if not keyframe[lo:hi].any():
+                boxes[lo:hi, 0] += 100.0
+                flagged[slice(*shown)] = True
+        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
+                                      confidence=np.where(flagged, 0.2, 0.9))
+        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
+    return retrack
+
+
+def test_spans_policy_corrects_the_first_wrong_box_of_every_flagged_span_before_one_retrack(sr, monkeypatch):
+    calls = []
+    out = run(sr, monkeypatch, None, policy="spans", retrack=two_losses_retrack(calls))
+    # Span 2..6 starts with a right box: its first wrong one is 3; span 12..16 is wrong from 12; the lone right
+    # flag on 9 gets no correction. Both go in one re-track.
+    assert out["corrected_frames"] == [3, 12]
+    assert calls == [[0], [3, 12]]
+    assert out["flagged_per_round"] == [11, 1] and out["inspected"] == 11
+    assert out["fallbacks"] == 0 and out["reached"]
+
+
+def test_worst_policy_corrects_one_box_a_round(sr, monkeypatch):
+    calls = []
+    out = run(sr, monkeypatch, None, policy="worst", retrack=two_losses_retrack(calls))
+    # All flagged frames share one p_fail, so the first flagged is taken each round, right box or not: 2, 3, 9, 12.
+    assert out["corrected_frames"] == [2, 3, 9, 12]
+    assert calls == [[0], [2], [3], [9], [12]]
+
+
+def three_losses_retrack(calls: list):
+    """Wrong (and flagged) boxes on 2..3, 8..9 and 14..15, each until an anchor lands in it."""
+    def retrack(frames, indices, anchors, config, *, previous=None, **_):
+        calls.append(sorted(anchors[1]))
+        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
+        keyframe[list(anchors[1])] = True
+        boxes, flagged = GT.copy(), np.zeros(N, bool)
+        for lo in (2, 8, 14):
+            if not keyframe[lo:lo + 2].any():
+                boxes[lo:lo + 2, 0] += 100.0
+                flagged[lo:lo + 2] = True
+        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
+                                      confidence=np.where(flagged, 0.2, 0.9))
+        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
+    return retrack
+
+
+def test_spans_policy_stops_at_the_budget(sr, monkeypatch):
+    calls = []
+    monkeypatch.setattr(sr, "retrack_tracks", three_losses_retrack(calls))
+    monkeypatch.setattr(sr, "PreviousTrack", lambda track, scoring: types.SimpleNamespace(track=track))
+    out = sr.simulated_reviewer([np.zeros((4, 4, 3), np.uint8)] * N, GT, None, merge="anchored", target=1.0,
+                                threshold=0.5, budget=2, fallback="first-wrong", policy="spans")
+    # Three wrong spans, a budget of two boxes: the first two spans are corrected, then the reviewer stops.
+    assert out["corrected_frames"] == [2, 8] and calls == [[0], [2, 8]]
+    assert not out["reached"] and out["inspected"] == 6
+
+
+def test_spans_policy_falls_back_when_every_flagged_box_is_right(sr, monkeypatch):
+    # Only frame 15 is flagged, and its box is right; the wrong boxes on WRONG are not flagged.
+    def retrack(frames, indices, anchors, config, *, previous=None, **_):
+        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
+        keyframe[list(anchors[1])] = True
+        boxes, flagged = GT.copy(), np.zeros(N, bool)
+        flagged[15] = True
+        if not keyframe[WRONG].any():
+            boxes[WRONG, 0] += 100.0
+        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
+                                      confidence=np.where(flagged, 0.3, 0.9))
+        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
+
+    out = run(sr, monkeypatch, None, policy="spans", retrack=retrack)
+    # The reviewer looks at 15 (right), scrubs 1..5 and corrects 5, the first wrong box.
+    assert out["corrected_frames"] == [5] and out["fallbacks"] == 1
+    assert out["inspected"] == 6 and out["reached"]
+
+
+def test_spans_policy_with_the_lowest_confidence_fallback_is_refused_in_one_line():
+    import subprocess
+    import sys
+
+    from _benchmark_scripts import BENCHMARKS
+
+    done = subprocess.run([sys.executable, str(BENCHMARKS / "simulated_reviewer.py"), "--policy", "spans",
+                           "--fallback", "lowest-confidence"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1].startswith(
+        "simulated_reviewer.py: error: --policy spans needs --fallback first-wrong")

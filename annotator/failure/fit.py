@@ -106,17 +106,28 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     mean, scale, coef, intercept = _fit(X, y, C)
     info = dict(info or {})
     if calibrate and len({s.sequence for s in samples}) >= 2:
-        slope, offset = platt(*_held_out_predictions(samples, C=C, drop=drop))
-        if slope > 0:
+        slope, offset, skipped = _calibration(samples, C=C, drop=drop)
+        if skipped:
+            info["calibration"] = {"skipped": skipped}
+        else:
             coef, intercept = coef * slope, intercept * slope + offset
             info["calibration"] = {"slope": slope, "offset": offset}
-        else:
-            # Held-out sequences ranked backwards (too few or too unlike to learn from): a negative slope would
-            # turn the model around on the frames it was fitted to, so it stays as fitted.
-            info["calibration"] = {"skipped": f"held-out slope {slope:.3g} is not positive"}
     provisional = model_from_fit(FEATURES, mean, scale, coef, intercept, 0.5, {})
     threshold = choose_threshold(provisional.p_fail(X), y)
     return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, info)
+
+
+def _calibration(samples: Sequence[Sample], *, C: float, drop: Sequence[str]) -> tuple[float, float, str]:
+    """Platt's ``(slope, offset, "")`` on the samples' held-out predictions, or ``(1, 0, why)`` if unusable."""
+    try:
+        slope, offset = platt(*_held_out_predictions(samples, C=C, drop=drop))
+    except ValueError as exc:  # a fold's training frames, or all held-out frames, are of one kind
+        return 1.0, 0.0, str(exc)
+    if slope <= 0:
+        # Held-out sequences ranked backwards (too few or too unlike to learn from): a negative slope would turn
+        # the model around on the frames it was fitted to, so it stays as fitted.
+        return 1.0, 0.0, f"held-out slope {slope:.3g} is not positive"
+    return slope, offset, ""
 
 
 def platt(p_fail: np.ndarray, failed: np.ndarray) -> tuple[float, float]:

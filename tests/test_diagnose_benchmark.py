@@ -1,0 +1,33 @@
+"""benchmarks/diagnose_sptpt.py: it reads one run's private models, so it must follow the tracker's layout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from _benchmark_scripts import load_script
+from annotator.synthetic import make_clip
+from sptpt.params import get_preset, params_from_mapping
+
+
+def _sequence(tmp_path: Path) -> Path:
+    clip = make_clip(6, size=(96, 72), object_size=(24, 20), seed=3)
+    folder = tmp_path / "Alpha"
+    (folder / "img").mkdir(parents=True)
+    for i, frame in enumerate(clip.frames):
+        cv2.imwrite(str(folder / "img" / f"{i + 1:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    rows = [f"{x + 1:.2f},{y + 1:.2f},{w:.2f},{h:.2f}" for x, y, w, h in clip.boxes_xywh]  # OTB: 1-based
+    (folder / "groundtruth_rect.txt").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_the_diagnosis_runs_and_logs_every_frame_after_the_first(tmp_path):
+    diagnose = load_script("diagnose_sptpt").diagnose
+    params = params_from_mapping({"n_particles": 30, "n_negatives": 20, "update_every": 3}, base=get_preset("paper"))
+    rows = diagnose(_sequence(tmp_path), params, seed=0, stop=None)
+    assert rows["iou"].shape == rows["pos_rank3"].shape == (5,)
+    assert np.all((rows["iou"] >= 0) & (rows["iou"] <= 1))
+    # The positive model exists once update_every frames were accepted; the log then shows its rank.
+    assert rows["positive_batches"][-1] >= 1 and rows["pos_rank3"][-1] > 0
