@@ -96,23 +96,30 @@ def test_baseline_takes_the_fewest_keyframes(sr):
     assert sr.interpolation_baseline(zigzag, 1.0, 0.5) == {"k": 1, "keyframes": N - 1, "success": 1.0}
 
 
-def two_losses_retrack(calls: list):
-    """Wrong boxes on 3..5 and on 12..16, each until an anchor lands in it; the spans flagged are 2..6 (its first
-    frame right) and 12..16, and a right frame, 9, is flagged alone. Records the anchors of every call."""
+def scripted_retrack(calls: list, losses, right_flags=()):
+    """A ``retrack_tracks`` stand-in: for each ``(lo, hi, flagged_lo, flagged_hi)`` of ``losses`` the boxes on
+    ``lo..hi-1`` are wrong, and ``flagged_lo..flagged_hi-1`` flagged, until an anchor lands in ``lo..hi-1``; the
+    frames in ``right_flags`` are flagged with right boxes. Records the anchors of every call in ``calls``."""
     def retrack(frames, indices, anchors, config, *, previous=None, **_):
         calls.append(sorted(anchors[1]))
         keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
         keyframe[list(anchors[1])] = True
         boxes, flagged = GT.copy(), np.zeros(N, bool)
-        flagged[9] = True
-        for lo, hi, shown in ((3, 6, (2, 7)), (12, 17, (12, 17))):
+        flagged[list(right_flags)] = True
+        for lo, hi, flagged_lo, flagged_hi in losses:
             if not keyframe[lo:hi].any():
                 boxes[lo:hi, 0] += 100.0
-                flagged[slice(*shown)] = True
+                flagged[flagged_lo:flagged_hi] = True
         track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
                                       confidence=np.where(flagged, 0.2, 0.9))
         return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
     return retrack
+
+
+def two_losses_retrack(calls: list):
+    """Wrong boxes on 3..5 and on 12..16; the spans flagged are 2..6 (its first frame right) and 12..16, and a
+    right frame, 9, is flagged alone."""
+    return scripted_retrack(calls, [(3, 6, 2, 7), (12, 17, 12, 17)], right_flags=[9])
 
 
 def test_spans_policy_corrects_the_first_wrong_box_of_every_flagged_span_before_one_retrack(sr, monkeypatch):
@@ -136,19 +143,7 @@ def test_worst_policy_corrects_one_box_a_round(sr, monkeypatch):
 
 def three_losses_retrack(calls: list):
     """Wrong (and flagged) boxes on 2..3, 8..9 and 14..15, each until an anchor lands in it."""
-    def retrack(frames, indices, anchors, config, *, previous=None, **_):
-        calls.append(sorted(anchors[1]))
-        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
-        keyframe[list(anchors[1])] = True
-        boxes, flagged = GT.copy(), np.zeros(N, bool)
-        for lo in (2, 8, 14):
-            if not keyframe[lo:lo + 2].any():
-                boxes[lo:lo + 2, 0] += 100.0
-                flagged[lo:lo + 2] = True
-        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
-                                      confidence=np.where(flagged, 0.2, 0.9))
-        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
-    return retrack
+    return scripted_retrack(calls, [(lo, lo + 2, lo, lo + 2) for lo in (2, 8, 14)])
 
 
 def test_spans_policy_stops_at_the_budget(sr, monkeypatch):
@@ -164,17 +159,7 @@ def test_spans_policy_stops_at_the_budget(sr, monkeypatch):
 
 def test_spans_policy_falls_back_when_every_flagged_box_is_right(sr, monkeypatch):
     # Only frame 15 is flagged, and its box is right; the wrong boxes on WRONG are not flagged.
-    def retrack(frames, indices, anchors, config, *, previous=None, **_):
-        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
-        keyframe[list(anchors[1])] = True
-        boxes, flagged = GT.copy(), np.zeros(N, bool)
-        flagged[15] = True
-        if not keyframe[WRONG].any():
-            boxes[WRONG, 0] += 100.0
-        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
-                                      confidence=np.where(flagged, 0.3, 0.9))
-        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
-
+    retrack = scripted_retrack([], [(WRONG[0], WRONG[-1] + 1, 0, 0)], right_flags=[15])
     out = run(sr, monkeypatch, None, policy="spans", retrack=retrack)
     # The reviewer looks at 15 (right), scrubs 1..5 and corrects 5, the first wrong box.
     assert out["corrected_frames"] == [5] and out["fallbacks"] == 1
