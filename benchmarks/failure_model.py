@@ -145,8 +145,21 @@ def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers:
 
 def calibration_slope(info: dict) -> float | str:
     """A fitted model's Platt slope, rounded, or why it was not calibrated."""
-    calibration = info.get("calibration", {"skipped": "one sequence"})
+    calibration = _calibration(info)
     return round(calibration["slope"], 2) if "slope" in calibration else calibration["skipped"]
+
+
+def calibration_text(info: dict) -> str:
+    """The shipped model's Platt slope and offset, or why it was not recalibrated."""
+    calibration = _calibration(info)
+    if "slope" not in calibration:
+        return f"not recalibrated ({calibration['skipped']})"
+    return f"slope {calibration['slope']:.2f}, offset {calibration['offset']:.2f}"
+
+
+def _calibration(info: dict) -> dict:
+    # fit_model records no calibration when it had a single sequence to fit on.
+    return info.get("calibration", {"skipped": "one sequence"})
 
 
 def pooled(results) -> tuple[np.ndarray, np.ndarray]:
@@ -361,7 +374,7 @@ def main() -> int:
         f"(nested), {dict(sorted(collections.Counter(fold_C.values()).items()))} (value: folds); shipped model "
         f"C = {chosen_C}. Calibration: each model's log-odds scaled and shifted by Platt scaling on the "
         f"leave-one-sequence-out predictions of its own training sequences; fold slopes {fold_slopes}, shipped "
-        f"model slope {calibration_slope(model.info)}, offset {model.info['calibration'].get('offset', 0.0):.2f}. "
+        f"model {calibration_text(model.info)}. "
         + (f"Signal groups: each fold leaves out the groups that greedy backward elimination (a group goes when "
            f"its absence raises the leave-one-sequence-out AUROC by >= {MIN_GROUP_GAIN}) picks on that fold's "
            f"training sequences, with that fold's C (nested): "

@@ -461,3 +461,14 @@ def test_the_refit_script_refuses_bad_options_in_one_line(argv, fragment):
     done = subprocess.run([sys.executable, str(script), *argv], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert fragment in done.stderr.strip().splitlines()[-1]
+
+
+def test_failure_model_script_describes_a_model_without_recalibration_too():
+    from _benchmark_scripts import load_script
+
+    fm = load_script("failure_model")
+    fitted = {"calibration": {"slope": 1.1881, "offset": 0.1144}}
+    assert fm.calibration_text(fitted) == "slope 1.19, offset 0.11" and fm.calibration_slope(fitted) == 1.19
+    skipped = {"calibration": {"skipped": "held-out slope -0.2 is not positive"}}
+    assert fm.calibration_text(skipped) == "not recalibrated (held-out slope -0.2 is not positive)"
+    assert fm.calibration_text({}) == "not recalibrated (one sequence)" and fm.calibration_slope({}) == "one sequence"
