@@ -200,7 +200,7 @@ MOVED_IOU = (0.95, 0.9, 0.8)
 
 
 def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: float, threshold: float,
-                       budget: int, fallback: str, policy: str = "worst") -> dict:
+                       budget: int, fallback: str, policy: str = "worst", accept: bool = False) -> dict:
     """The review loop against the ground truth; counts what a person looks at and what they correct.
 
     Each round the reviewer is shown the flagged frames and looks at every
@@ -225,8 +225,14 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
     seen_moved = {tol: np.full((n, 4), np.nan) for tol in MOVED_IOU}
     looks_moved = {tol: 0 for tol in MOVED_IOU}
 
+    pending_accepts: dict[int, tuple] = {}  # flagged frames seen to be right, sent as anchors with the next re-track
+    accept_spans = accepted = 0
+
     def look(mask: np.ndarray) -> None:
         new = mask & ~np.all(seen == track.boxes_xywh, axis=1)
+        if accept:
+            right = new & (iou_rows(track.boxes_xywh, gt) >= threshold) & ~track.keyframe
+            pending_accepts.update({int(p): tuple(track.boxes_xywh[p]) for p in np.flatnonzero(right)})
         looks["new"] += int(new.sum())
         looks["all"] += int(mask.sum())
         seen[mask] = track.boxes_xywh[mask]
@@ -272,7 +278,16 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
             picks = [position]
         right_picks += int((iou_rows(track.boxes_xywh[picks], gt[picks]) >= threshold).sum())
         corrections += picks
-        result = retrack_tracks(provider, indices, {1: {p: tuple(gt[p]) for p in picks}}, config, merge=merge,
+        new_anchors = {p: tuple(gt[p]) for p in picks}
+        if accept:
+            kept = {p: box for p, box in pending_accepts.items() if p not in new_anchors}
+            mask = np.zeros(n, bool)
+            mask[list(kept)] = True
+            accept_spans += len(spans_from_mask(mask))
+            accepted += len(kept)
+            new_anchors = {**kept, **new_anchors}
+            pending_accepts.clear()
+        result = retrack_tracks(provider, indices, {1: new_anchors}, config, merge=merge,
                                 previous={1: PreviousTrack(track, scoring)}, pass_cache=cache)
         calls += result.frames_tracked
         track, scoring = result.tracks[0], result.scoring[1]
@@ -284,6 +299,8 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
         "inspected_every_round": looks["all"],
         "inspected_moved": {str(tol): count for tol, count in looks_moved.items()},
         "right_picks": right_picks,
+        "accepted": accepted,
+        "accept_spans": accept_spans,
         "flagged_per_round": shown,
         "reached": curve[-1] >= target,
         "initial_success": curve[0],
@@ -316,7 +333,7 @@ def run_sequence(job: dict) -> dict:
         budget = max(1, math.ceil(job["budget"] * len(frames) / 100))
         record["reviewer"] = simulated_reviewer(frames, gt, config, merge=job["merge"], target=job["target"],
                                                 threshold=job["threshold"], budget=budget, fallback=job["fallback"],
-                                                policy=job["policy"])
+                                                policy=job["policy"], accept=job["accept"])
     print(json.dumps({k: v for k, v in record.items() if k != "merge_study"} | {
         "reviewer": {k: v for k, v in record.get("reviewer", {}).items() if k not in ("curve",)}}), file=sys.stderr,
         flush=True)
@@ -327,12 +344,13 @@ def per100(amount: float, frames: int) -> float:
     return 100.0 * amount / frames if frames else math.nan
 
 
-def human_seconds(record: dict, inspect_s: float, correct_s: float) -> dict:
+def human_seconds(record: dict, inspect_s: float, correct_s: float, accept_s: float = 0.0) -> dict:
     """Human seconds of one record: the reviewer, the baseline, and the alternative counts shown beside them."""
     rv, b, n = record["reviewer"], record["baseline"], record["frames"]
+    accepting = accept_s * rv.get("accept_spans", 0)
     return {
-        "reviewer": inspect_s * rv["inspected"] + correct_s * rv["corrections"],
-        "reviewer_every_round": inspect_s * rv["inspected_every_round"] + correct_s * rv["corrections"],
+        "reviewer": inspect_s * rv["inspected"] + correct_s * rv["corrections"] + accepting,
+        "reviewer_every_round": inspect_s * rv["inspected_every_round"] + correct_s * rv["corrections"] + accepting,
         # A keyframe is looked at and boxed; the interpolated frames are trusted unseen, as unflagged frames are.
         "baseline": (inspect_s + correct_s) * b["keyframes"],
         # ... or the person also checks every interpolated frame (frame 0 is given to both).
@@ -356,7 +374,7 @@ def pooled_by_seed(records: list[dict], args) -> dict[int, dict]:
                                        "baseline": 0.0, "baseline_check_all": 0.0})
         p["frames"] += r["frames"]
         p["reached"] &= bool(r["reviewer"]["reached"])
-        for key, value in human_seconds(r, args.inspect_seconds, args.correct_seconds).items():
+        for key, value in human_seconds(r, args.inspect_seconds, args.correct_seconds, args.accept_seconds).items():
             p[key] += value
     return out
 
@@ -394,7 +412,7 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         for name in names:
             rs = [r for r in records if r["sequence"] == name]
             n, b = rs[0]["frames"], rs[0]["baseline"]
-            cost = [human_seconds(r, i_s, c_s) for r in rs]
+            cost = [human_seconds(r, i_s, c_s, args.accept_seconds) for r in rs]
             lines.append(
                 f"| {name} | {n} | {mean_std(100 * r['reviewer']['initial_success'] for r in rs)}% | "
                 f"{mean_std(r['reviewer']['inspected'] for r in rs)} | "
@@ -430,6 +448,7 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         moved = []
         for tol in MOVED_IOU:
             per_seed = [sum(i_s * r["reviewer"]["inspected_moved"][str(tol)] + c_s * r["reviewer"]["corrections"]
+                            + args.accept_seconds * r["reviewer"].get("accept_spans", 0)
                             for r in records if r["seed"] == s) for s in seeds]
             moved.append(f"IoU {tol:g}: {mean_std(per100(x, p['frames']) for x, p in zip(per_seed, ps))} s, ratio "
                          f"{mean_std((x / p['baseline'] for x, p in zip(per_seed, ps)), 2)}")
@@ -437,6 +456,12 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         lines += ["", "If a frame counted again only when its box moved below an IoU with the box last looked at "
                   f"(per 100 frames, pooled): {'; '.join(moved)}. Corrections whose box was right (IoU >= "
                   f"{args.threshold:g}) when picked: {mean_std(picks)}."]
+        if args.accept:
+            accepted = [sum(r["reviewer"]["accepted"] for r in records if r["seed"] == s) for s in seeds]
+            runs = [sum(r["reviewer"]["accept_spans"] for r in records if r["seed"] == s) for s in seeds]
+            lines += ["", f"Accepted (`--accept`): the reviewer keeps the flagged boxes it saw to be right as anchors; "
+                      f"{mean_std(accepted)} boxes in {mean_std(runs)} runs of consecutive frames, "
+                      f"{args.accept_seconds:g} s per run (included above)."]
     if args.merge_study:
         methods = [*MERGES, "forward only", "backward only"]
         study_seed = next(r["seed"] for r in records if "merge_study" in r)
@@ -479,6 +504,11 @@ def main() -> None:
                              "(default worst; each policy records its own RESULTS.md section)")
     parser.add_argument("--fallback", default="first-wrong", choices=("first-wrong", "lowest-confidence"),
                         help="the reviewer's pick when no frame is flagged but the target is not met")
+    parser.add_argument("--accept", action="store_true",
+                        help="the reviewer also accepts the flagged boxes it saw to be right: they become anchors "
+                             "with the next re-track (a 'keep' row per run of consecutive frames)")
+    parser.add_argument("--accept-seconds", type=float, default=1.0,
+                        help="human seconds per run of consecutive accepted frames (with --accept)")
     parser.add_argument("--skip-reviewer", action="store_true", help="only the baseline and the merge study")
     parser.add_argument("--target", type=float, default=0.95)
     parser.add_argument("--threshold", type=float, default=0.5)
@@ -537,7 +567,7 @@ def main() -> None:
     jobs = [dict(seq_dir=str(s), params=params.to_dict(), preset=args.preset, seed=seed, stop=args.stop,
                  target=args.target, threshold=args.threshold, budget=args.budget, merge=args.merge,
                  merge_study=args.merge_study if seed == seeds[0] else 0, skip_reviewer=args.skip_reviewer,
-                 fallback=args.fallback, policy=args.policy, failure_model=model_path,
+                 fallback=args.fallback, policy=args.policy, accept=args.accept, failure_model=model_path,
                  flag_threshold=args.flag_threshold,
                  threads=1 if args.workers > 1 else 0)
             for seed in (seeds[:1] if args.skip_reviewer else seeds) for s in all_sequences]
