@@ -45,12 +45,20 @@ __all__ = [
 
 
 def score_track(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
-                model: FailureModel) -> tuple[np.ndarray, list[str]]:
-    """``(p_fail, groups)`` of a whole track: 0 where a person gave the box, NaN where the object is absent."""
+                model: FailureModel, pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """``(p_fail, groups)`` of a whole track: 0 where a person gave the box, NaN where the object is absent.
+
+    ``pass_iou``: per row, the IoU of the forward and backward re-tracks' boxes between two anchors (NaN
+    elsewhere); the model's ``between_anchors`` section corrects those rows (group ``passes`` where the
+    passes' disagreement raised the probability).
+    """
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
     features = feature_matrix(signals, keyframe)
     p_fail = model.p_fail(features) if len(keyframe) else np.zeros(0)
     groups = model.main_group(features) if len(keyframe) else []
+    if pass_iou is not None and len(keyframe):
+        p_fail, raised = model.with_pass_agreement(p_fail, np.where(keyframe | outside, np.nan, pass_iou))
+        groups = ["passes" if r else g for g, r in zip(groups, raised)]
     p_fail = np.where(keyframe, 0.0, p_fail)
     p_fail = np.where(outside, np.nan, p_fail)
     return p_fail, groups

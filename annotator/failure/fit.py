@@ -12,10 +12,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, model_from_fit
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, PassAgreement, model_from_fit
 
 __all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
-           "group_features", "leave_one_sequence_out", "platt"]
+           "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
 
 #: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
 MIN_GROUP_GAIN = 0.002
@@ -244,3 +244,22 @@ def _held_out_predictions(samples: Sequence[Sample], **fold_options) -> tuple[np
             p.append(model.p_fail(s.features)[s.use])
             y.append(s.failed[s.use])
     return np.concatenate(p), np.concatenate(y)
+
+
+def fit_pass_agreement(p_track: np.ndarray, pass_iou: np.ndarray, failed: np.ndarray,
+                       info: Mapping[str, Any] | None = None) -> PassAgreement:
+    """The ``between_anchors`` section from frames re-tracked from both sides (``benchmarks/anchored_failure.py``).
+
+    A logistic regression of ``failed`` on ``logit(p_track)`` and ``pass_iou``, nearly unregularised: two
+    features and thousands of frames, and the fitted slope of the log-odds is what recalibrates them.
+    """
+    from sklearn.linear_model import LogisticRegression
+
+    p = np.clip(np.asarray(p_track, dtype=np.float64), 1e-12, 1.0 - 1e-12)
+    X = np.column_stack([np.log(p / (1.0 - p)), np.asarray(pass_iou, dtype=np.float64)])
+    failed = np.asarray(failed, dtype=bool)
+    if len(np.unique(failed)) < 2 or not np.all(np.isfinite(X)):
+        raise ValueError("the frames must hold both failed and good frames, each with a measured pass_iou")
+    fit = LogisticRegression(C=1e4, max_iter=1000, solver="lbfgs").fit(X, failed)
+    return PassAgreement(log_odds=float(fit.coef_[0, 0]), pass_iou=float(fit.coef_[0, 1]),
+                         intercept=float(fit.intercept_[0]), info=dict(info or {}))

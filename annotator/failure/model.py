@@ -24,6 +24,21 @@ leave-one-sequence-out cross-validation by ``benchmarks/failure_model.py``,
 which writes :data:`MODEL_PATH`: a small JSON file (feature names, means,
 scales, coefficients, intercept, default threshold, and how it was fitted).
 No pickles: the file is read with ``json`` and checked field by field.
+
+Between two human boxes
+-----------------------
+A frame between two anchors is re-tracked twice, forward from the earlier
+box and backward from the later one (:mod:`annotator.review.retrack`), and
+where the two passes put the box in different places one of them has lost
+the object: the classic forward-backward check, free here because both
+passes are run anyway. The file's optional ``between_anchors`` section
+(:class:`PassAgreement`, fitted by ``benchmarks/anchored_failure.py``)
+corrects such frames' probability with the passes' agreement ``pass_iou``::
+
+    p = sigmoid(log_odds * logit(p_track) + pass_iou * iou + intercept)
+
+where ``p_track`` is the model's probability from the track's own signals.
+A file without the section leaves those frames as they are.
 """
 
 from __future__ import annotations
@@ -50,6 +65,7 @@ __all__ = [
     "FailureModel",
     "FailureModelError",
     "OnlineFailure",
+    "PassAgreement",
     "feature_matrix",
     "load_model",
 ]
@@ -77,6 +93,39 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance",
     "run_iou": "runs", "run_iou_w5": "runs",
 }
+
+
+@dataclass(frozen=True)
+class PassAgreement:
+    """The ``between_anchors`` section: ``p_fail`` of a frame re-tracked from both sides, from its track
+    probability and the IoU of the two passes' boxes (see the module docstring)."""
+
+    log_odds: float
+    pass_iou: float
+    intercept: float
+    info: Mapping[str, Any]
+
+    def log_odds_of(self, p_track: np.ndarray, pass_iou: np.ndarray) -> np.ndarray:
+        """The corrected log-odds; NaN where ``pass_iou`` is NaN (one pass only)."""
+        p = np.clip(np.asarray(p_track, dtype=np.float64), 1e-12, 1.0 - 1e-12)
+        return self.log_odds * np.log(p / (1.0 - p)) + self.pass_iou * np.asarray(pass_iou, np.float64) + self.intercept
+
+    def to_json(self) -> dict[str, Any]:
+        return {"log_odds": self.log_odds, "pass_iou": self.pass_iou, "intercept": self.intercept,
+                "info": dict(self.info)}
+
+    @classmethod
+    def from_json(cls, data: Any, where: str) -> PassAgreement:
+        try:
+            values = {k: float(data[k]) for k in ("log_odds", "pass_iou", "intercept")}
+            info = dict(data.get("info") or {})
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise FailureModelError(f"{where}: its between_anchors section lacks or garbles a field "
+                                    f"({type(exc).__name__}: {exc}); refit it with benchmarks/anchored_failure.py"
+                                    ) from None
+        if not all(math.isfinite(v) for v in values.values()):
+            raise FailureModelError(f"{where}: between_anchors log_odds, pass_iou and intercept must be finite")
+        return cls(info=info, **values)
 
 
 class FailureModelError(ValueError):
@@ -155,6 +204,7 @@ class FailureModel:
     intercept: float
     threshold: float
     info: Mapping[str, Any]
+    between_anchors: PassAgreement | None = None
 
     def p_fail(self, features: np.ndarray) -> np.ndarray:
         """``(F,)`` failure probabilities of ``(F, len(FEATURES))`` feature rows."""
@@ -176,10 +226,29 @@ class FailureModel:
         standardised = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
         return np.where(np.isnan(standardised), 0.0, standardised) * self.coef
 
+    def with_pass_agreement(self, p_fail: np.ndarray, pass_iou: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(p_fail, corrected)``: ``p_fail`` corrected by the passes' agreement where ``pass_iou`` was measured.
+
+        Without a ``between_anchors`` section, or without ``pass_iou``, nothing changes. ``corrected`` marks the
+        rows whose probability the disagreement raised (their flag reason is ``doubt:passes``).
+        """
+        p_fail = np.asarray(p_fail, dtype=np.float64)
+        if self.between_anchors is None or pass_iou is None:
+            return p_fail, np.zeros(p_fail.shape, bool)
+        pass_iou = np.asarray(pass_iou, dtype=np.float64)
+        measured = ~np.isnan(pass_iou) & ~np.isnan(p_fail)
+        z = self.between_anchors.log_odds_of(np.where(measured, p_fail, 0.5), np.where(measured, pass_iou, 1.0))
+        corrected = 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+        out = np.where(measured, corrected, p_fail)
+        return out, measured & (out > p_fail)
+
     def to_json(self) -> dict[str, Any]:
-        return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),
+        data = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),
                 "mean": self.mean.tolist(), "scale": self.scale.tolist(), "coef": self.coef.tolist(),
                 "intercept": self.intercept, "threshold": self.threshold, "info": dict(self.info)}
+        if self.between_anchors is not None:
+            data["between_anchors"] = self.between_anchors.to_json()
+        return data
 
     @classmethod
     def from_json(cls, data: Any, where: str) -> FailureModel:
@@ -213,7 +282,10 @@ class FailureModel:
                 raise FailureModelError(f"{where}: {key} must be {len(FEATURES)} finite numbers")
         if np.any(arrays["scale"] <= 0) or not (math.isfinite(intercept) and 0.0 < threshold < 1.0):
             raise FailureModelError(f"{where}: scales must be > 0, the intercept finite and the threshold in (0, 1)")
-        return cls(features=features, intercept=intercept, threshold=threshold, info=info, **arrays)
+        section = data.get("between_anchors")
+        between = None if section is None else PassAgreement.from_json(section, where)
+        return cls(features=features, intercept=intercept, threshold=threshold, info=info,
+                   between_anchors=between, **arrays)
 
 
 def load_model(path: str | os.PathLike | None = None) -> FailureModel:

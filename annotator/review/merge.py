@@ -13,11 +13,12 @@ from typing import Mapping
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.failure import SIGNALS, load_model, score_track
+from annotator.failure import SIGNALS, FailureModel, load_model, score_track
 from annotator.failure.signals import NEUTRAL
 from annotator.flagging import flag_p_fail
+from annotator.review.segments import _iou
 
-__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PassResult", "merge_passes", "reflag"]
+__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "merge_passes", "reflag", "track_p_fail"]
 
 #: How a frame between two anchors takes its box from the forward and the backward pass:
 #:
@@ -37,6 +38,8 @@ DEFAULT_MERGE = "anchored"
 
 #: ``scoring`` value of rows no tracker scored (``outside`` rows).
 NO_SCORING = "none"
+#: Track signal holding each row's :attr:`PassResult.pass_iou` (NaN where the row was not merged from two passes).
+PASS_IOU = "pass_iou"
 
 
 
@@ -52,10 +55,14 @@ class PassResult:
     seconds: np.ndarray
     #: (n, len(SIGNALS)) failure signals of the pass's rows (annotator.failure.SIGNALS order), NaN where not run.
     signals: np.ndarray | None = None
+    #: (n,) IoU of the forward and the backward pass's boxes on a merged row; NaN for a single pass.
+    pass_iou: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.signals is None:
             self.signals = np.full((len(self.confidence), len(SIGNALS)), np.nan)
+        if self.pass_iou is None:
+            self.pass_iou = np.full(len(self.confidence), np.nan)
 
     @classmethod
     def empty(cls, n: int) -> PassResult:
@@ -69,7 +76,9 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
     log-likelihood, acceptance and scoring stage of the pass whose box (or
     whose larger weight, for ``blend``) it takes, and that pass's failure
     signals (measured along that pass: "previous frame" is the pass's);
-    ``seconds`` is the sum of both.
+    ``seconds`` is the sum of both, and ``pass_iou`` the IoU of the two
+    passes' boxes (the forward-backward check of the failure model's
+    ``between_anchors`` section).
     """
     if method not in MERGES:
         raise ValueError(f"merge method {method!r} is not known: choose from {', '.join(MERGES)}")
@@ -97,6 +106,7 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         scoring=pick(fwd.scoring, bwd.scoring),
         seconds=fwd.seconds + bwd.seconds,
         signals=pick(fwd.signals, bwd.signals),
+        pass_iou=_iou(fwd.boxes_xywh, bwd.boxes_xywh),
     )
     if method == "blend":
         total = cf + cb
@@ -106,21 +116,30 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         out.signals = np.where((w >= 0.5)[:, None], fwd.signals, bwd.signals)
     return out
 
+def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray, model: FailureModel,
+                 pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """``(p_fail, groups)`` of a whole track from its stored signals (see :func:`reflag`)."""
+    keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
+    # NaN means "not measured" (rows no pass scored; run_iou of a one-run tracker or of a store written before
+    # it existed): the neutral value, which for run_iou is NaN itself (the model reads it as its training mean).
+    filled = {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
+    return score_track(filled, keyframe | outside, outside, model, pass_iou=pass_iou)
+
+
 def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
-           config: RunConfig) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+           config: RunConfig, pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
     """Failure probabilities and flags of a whole track from its signals: ``(flagged, reasons, p_fail)``.
 
     Anchors are never flagged and have ``p_fail`` 0; ``outside`` rows are
     flagged with reason ``outside`` (FORMATS.md: absences are recorded in the
     flags file), have no ``p_fail`` (NaN), and neither hold a span open nor
-    bridge two flagged stretches.
+    bridge two flagged stretches. ``pass_iou`` (NaN where a row was not
+    merged from two passes) lets the model's ``between_anchors`` section
+    correct the rows between two anchors.
     """
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
     model = load_model(config.failure_model)
-    # NaN means "not measured" (rows no pass scored; run_iou of a one-run tracker or of a store written before
-    # it existed): the neutral value, which for run_iou is NaN itself (the model reads it as its training mean).
-    filled = {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
-    p_fail, groups = score_track(filled, keyframe | outside, outside, model)
+    p_fail, groups = track_p_fail(signals, keyframe, outside, model, pass_iou=pass_iou)
     threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
     result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)
     return result.flagged, result.reasons, p_fail

@@ -61,7 +61,7 @@ import numpy as np
 
 from annotator.config import RunConfig
 from annotator.failure import SIGNALS
-from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PassResult, merge_passes, reflag
+from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PASS_IOU, PassResult, merge_passes, reflag
 from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
 from annotator.review.segments import (
     AnchorChange,
@@ -245,6 +245,7 @@ def retrack_tracks(
             label = t.label
             signals = np.stack([np.asarray(t.signals.get(name, np.full(n, np.nan)), dtype=np.float64)
                                 for name in SIGNALS], axis=1)
+            pass_iou = np.array(t.signals.get(PASS_IOU, np.full(n, np.nan)), dtype=np.float64)
         else:
             boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
             accepted, seconds = np.zeros(n, bool), np.zeros(n)
@@ -253,6 +254,7 @@ def retrack_tracks(
             sources = [""] * n
             label = (labels or {}).get(tid, "object")
             signals = np.full((n, len(SIGNALS)), np.nan)
+            pass_iou = np.full(n, np.nan)
         for change in anchor_changes:
             if change.track_id == tid:
                 sources[change.position] = change.where or KEYFRAME_GIVEN
@@ -266,6 +268,7 @@ def retrack_tracks(
                 keyframe[seg.start] = True
                 occluded[seg.start] = False
                 signals[seg.start] = np.nan  # a person's box: nothing measured, nothing doubtful
+                pass_iou[seg.start] = np.nan
                 if box is None:
                     boxes[seg.start], conf[seg.start], ll[seg.start] = np.nan, 0.0, np.nan
                     accepted[seg.start], seconds[seg.start] = False, 0.0
@@ -284,21 +287,25 @@ def retrack_tracks(
                 boxes[rows], conf[rows], ll[rows] = merged.boxes_xywh, merged.confidence, merged.log_likelihood
                 accepted[rows], scoring[rows], seconds[rows] = merged.accepted, merged.scoring, merged.seconds
                 signals[rows] = merged.signals
+                pass_iou[rows] = merged.pass_iou
                 outside[rows] = False
             else:
                 boxes[rows], conf[rows], ll[rows] = np.nan, 0.0, np.nan
                 accepted[rows], scoring[rows], seconds[rows] = False, NO_SCORING, 0.0
                 signals[rows] = np.nan
+                pass_iou[rows] = np.nan
                 outside[rows] = True
         # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
         by_name = {name: signals[:, k] for k, name in enumerate(SIGNALS)}
-        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config)
+        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config, pass_iou=pass_iou)
         conf = np.where(outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
+        # Only a track with rows merged from two passes carries the column: a run nobody corrected keeps its files.
+        passes = {PASS_IOU: pass_iou} if np.any(~np.isnan(pass_iou)) else {}
         track = TrackResult(
             track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
             log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,
             outside=outside, seconds=seconds, occluded=occluded, scoring=tuple(str(v) for v in scoring),
-            keyframe_source=tuple(sources), signals={**by_name, "p_fail": p_fail},
+            keyframe_source=tuple(sources), signals={**by_name, "p_fail": p_fail, **passes},
         )
         results.append(track)
         scorings[tid] = scoring
