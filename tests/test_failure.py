@@ -4,6 +4,7 @@ file is checked field by field and refits reproducibly, calibration metrics are 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import cv2
@@ -25,9 +26,9 @@ from annotator.failure import (
     score_track,
 )
 from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, choose_threshold, fit_model,
-                                   group_features, leave_one_sequence_out, platt)
-from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, model_from_fit
-from annotator.flagging import FlagParams, flag_p_fail
+                                   fit_pass_agreement, group_features, leave_one_sequence_out, platt)
+from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
+from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
 
 FAIL_AT = 12
@@ -220,6 +221,11 @@ def test_the_shipped_model_loads_with_its_fields_and_versions():
     (lambda d: d.update(coef=d["coef"][:3]), "coef must be"),
     (lambda d: d.update(threshold=1.5), "threshold in (0, 1)"),
     (lambda d: d.pop("intercept"), "lacks or garbles"),
+    (lambda d: d.update(between_anchors={"log_odds": 1.0, "pass_iou": -4.0}), "between_anchors section lacks"),
+    (lambda d: d.update(between_anchors={"log_odds": 1.0, "pass_iou": "x", "intercept": 1.0}), "garbles"),
+    (lambda d: d.update(between_anchors={"log_odds": 1.0, "pass_iou": float("inf"), "intercept": 1.0}),
+     "must be finite"),
+    (lambda d: d.update(between_anchors=[1, 2, 3]), "between_anchors section lacks or garbles"),
 ])
 def test_a_foreign_or_damaged_model_file_is_refused(tmp_path, edit, fragment):
     data = load_model().to_json()
@@ -472,3 +478,69 @@ def test_failure_model_script_describes_a_model_without_recalibration_too():
     skipped = {"calibration": {"skipped": "held-out slope -0.2 is not positive"}}
     assert fm.calibration_text(skipped) == "not recalibrated (held-out slope -0.2 is not positive)"
     assert fm.calibration_text({}) == "not recalibrated (one sequence)" and fm.calibration_slope({}) == "one sequence"
+
+
+# ---------------------------------------------------------------- between two anchors: the passes' agreement
+SECTION = PassAgreement(log_odds=0.8, pass_iou=-5.0, intercept=1.5, info={"data": "hand-made"})
+
+
+def test_the_passes_agreement_corrects_only_rows_measured_from_two_passes():
+    model = dataclasses.replace(load_model(), between_anchors=SECTION)
+    p_track = np.array([0.1, 0.1, 0.1, 0.6, 0.02])
+    pass_iou = np.array([np.nan, 1.0, 0.0, 0.9, 0.95])
+    p, raised = model.with_pass_agreement(p_track, pass_iou)
+    expected = 1 / (1 + np.exp(-(0.8 * np.log(p_track / (1 - p_track)) - 5.0 * pass_iou + 1.5)))
+    assert p[0] == 0.1 and not raised[0]  # one pass only: as the track says
+    np.testing.assert_allclose(p[1:], expected[1:], rtol=1e-12)
+    assert p[2] > 4 * p_track[2] and raised[2]  # the passes disagree completely: far more likely wrong
+    assert p[1] < 0.1 and not raised[1]  # they agree: lower than the track alone
+    # A model without the section, or no pass_iou at all, changes nothing.
+    bare = dataclasses.replace(model, between_anchors=None)
+    assert np.array_equal(bare.with_pass_agreement(p_track, pass_iou)[0], p_track)
+    assert np.array_equal(model.with_pass_agreement(p_track, None)[0], p_track)
+
+
+def test_score_track_names_the_passes_where_their_disagreement_raised_p_fail():
+    rng = np.random.default_rng(3)
+    n = 30
+    signals = random_signals(rng, n)
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 29]] = True
+    outside = np.zeros(n, bool)
+    model = dataclasses.replace(load_model(), between_anchors=SECTION)
+    plain, groups = score_track(signals, keyframe, outside, model)
+    pass_iou = np.full(n, 0.95)
+    pass_iou[10:15] = 0.0
+    pass_iou[0] = pass_iou[29] = 0.0  # anchors stay 0 whatever is stored there
+    p, named = score_track(signals, keyframe, outside, model, pass_iou=pass_iou)
+    assert p[0] == 0 and p[29] == 0
+    assert np.all(p[10:15] > plain[10:15]) and all(g == "passes" for g in named[10:15])
+    assert named[20] == groups[20] or p[20] > plain[20]
+    assert "doubt:passes" in REASONS
+
+
+def test_the_section_round_trips_through_the_file_and_is_optional(tmp_path):
+    model = dataclasses.replace(load_model(), between_anchors=SECTION)
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(model.to_json()))
+    again = load_model(path)
+    assert again.between_anchors == SECTION and again.to_json() == model.to_json()
+    data = model.to_json()
+    data.pop("between_anchors")
+    path.write_text(json.dumps(data))
+    assert load_model(path).between_anchors is None
+
+
+def test_fitting_the_section_recovers_a_known_model_and_is_reproducible():
+    rng = np.random.default_rng(5)
+    n = 20000
+    p_track = rng.uniform(0.01, 0.99, n)
+    pass_iou = rng.uniform(0, 1, n)
+    truth = PassAgreement(log_odds=0.7, pass_iou=-5.0, intercept=1.4, info={})
+    failed = rng.uniform(size=n) < 1 / (1 + np.exp(-truth.log_odds_of(p_track, pass_iou)))
+    first = fit_pass_agreement(p_track, pass_iou, failed, info={"data": "fixed"})
+    assert first == fit_pass_agreement(p_track, pass_iou, failed, info={"data": "fixed"})
+    assert first.log_odds == pytest.approx(0.7, abs=0.05) and first.pass_iou == pytest.approx(-5.0, abs=0.25)
+    assert first.intercept == pytest.approx(1.4, abs=0.15)
+    with pytest.raises(ValueError, match="both failed and good"):
+        fit_pass_agreement(p_track, pass_iou, np.zeros(n, bool))

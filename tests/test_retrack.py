@@ -26,6 +26,7 @@ from annotator.commands.retrack import retrack_command
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
+from annotator.failure import load_model
 from annotator.frames import open_frames
 from annotator.flagging import FlagParams
 from annotator.otb import read_otb_boxes
@@ -43,6 +44,7 @@ from annotator.review import (
     retrack_tracks,
     same_box,
 )
+from annotator.review.merge import track_p_fail
 from annotator.synthetic import make_clip
 
 CONFIG = resolve_config({"seed": 1, "tracker": {"n_particles": 60, "n_negatives": 20}})
@@ -103,6 +105,15 @@ def test_merge_blend_weights_boxes_by_confidence():
     merged = merge_passes(_pass([0.75, 0.0], [0, 0]), _pass([0.25, 0.0], [8, 8]), "blend")
     assert merged.boxes_xywh[:, 0].tolist() == [2.0, 4.0]  # 0.75*0 + 0.25*8; no confidence at all: the mean
     assert merged.confidence[0] == pytest.approx(0.75 * 0.75 + 0.25 * 0.25)
+
+
+def test_merge_records_how_far_the_two_passes_agree():
+    fwd, bwd = _pass([0.9, 0.9, 0.9], [0, 0, 0]), _pass([0.1, 0.1, 0.1], [0, 5, 20])
+    for method in ("anchored", "confidence", "blend", "handover"):
+        merged = merge_passes(fwd, bwd, method)
+        # Same box: 1; shifted by half its width: 50 / 150; apart: 0.
+        np.testing.assert_allclose(merged.pass_iou, [1.0, 50 / 150, 0.0])
+    assert np.isnan(merge_passes(fwd, None).pass_iou).all()  # one pass: nothing to compare
 
 
 def test_merge_handover_switches_once():
@@ -230,7 +241,25 @@ def test_segments_without_new_anchors_keep_their_rows(corrected):
     new = later.tracks[0]
     np.testing.assert_array_equal(new.boxes_xywh[:11], track.boxes_xywh[:11])
     np.testing.assert_array_equal(new.log_likelihood[:11], track.log_likelihood[:11])
+    np.testing.assert_array_equal(new.signals["pass_iou"][:11], track.signals["pass_iou"][:11])
     assert [(s.first_frame, s.last_frame) for s in later.segments] == [(11, 12), (13, 15)]
+
+
+def test_rows_between_two_anchors_carry_the_passes_agreement_and_are_scored_with_it(first, corrected):
+    assert "pass_iou" not in first.tracks[0].signals  # nothing corrected: no second pass, no column
+    track = corrected.tracks[0]
+    pass_iou = track.signals["pass_iou"]
+    between = np.zeros(16, bool)
+    between[1:10] = True
+    assert np.all((pass_iou[between] >= 0) & (pass_iou[between] <= 1))
+    assert np.isnan(pass_iou[~between]).all()  # anchors, and the frames after the last one (forward only)
+    # The stored p_fail is the model's, corrected by the passes' agreement where it was measured.
+    model = load_model()
+    p_track, _ = track_p_fail(track.signals, track.keyframe, track.outside, dataclasses.replace(model, between_anchors=None))
+    expected, _ = model.with_pass_agreement(p_track, np.where(track.keyframe, np.nan, pass_iou))
+    np.testing.assert_allclose(track.p_fail, expected, rtol=0, atol=1e-15)
+    if model.between_anchors is not None:
+        assert not np.allclose(track.p_fail[between], p_track[between])
 
 
 def test_backward_in_chunks_equals_buffered(first, corrected):
