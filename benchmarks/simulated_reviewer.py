@@ -519,6 +519,10 @@ def main() -> None:
     parser.add_argument("--correct-seconds", type=float, default=6.0, help="human seconds per box drawn")
     parser.add_argument("--failure-model", type=Path, default=None,
                         help="failure-model JSON (default: the one installed with the package)")
+    parser.add_argument("--fold-models", type=Path, default=None, metavar="DIR",
+                        help="score each sequence with DIR/SEQUENCE.json instead (the per-fold models of "
+                             "benchmarks/anchored_failure.py --write: the between_anchors section fitted without "
+                             "that sequence)")
     parser.add_argument("--flag-threshold", type=float, default=None,
                         help="flag frames with p_fail above this (default: the failure model's threshold)")
     parser.add_argument("--workers", type=int, default=1)
@@ -558,6 +562,24 @@ def main() -> None:
         all_sequences = select_sequences(args.otb, args.sequences)
     except SequenceError as err:
         parser.error(str(err))
+    sequence_models = {s.name: model_path for s in all_sequences}
+    if args.fold_models is not None:
+        if args.failure_model is not None:
+            parser.error("give --fold-models or --failure-model, not both")
+        for s in all_sequences:
+            path = (args.fold_models / f"{s.name}.json").resolve()
+            try:
+                fold = load_model(path)
+            except FailureModelError as exc:
+                parser.error(f"{exc} (--fold-models needs one model file per sequence)")
+            if fold.between_anchors is None or fold.between_anchors.info.get("held_out") != s.name:
+                parser.error(f"{path} is not the fold model of {s.name}: its between_anchors section must be "
+                             "fitted without that sequence (benchmarks/anchored_failure.py --write)")
+            sequence_models[s.name] = str(path)
+        model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json`: the installed model's main "
+                      "part (fitted on all 17 sequences, these included) with a between_anchors section fitted "
+                      f"without the sequence; flag threshold {threshold_text}, other flag settings the run defaults")
+        model_record["fold_models"] = str(args.fold_models.resolve())
     params = get_preset(args.preset)
     preset_text = f"preset `{args.preset}`"
     if args.preset == "paper":
@@ -567,7 +589,8 @@ def main() -> None:
     jobs = [dict(seq_dir=str(s), params=params.to_dict(), preset=args.preset, seed=seed, stop=args.stop,
                  target=args.target, threshold=args.threshold, budget=args.budget, merge=args.merge,
                  merge_study=args.merge_study if seed == seeds[0] else 0, skip_reviewer=args.skip_reviewer,
-                 fallback=args.fallback, policy=args.policy, accept=args.accept, failure_model=model_path,
+                 fallback=args.fallback, policy=args.policy, accept=args.accept,
+                 failure_model=sequence_models[s.name],
                  flag_threshold=args.flag_threshold,
                  threads=1 if args.workers > 1 else 0)
             for seed in (seeds[:1] if args.skip_reviewer else seeds) for s in all_sequences]

@@ -50,12 +50,12 @@ def fake_retrack(false_alarm: int | None):
     return retrack
 
 
-def run(sr, monkeypatch, false_alarm, fallback="first-wrong", policy="worst", retrack=None):
+def run(sr, monkeypatch, false_alarm, fallback="first-wrong", policy="worst", retrack=None, accept=False):
     monkeypatch.setattr(sr, "retrack_tracks", retrack or fake_retrack(false_alarm))
     monkeypatch.setattr(sr, "PreviousTrack", lambda track, scoring: types.SimpleNamespace(track=track))
     frames = [np.zeros((4, 4, 3), np.uint8)] * N
     return sr.simulated_reviewer(frames, GT, None, merge="anchored", target=0.95, threshold=0.5, budget=5,
-                                 fallback=fallback, policy=policy)
+                                 fallback=fallback, policy=policy, accept=accept)
 
 
 def test_flagged_frames_are_looked_at_once_per_box(sr, monkeypatch):
@@ -164,6 +164,68 @@ def test_spans_policy_falls_back_when_every_flagged_box_is_right(sr, monkeypatch
     # The reviewer looks at 15 (right), scrubs 1..5 and corrects 5, the first wrong box.
     assert out["corrected_frames"] == [5] and out["fallbacks"] == 1
     assert out["inspected"] == 6 and out["reached"]
+
+
+def test_worst_wrong_policy_skips_flagged_boxes_seen_to_be_right(sr, monkeypatch):
+    calls = []
+    out = run(sr, monkeypatch, None, policy="worst-wrong", retrack=two_losses_retrack(calls))
+    # Same flags as for "worst" (2, 3, 9, 12 in turn), but 2 and 9 are right: the reviewer boxes 3, then 12.
+    assert out["corrected_frames"] == [3, 12] and calls == [[0], [3], [12]]
+    assert out["right_picks"] == 0
+    worst = run(sr, monkeypatch, None, policy="worst", retrack=two_losses_retrack([]))
+    assert worst["right_picks"] == 2  # 2 and 9
+
+
+def test_accepting_sends_the_right_boxes_seen_as_anchors_and_pays_per_run(sr, monkeypatch):
+    calls = []
+    out = run(sr, monkeypatch, None, policy="worst-wrong", retrack=two_losses_retrack(calls), accept=True)
+    # Round 1 looks at 2..6, 9 and 12..16: right are 2, 6 and 9 (three runs), sent with the correction of 3.
+    assert calls[:2] == [[0], [2, 3, 6, 9]]
+    assert out["accepted"] == 3 and out["accept_spans"] == 3
+    record = {"frames": N, "reviewer": {**out}, "baseline": {"keyframes": 1}}
+    assert sr.human_seconds(record, 1.0, 6.0, 2.0)["reviewer"] == out["inspected"] + 6.0 * out["corrections"] + 6.0
+
+
+def test_tolerant_look_counts_skip_boxes_that_barely_moved(sr, monkeypatch):
+    def jitter(calls):
+        inner = scripted_retrack(calls, [(12, 17, 12, 17)], right_flags=[9])
+
+        def retrack(*args, **kwargs):
+            result = inner(*args, **kwargs)
+            if len(calls) > 1:  # after the first correction the right flagged box 9 moves by 1 px of 20
+                result.tracks[0].boxes_xywh[9, 0] += 1.0
+            return result
+        return retrack
+
+    out = run(sr, monkeypatch, None, policy="worst-wrong", retrack=jitter([]))
+    # Strict: 9 counts again after it moved; at IoU 0.9 (1 px of 20 is IoU 0.905) it does not, at 0.95 it does.
+    assert out["inspected"] == 7 and out["inspected_moved"] == {"0.95": 7, "0.9": 6, "0.8": 6}
+
+
+def test_fold_models_must_be_each_sequences_own(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from _benchmark_scripts import BENCHMARKS
+
+    from annotator.failure import load_model
+
+    otb = tmp_path / "otb"
+    (otb / "Seq" / "img").mkdir(parents=True)
+    (otb / "Seq" / "groundtruth_rect.txt").write_text("1,1,5,5\n")
+    import cv2
+    cv2.imwrite(str(otb / "Seq" / "img" / "0001.jpg"), np.zeros((8, 8, 3), np.uint8))
+    folds = tmp_path / "folds"
+    folds.mkdir()
+    data = load_model().to_json()
+    data["between_anchors"] = {"log_odds": 1.0, "pass_iou": -4.0, "intercept": 1.0, "info": {"held_out": "Other"}}
+    (folds / "Seq.json").write_text(json.dumps(data))
+    done = subprocess.run([sys.executable, str(BENCHMARKS / "simulated_reviewer.py"), "--otb", str(otb),
+                           "--sequences", "Seq", "--fold-models", str(folds), "--no-record"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert "is not the fold model of Seq" in done.stderr.strip().splitlines()[-1]
 
 
 def test_spans_policy_with_the_lowest_confidence_fallback_is_refused_in_one_line():
