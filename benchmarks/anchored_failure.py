@@ -19,18 +19,24 @@ here at no extra cost. This script measures what it is worth and fits the
    the track probability (the installed model without its
    ``between_anchors`` section, exactly as ``reflag`` computes it), the
    passes' IoU ``pass_iou``, and whether the kept box failed (IoU < 0.5).
-   Stored in ``--data`` (one ``.npz`` per sequence, seed and M).
-2. **Held out**: each sequence is scored by a section fitted on the other
-   sequences (all seeds and intervals; a sequence's frames never train its
-   own fold). Per seed: AUROC of ``p_fail`` for failure, expected
-   calibration error (10 bins), and, at the model's flag threshold, frame
-   precision, recall and flagged share, for the track probability alone and
-   corrected by the passes' agreement.
-3. ``--write``: the section fitted on every sequence goes into
+   Stored in ``--data`` (one ``.npz`` per sequence, seed and M), with each
+   frame's failure-model features.
+2. **Held out**: the sequences are split into folds by video (Jogging.1 and
+   Jogging.2 are two people in one video, so one fold). A fold's frames are
+   scored by a main model fitted without them (``fit_model`` on the runs of
+   ``benchmarks/failure_model.py``, ``--main-runs``, with the shipped
+   model's C) and a section fitted without them: the installed main model
+   was fitted on these same sequences, so its own probabilities would be
+   optimistic here. Per seed: AUROC of ``p_fail`` for failure, expected
+   calibration error (10 bins), and, at the fold model's flag threshold,
+   frame precision, recall and flagged share, for the track probability
+   alone and corrected by the passes' agreement.
+3. ``--write``: the section fitted on every sequence (with the installed
+   main model's probabilities, as the tool computes them) goes into
    ``annotator/data/failure_model.json`` (the rest of the file unchanged),
-   and one model file per held-out sequence into ``--data``/folds (the
-   installed model with that fold's section), for
-   ``benchmarks/simulated_reviewer.py --fold-models``.
+   and one model file per sequence into ``--data``/folds (that fold's main
+   model and section), for ``benchmarks/simulated_reviewer.py
+   --fold-models``.
 """
 
 from __future__ import annotations
@@ -59,12 +65,14 @@ from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
 from annotator.failure import load_model  # noqa: E402
-from annotator.failure.fit import fit_pass_agreement  # noqa: E402
+from annotator.failure import feature_matrix  # noqa: E402
+from annotator.failure.fit import fit_model, fit_pass_agreement  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402
-from annotator.review.merge import PASS_IOU, track_p_fail  # noqa: E402
+from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail  # noqa: E402
+from failure_model import load_samples  # noqa: E402
 from annotator.review.segments import _iou  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 
@@ -91,45 +99,67 @@ def generate(job: dict) -> str:
     # The track probability as reflag computes it, from the model without any between_anchors section.
     model = dataclasses.replace(load_model(None), between_anchors=None)
     p_track, _ = track_p_fail(track.signals, track.keyframe, track.outside, model)
+    features = feature_matrix(filled_signals(track.signals), track.keyframe | track.outside)
     pass_iou = np.asarray(track.signals.get(PASS_IOU, np.full(n, np.nan)), dtype=np.float64)
     use = ~np.isnan(pass_iou) & ~track.keyframe & ~track.outside
     out = Path(job["out"])
-    np.savez(out, p_track=p_track[use], pass_iou=pass_iou[use],
+    np.savez(out, p_track=p_track[use], pass_iou=pass_iou[use], features=features[use], stop=job["stop"],
              failed=_iou(track.boxes_xywh[use], gt[use]) < 0.5, position=np.flatnonzero(use))
     print(f"{seq_dir.name} seed {job['seed']} every {job['every']}: {int(use.sum())} frames", file=sys.stderr,
           flush=True)
     return str(out)
 
 
-def load_data(folder: Path) -> dict[str, np.ndarray]:
+def load_data(folder: Path, sequences: set[str] | None, seeds, everies, stop: int) -> dict[str, np.ndarray]:
+    """The stored frames of the given sequences (all when None), seeds and intervals, tracked with ``stop``."""
     parts = []
     for path in sorted(folder.glob("*.npz")):
         name, seed, every = path.stem.rsplit("__", 2)
+        seed, every = int(seed[1:]), int(every[1:])
+        if (sequences is not None and name not in sequences) or seed not in seeds or every not in everies:
+            continue
         with np.load(path) as d:
+            if "features" not in d or int(d["stop"]) != stop:
+                raise SystemExit(f"{path} was generated by an older version of this script or with another --stop: "
+                                 "run with --generate again")
             k = len(d["failed"])
-            parts.append(dict(sequence=np.full(k, name), seed=np.full(k, int(seed[1:])),
-                              every=np.full(k, int(every[1:])), p_track=d["p_track"], pass_iou=d["pass_iou"],
-                              failed=d["failed"]))
+            parts.append(dict(sequence=np.full(k, name), seed=np.full(k, seed), every=np.full(k, every),
+                              p_track=d["p_track"], pass_iou=d["pass_iou"], failed=d["failed"],
+                              features=d["features"]))
     if not parts:
-        raise SystemExit(f"no data in {folder}: run with --generate first")
+        raise SystemExit(f"no data in {folder} for these sequences, seeds and intervals: run with --generate first")
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 
 
-def held_out(data: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, dict]]:
-    """Per frame, ``p_fail`` from the section fitted without the frame's sequence; and each fold's section."""
-    p = np.full(len(data["failed"]), np.nan)
+def video(sequence: str) -> str:
+    """The fold of a sequence: OTB's Jogging.1 and Jogging.2 are two people in one video."""
+    return sequence.split(".")[0]
+
+
+def held_out(data: dict[str, np.ndarray], samples, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Per frame, the track probability and ``p_fail`` of models fitted without the frame's video, the fold
+    model's threshold per frame, and each sequence's fold model (main part and section)."""
+    n = len(data["failed"])
+    p_track, p, threshold = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     folds = {}
-    for name in sorted(set(data["sequence"])):
-        train, test = data["sequence"] != name, data["sequence"] == name
-        section = fit_pass_agreement(data["p_track"][train], data["pass_iou"][train], data["failed"][train],
-                                     info={"held_out": name})
-        z = section.log_odds_of(data["p_track"][test], data["pass_iou"][test])
-        p[test] = 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
-        folds[name] = section
-    return p, folds
+    fold_of = np.array([video(name) for name in data["sequence"]])
+    for fold in sorted(set(fold_of)):
+        train, test = fold_of != fold, fold_of == fold
+        main = fit_model([s for s in samples if video(s.sequence) != fold], C=C,
+                         info={"held_out": fold, "note": "fold model of benchmarks/anchored_failure.py"})
+        p_fold = main.p_fail(data["features"])
+        section = fit_pass_agreement(p_fold[train], data["pass_iou"][train], data["failed"][train],
+                                     info={"held_out": fold})
+        z = section.log_odds_of(p_fold[test], data["pass_iou"][test])
+        p_track[test], p[test] = p_fold[test], 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+        threshold[test] = main.threshold
+        for name in set(data["sequence"][test]):
+            folds[name] = dataclasses.replace(main, between_anchors=dataclasses.replace(
+                section, info={"held_out": name, "fold": fold}))
+    return p_track, p, threshold, folds
 
 
-def metrics(p: np.ndarray, failed: np.ndarray, threshold: float) -> dict[str, float]:
+def metrics(p: np.ndarray, failed: np.ndarray, threshold) -> dict[str, float]:
     flagged = p > threshold
     return {"auroc": auroc(p, failed), "ece": expected_calibration_error(p, failed),
             "precision": float(failed[flagged].mean()) if flagged.any() else math.nan,
@@ -142,27 +172,30 @@ def mean_std(values, digits: int = 3) -> str:
     return f"{v[0]:.{digits}f}" if v.size == 1 else f"{v.mean():.{digits}f} ± {v.std(ddof=1):.{digits}f}"
 
 
-def markdown(data, p_held, threshold, command, seconds, shipped) -> str:
+def markdown(data, p_alone, p_held, threshold, command, seconds, shipped, C) -> str:
     seeds = sorted(set(data["seed"].tolist()))
     everies = sorted(set(data["every"].tolist()))
     names = sorted(set(data["sequence"]))
-    rows = {"track probability alone": data["p_track"], "corrected by the passes' agreement (held out)": p_held}
+    rows = {"track probability alone (held out)": p_alone, "corrected by the passes' agreement (held out)": p_held}
     lines = ["## Failure probability between two human boxes: the passes' agreement (held out)", "",
              f"Command: `{command}`  ",
              f"Machine: {machine_line()}; wall time {seconds / 60:.1f} min.  ",
              f"Data: {len(names)} sequences of `../shared/otb` ({', '.join(names)}), preset `{PRESET}`, seeds "
              f"{', '.join(map(str, seeds))}, ground-truth anchors every {' and every '.join(map(str, everies))} "
              f"frames, re-tracked by the tool (`retrack_tracks`, merge `anchored`); {len(p_held)} frames strictly "
-             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Each sequence is scored "
-             "by a section fitted on the other sequences (every seed and interval). Flags here are frames above "
-             f"the model's threshold {threshold:g}, before span merging.", "",
+             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Held out by video (Jogging.1 "
+             "and Jogging.2 one fold): each fold is scored by a main model (C = "
+             f"{C:g}, recalibrated, `fit_model` on the runs of `benchmarks/failure_model.py`) and a section fitted "
+             "without it. Flags here are frames above the fold model's threshold "
+             f"({', '.join(f'{t:.2f}' for t in sorted(set(np.round(threshold, 2))))}), before span merging.", "",
              "| p_fail | AUROC | ECE | precision | recall | flagged share |", "|---|---:|---:|---:|---:|---:|"]
     for label, p in rows.items():
-        per_seed = [metrics(p[data["seed"] == s], data["failed"][data["seed"] == s], threshold) for s in seeds]
+        per_seed = [metrics(p[data["seed"] == s], data["failed"][data["seed"] == s], threshold[data["seed"] == s])
+                    for s in seeds]
         lines.append(f"| {label} | " + " | ".join(mean_std(m[k] for m in per_seed) for k in
                                                     ("auroc", "ece", "precision", "recall", "flagged")) + " |")
     lines += ["", "By anchor interval (pooled over seeds, AUROC alone → corrected): " + "; ".join(
-        f"every {e}: {auroc(data['p_track'][data['every'] == e], data['failed'][data['every'] == e]):.3f} → "
+        f"every {e}: {auroc(p_alone[data['every'] == e], data['failed'][data['every'] == e]):.3f} → "
         f"{auroc(p_held[data['every'] == e], data['failed'][data['every'] == e]):.3f}" for e in everies) + ".",
         "", f"Shipped section (fitted on every sequence): p = sigmoid({shipped.log_odds:.3f} logit(p_track) "
         f"{shipped.pass_iou:+.3f} pass_iou {shipped.intercept:+.3f})."]
@@ -178,6 +211,8 @@ def main() -> None:
     parser.add_argument("--every", default="10,30", help="anchor intervals M, comma-separated (default 10,30)")
     parser.add_argument("--data", type=Path, default=HERE / "_runs" / "anchored")
     parser.add_argument("--generate", action="store_true", help="track first (else use the stored data)")
+    parser.add_argument("--main-runs", default=str(HERE / "_runs" / "failure" / "robust-s*"),
+                        help="glob of the batch runs the main failure model is fitted on (benchmarks/failure_model.py)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--write", action="store_true",
                         help=f"write the fitted section into annotator/{MODEL_PATH} and the fold models")
@@ -191,41 +226,42 @@ def main() -> None:
     if not seeds or not everies or min(everies) < 2:
         parser.error("--seeds needs at least one seed and --every intervals of at least 2 frames")
     started = time.perf_counter()
+    try:
+        sequences = select_sequences(args.otb, args.sequences)
+    except SequenceError as err:
+        parser.error(str(err))
     if args.generate:
-        try:
-            sequences = select_sequences(args.otb, args.sequences)
-        except SequenceError as err:
-            parser.error(str(err))
         args.data.mkdir(parents=True, exist_ok=True)
         jobs = [dict(seq_dir=str(s), seed=seed, every=every, stop=args.stop, threads=1 if args.workers > 1 else 0,
                      out=str(args.data / f"{s.name}__s{seed}__m{every}.npz"))
                 for seed in seeds for every in everies for s in sequences]
         with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn")) as pool:
             list(pool.map(generate, jobs))
-    data = load_data(args.data)
-    keep = np.isin(data["seed"], seeds) & np.isin(data["every"], everies)
-    data = {k: v[keep] for k, v in data.items()}
+    data = load_data(args.data, {s.name for s in sequences}, seeds, everies, args.stop)
+    if len({video(name) for name in data["sequence"]}) < 2:
+        parser.error("held-out figures need the frames of at least two videos: give more --sequences")
+    samples, _, _ = load_samples([args.main_runs], args.otb)
+    if not samples:
+        parser.error(f"--main-runs {args.main_runs!r} matches no batch run: run step 1 of benchmarks/failure_model.py")
     model = load_model(None)
-    threshold = model.threshold
-    p_held, folds = held_out(data)
+    C = float(model.info.get("C", 0.001))
+    p_alone, p_held, threshold, folds = held_out(data, samples, C)
     shipped = fit_pass_agreement(
         data["p_track"], data["pass_iou"], data["failed"],
-        info={"fitted_by": "python benchmarks/anchored_failure.py --generate --write",
+        info={"fitted_by": "python benchmarks/anchored_failure.py " + " ".join(sys.argv[1:]),
               "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
                        "sequences": sorted(set(data["sequence"])), "frames": int(len(data["failed"]))}})
     command = "python benchmarks/anchored_failure.py " + " ".join(sys.argv[1:])
-    text = markdown(data, p_held, threshold, command.strip(), time.perf_counter() - started, shipped)
+    text = markdown(data, p_alone, p_held, threshold, command.strip(), time.perf_counter() - started, shipped, C)
     print(text)
     if args.write:
-        base = dataclasses.replace(model, between_anchors=None)
         path = ROOT / "annotator" / MODEL_PATH
-        write_text_atomic(path, json.dumps(dataclasses.replace(base, between_anchors=shipped).to_json(), indent=1)
-                          + "\n")
+        model_file = dataclasses.replace(model, between_anchors=shipped)
+        write_text_atomic(path, json.dumps(model_file.to_json(), indent=1) + "\n")
         fold_dir = args.data / "folds"
         fold_dir.mkdir(parents=True, exist_ok=True)
-        for name, section in folds.items():
-            (fold_dir / f"{name}.json").write_text(
-                json.dumps(dataclasses.replace(base, between_anchors=section).to_json(), indent=1) + "\n")
+        for name, fold_model in folds.items():
+            write_text_atomic(fold_dir / f"{name}.json", json.dumps(fold_model.to_json(), indent=1) + "\n")
         print(f"wrote {path} and {len(folds)} fold models in {fold_dir}", file=sys.stderr)
     if not args.no_record:
         update_section("anchored-failure", text)

@@ -195,7 +195,8 @@ POLICY_TEXT = {"worst": "the flagged frame with the highest p_fail",
                               "(IoU < the threshold: it has just looked at them)",
                "spans": "the first wrong box (IoU < the threshold) of every flagged span, all before one re-track"}
 #: Tolerant counts of looks, kept beside the strict one: a frame counts again only when its box moved to IoU below
-#: this with the box the reviewer last looked at (the strict count re-counts any change, however small).
+#: this with the box of the frame's last counted look (so small moves cannot add up unnoticed; the strict count
+#: re-counts any change, however small).
 MOVED_IOU = (0.95, 0.9, 0.8)
 
 
@@ -231,7 +232,8 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
     def look(mask: np.ndarray) -> None:
         new = mask & ~np.all(seen == track.boxes_xywh, axis=1)
         if accept:
-            right = new & (iou_rows(track.boxes_xywh, gt) >= threshold) & ~track.keyframe
+            # Only flagged boxes are accepted: frames scrubbed through by the fallback are not in a flagged span.
+            right = new & track.flagged & (iou_rows(track.boxes_xywh, gt) >= threshold) & ~track.keyframe
             pending_accepts.update({int(p): tuple(track.boxes_xywh[p]) for p in np.flatnonzero(right)})
         looks["new"] += int(new.sum())
         looks["all"] += int(mask.sum())
@@ -534,8 +536,11 @@ def main() -> None:
         # Its fallback starts when every flagged box was seen to be right, and would pick one of those again.
         parser.error(f"--policy {args.policy} needs --fallback first-wrong: the least confident frame is then a flagged "
                      "frame the reviewer has just seen to be right")
+    # Each way of running records its own JSON and RESULTS.md section.
+    variant = "".join([("" if args.policy == "worst" else "-" + args.policy), ("-accept" if args.accept else ""),
+                       ("-folds" if args.fold_models is not None else "")])
     if args.out is None:
-        args.out = HERE / "_runs" / f"simulated_reviewer{'' if args.policy == 'worst' else '-' + args.policy}.json"
+        args.out = HERE / "_runs" / f"simulated_reviewer{variant}.json"
     try:
         seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
     except ValueError:
@@ -576,9 +581,12 @@ def main() -> None:
                 parser.error(f"{path} is not the fold model of {s.name}: its between_anchors section must be "
                              "fitted without that sequence (benchmarks/anchored_failure.py --write)")
             sequence_models[s.name] = str(path)
-        model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json`: the installed model's main "
-                      "part (fitted on all 17 sequences, these included) with a between_anchors section fitted "
-                      f"without the sequence; flag threshold {threshold_text}, other flag settings the run defaults")
+            model_record.setdefault("fold_sha256", {})[s.name] = hashlib.sha256(
+                json.dumps(fold.to_json(), sort_keys=True).encode()).hexdigest()
+        model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json` "
+                      "(benchmarks/anchored_failure.py --write: main part and between_anchors section both fitted "
+                      f"without the sequence's video); flag threshold {threshold_text}, other flag settings the run "
+                      "defaults")
         model_record["fold_models"] = str(args.fold_models.resolve())
     params = get_preset(args.preset)
     preset_text = f"preset `{args.preset}`"
@@ -607,15 +615,16 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"command": command, "failure_model": model_record, "seeds": seeds,
                                           "human_seconds": {"inspect": args.inspect_seconds,
-                                                            "correct": args.correct_seconds},
+                                                            "correct": args.correct_seconds,
+                                                            "accept_run": args.accept_seconds if args.accept else None},
                                           "records": records}, indent=1, default=float) + "\n")
     if not args.no_record:
         if args.skip_reviewer:
             update_section("simulated-reviewer-merge-study",
                            text.replace("## Simulated reviewer", "## Simulated reviewer: merge study", 1))
         else:
-            key = "simulated-reviewer" if args.policy == "worst" else f"simulated-reviewer-{args.policy}"
-            heading = "## Simulated reviewer" + ("" if args.policy == "worst" else f" (policy `{args.policy}`)")
+            key = f"simulated-reviewer{variant}"
+            heading = "## Simulated reviewer" + (f" (`{variant[1:]}`)" if variant else "")
             update_section(key, text.replace("## Simulated reviewer", heading, 1))
 
 

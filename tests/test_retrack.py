@@ -114,6 +114,8 @@ def test_merge_records_how_far_the_two_passes_agree():
         # Same box: 1; shifted by half its width: 50 / 150; apart: 0.
         np.testing.assert_allclose(merged.pass_iou, [1.0, 50 / 150, 0.0])
     assert np.isnan(merge_passes(fwd, None).pass_iou).all()  # one pass: nothing to compare
+    bwd.boxes_xywh[1] = np.nan  # a row one pass has no box for: not compared, not a disagreement
+    assert np.isnan(merge_passes(fwd, bwd).pass_iou[1]) and merge_passes(fwd, bwd).pass_iou[0] == 1.0
 
 
 def test_merge_handover_switches_once():
@@ -258,8 +260,8 @@ def test_rows_between_two_anchors_carry_the_passes_agreement_and_are_scored_with
     p_track, _ = track_p_fail(track.signals, track.keyframe, track.outside, dataclasses.replace(model, between_anchors=None))
     expected, _ = model.with_pass_agreement(p_track, np.where(track.keyframe, np.nan, pass_iou))
     np.testing.assert_allclose(track.p_fail, expected, rtol=0, atol=1e-15)
-    if model.between_anchors is not None:
-        assert not np.allclose(track.p_fail[between], p_track[between])
+    assert model.between_anchors is not None  # the shipped model has the section, so the rows between moved
+    assert not np.allclose(track.p_fail[between], p_track[between])
 
 
 def test_backward_in_chunks_equals_buffered(first, corrected):

@@ -186,6 +186,14 @@ def test_accepting_sends_the_right_boxes_seen_as_anchors_and_pays_per_run(sr, mo
     assert sr.human_seconds(record, 1.0, 6.0, 2.0)["reviewer"] == out["inspected"] + 6.0 * out["corrections"] + 6.0
 
 
+def test_accepting_ignores_the_unflagged_frames_the_fallback_scrubs_through(sr, monkeypatch):
+    calls = []
+    retrack = scripted_retrack(calls, [(WRONG[0], WRONG[-1] + 1, 0, 0)], right_flags=[15])
+    out = run(sr, monkeypatch, None, policy="worst-wrong", retrack=retrack, accept=True)
+    # Only 15 is flagged (right); the scrub through 1..4 (right, unflagged) accepts nothing.
+    assert calls[1] == [5, 15] and out["accepted"] == 1
+
+
 def test_tolerant_look_counts_skip_boxes_that_barely_moved(sr, monkeypatch):
     def jitter(calls):
         inner = scripted_retrack(calls, [(12, 17, 12, 17)], right_flags=[9])

@@ -18,7 +18,7 @@ from annotator.failure.signals import NEUTRAL
 from annotator.flagging import flag_p_fail
 from annotator.review.segments import _iou
 
-__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "merge_passes", "reflag", "track_p_fail"]
+__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "merge_passes", "filled_signals", "reflag", "track_p_fail"]
 
 #: How a frame between two anchors takes its box from the forward and the backward pass:
 #:
@@ -106,7 +106,9 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         scoring=pick(fwd.scoring, bwd.scoring),
         seconds=fwd.seconds + bwd.seconds,
         signals=pick(fwd.signals, bwd.signals),
-        pass_iou=_iou(fwd.boxes_xywh, bwd.boxes_xywh),
+        # NaN, not 0, where a pass has no box: nothing was compared, so nothing speaks for a loss.
+        pass_iou=np.where(np.isfinite(fwd.boxes_xywh).all(axis=1) & np.isfinite(bwd.boxes_xywh).all(axis=1),
+                          _iou(fwd.boxes_xywh, bwd.boxes_xywh), np.nan),
     )
     if method == "blend":
         total = cf + cb
@@ -120,10 +122,14 @@ def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outsid
                  pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """``(p_fail, groups)`` of a whole track from its stored signals (see :func:`reflag`)."""
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
-    # NaN means "not measured" (rows no pass scored; run_iou of a one-run tracker or of a store written before
-    # it existed): the neutral value, which for run_iou is NaN itself (the model reads it as its training mean).
-    filled = {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
-    return score_track(filled, keyframe | outside, outside, model, pass_iou=pass_iou)
+    return score_track(filled_signals(signals), keyframe | outside, outside, model, pass_iou=pass_iou)
+
+
+def filled_signals(signals: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A track's stored :data:`SIGNALS` with every NaN ("not measured": rows no pass scored; run_iou of a one-run
+    tracker or of a store written before it existed) at its neutral value, which for run_iou is NaN itself (the
+    model reads it as its training mean)."""
+    return {name: np.nan_to_num(np.asarray(signals[name], dtype=np.float64), nan=NEUTRAL[name]) for name in SIGNALS}
 
 
 def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
