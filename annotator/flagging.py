@@ -38,7 +38,8 @@ REASONS: Mapping[str, str] = {
     "doubt:appearance": "the image under the box no longer looks like the object in the first frame",
     "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
     "doubt:passes": "between two human boxes, the re-tracks forward from the earlier and backward from the later "
-                    "one put the box in different places: one has likely lost the object",
+                    "one put the box in different places: one has likely lost the object (only with a failure model "
+                    "that has a between_anchors section; the shipped one has none)",
     "span": "between two doubtful frames a few frames apart: flagged so the span is reviewed in one go",
     "budget": "among the most doubtful frames of the track (--review-budget)",
     "outside": "the object is marked absent from this frame (a correction said so)",

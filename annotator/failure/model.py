@@ -38,7 +38,11 @@ corrects such frames' probability with the passes' agreement ``pass_iou``::
     p = sigmoid(log_odds * logit(p_track) + pass_iou * iou + intercept)
 
 where ``p_track`` is the model's probability from the track's own signals.
-A file without the section leaves those frames as they are.
+A file without the section leaves those frames as they are. The shipped file
+has none: measured, the section ranks failures between anchors better but
+flags more frames there, and the simulated reviewer, who looks at every
+flagged frame, spent more time with it (RESULTS.md, "anchored-failure");
+``benchmarks/anchored_failure.py --write`` makes a file with it.
 """
 
 from __future__ import annotations
