@@ -154,8 +154,7 @@ def held_out(data: dict[str, np.ndarray], samples, C: float) -> tuple[np.ndarray
         p_fold = main.p_fail(data["features"])
         section = fit_pass_agreement(p_fold[train], data["pass_iou"][train], data["failed"][train],
                                      info={"held_out": fold})
-        z = section.log_odds_of(p_fold[test], data["pass_iou"][test])
-        p_track[test], p[test] = p_fold[test], 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
+        p_track[test], p[test] = p_fold[test], section.p_fail(p_fold[test], data["pass_iou"][test])
         threshold[test] = main.threshold
         for name in set(data["sequence"][test]):
             folds[name] = dataclasses.replace(main, between_anchors=dataclasses.replace(

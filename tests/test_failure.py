@@ -544,3 +544,23 @@ def test_fitting_the_section_recovers_a_known_model_and_is_reproducible():
     assert first.intercept == pytest.approx(1.4, abs=0.15)
     with pytest.raises(ValueError, match="both failed and good"):
         fit_pass_agreement(p_track, pass_iou, np.zeros(n, bool))
+
+
+@pytest.mark.parametrize("argv, code, fragment", [
+    (["--every", "1"], 2, "--every intervals of at least 2 frames"),
+    (["--seeds", "a,b"], 2, "must be comma-separated integers"),
+    (["--sequences", "NoSuchSequence"], 2, "NoSuchSequence"),
+    (["--data", "{empty}"], 1, "no data in"),
+])
+def test_the_between_anchors_script_refuses_bad_input_in_one_line(tmp_path, argv, code, fragment):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    argv = [a.replace("{empty}", str(tmp_path)) for a in argv]
+    done = subprocess.run([sys.executable, str(root / "benchmarks" / "anchored_failure.py"), "--no-record", *argv],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == code
+    lines = done.stderr.strip().splitlines()
+    assert fragment in lines[-1] and "Traceback" not in done.stderr

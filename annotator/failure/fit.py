@@ -12,7 +12,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, PassAgreement, model_from_fit
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, PassAgreement, logit, model_from_fit
 
 __all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
            "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
@@ -255,8 +255,7 @@ def fit_pass_agreement(p_track: np.ndarray, pass_iou: np.ndarray, failed: np.nda
     """
     from sklearn.linear_model import LogisticRegression
 
-    p = np.clip(np.asarray(p_track, dtype=np.float64), 1e-12, 1.0 - 1e-12)
-    X = np.column_stack([np.log(p / (1.0 - p)), np.asarray(pass_iou, dtype=np.float64)])
+    X = np.column_stack([logit(p_track), np.asarray(pass_iou, dtype=np.float64)])
     failed = np.asarray(failed, dtype=bool)
     if len(np.unique(failed)) < 2 or not np.all(np.isfinite(X)):
         raise ValueError("the frames must hold both failed and good frames, each with a measured pass_iou")

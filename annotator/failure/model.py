@@ -99,6 +99,17 @@ FEATURE_GROUPS: Mapping[str, str] = {
 }
 
 
+def logit(p: np.ndarray) -> np.ndarray:
+    """Log-odds of probabilities, clipped to [1e-12, 1 - 1e-12] so that 0 and 1 stay finite."""
+    p = np.clip(np.asarray(p, dtype=np.float64), 1e-12, 1.0 - 1e-12)
+    return np.log(p / (1.0 - p))
+
+
+def sigmoid(z: np.ndarray) -> np.ndarray:
+    """Probabilities of log-odds (clipped to +-40: beyond, the probability is 0 or 1 to double precision)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+
+
 @dataclass(frozen=True)
 class PassAgreement:
     """The ``between_anchors`` section: ``p_fail`` of a frame re-tracked from both sides, from its track
@@ -111,8 +122,11 @@ class PassAgreement:
 
     def log_odds_of(self, p_track: np.ndarray, pass_iou: np.ndarray) -> np.ndarray:
         """The corrected log-odds; NaN where ``pass_iou`` is NaN (one pass only)."""
-        p = np.clip(np.asarray(p_track, dtype=np.float64), 1e-12, 1.0 - 1e-12)
-        return self.log_odds * np.log(p / (1.0 - p)) + self.pass_iou * np.asarray(pass_iou, np.float64) + self.intercept
+        return self.log_odds * logit(p_track) + self.pass_iou * np.asarray(pass_iou, np.float64) + self.intercept
+
+    def p_fail(self, p_track: np.ndarray, pass_iou: np.ndarray) -> np.ndarray:
+        """The corrected probability; NaN where ``pass_iou`` is NaN."""
+        return sigmoid(self.log_odds_of(p_track, pass_iou))
 
     def to_json(self) -> dict[str, Any]:
         return {"log_odds": self.log_odds, "pass_iou": self.pass_iou, "intercept": self.intercept,
@@ -215,7 +229,7 @@ class FailureModel:
         # A row-wise sum, not a matrix product: BLAS sums a one-row product (OnlineFailure, frame by frame) in
         # another order than a whole track's (score_track), and the two must give the same bits.
         z = self.intercept + self._contributions(features).sum(axis=1)
-        return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+        return sigmoid(z)
 
     def main_group(self, features: np.ndarray) -> list[str]:
         """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most."""
@@ -241,8 +255,7 @@ class FailureModel:
             return p_fail, np.zeros(p_fail.shape, bool)
         pass_iou = np.asarray(pass_iou, dtype=np.float64)
         measured = ~np.isnan(pass_iou) & ~np.isnan(p_fail)
-        z = self.between_anchors.log_odds_of(np.where(measured, p_fail, 0.5), np.where(measured, pass_iou, 1.0))
-        corrected = 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+        corrected = self.between_anchors.p_fail(np.where(measured, p_fail, 0.5), np.where(measured, pass_iou, 1.0))
         out = np.where(measured, corrected, p_fail)
         return out, measured & (out > p_fail)
 

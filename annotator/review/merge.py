@@ -18,7 +18,8 @@ from annotator.failure.signals import NEUTRAL
 from annotator.flagging import flag_p_fail
 from annotator.review.segments import _iou
 
-__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "merge_passes", "filled_signals", "reflag", "track_p_fail"]
+__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "filled_signals", "merge_passes", "reflag",
+           "track_p_fail"]
 
 #: How a frame between two anchors takes its box from the forward and the backward pass:
 #:
