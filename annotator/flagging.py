@@ -36,6 +36,7 @@ REASONS: Mapping[str, str] = {
     "doubt:drift": "the box's size or shape drifted from the first frame's, or it is far from the last human box",
     "doubt:flow": "optical flow moved the previous box somewhere else, or could not follow its points",
     "doubt:appearance": "the image under the box no longer looks like the object in the first frame",
+    "doubt:contrast": "the box's colours hardly differ from those around it: it may sit on background",
     "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
     "doubt:passes": "between two human boxes, the re-tracks forward from the earlier and backward from the later "
                     "one put the box in different places: one has likely lost the object (only with a failure model "

@@ -75,6 +75,10 @@ def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, d
             gt = read_otb_boxes(otb / folder.name / "groundtruth_rect.txt")[track.frame_indices]
             iou = iou_xywh(track.boxes_xywh, gt)
             failed = ~(iou >= 0.5)
+            lacking = [name for name in SIGNALS if name not in track.signals]
+            if lacking:
+                raise SystemExit(f"{folder / STORE_NAME} has no {', '.join(lacking)} signal: it was tracked before "
+                                 "the signal existed; run the batch commands of this script's docstring again")
             signals = {name: track.signals[name] for name in SIGNALS}
             samples.append(Sample(folder.name, seed, feature_matrix(signals, track.keyframe), failed, ~track.keyframe))
             tracking_seconds.append(float(track.seconds[1:].mean()) if len(track) > 1 else np.nan)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zlib
 
 import cv2
 import numpy as np
@@ -28,6 +29,7 @@ from annotator.failure import (
 from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, choose_threshold, fit_model,
                                    fit_pass_agreement, group_features, leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
+from annotator.failure.signals import colour_contrast
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
 
@@ -71,6 +73,9 @@ def test_flow_appearance_and_motion_signals_move_where_the_box_slides_onto_backg
     assert failed["ncc_first"][FAIL_AT] < truth["ncc_first"][before].min() - 0.2
     assert failed["ncc_prev"][FAIL_AT] < truth["ncc_prev"][before].min() - 0.2
     assert failed["jump"][FAIL_AT] > 1.0 > truth["jump"][before].max()
+    # On background the box's colours are those around it; on the object they differ, all along the track.
+    assert failed["contrast"][FAIL_AT:].max() < 0.2 < 0.5 < truth["contrast"][1:].min()
+    assert np.isnan(truth["contrast"][0])  # the given box: not measured, as re-tracking stores its anchors
 
 
 def test_run_agreement_falls_where_one_run_slides_onto_background(clip):
@@ -135,6 +140,49 @@ def test_the_object_swapped_for_background_lowers_the_appearance_signals(clip):
     swapped = measure(clip, clip.boxes_xywh, frames)
     assert swapped["ncc_first"][FAIL_AT] < truth["ncc_first"][1:FAIL_AT].min() - 0.3
     assert swapped["ncc_prev"][FAIL_AT] < truth["ncc_prev"][1:FAIL_AT].min() - 0.3
+    assert swapped["contrast"][FAIL_AT:].max() < truth["contrast"][1:FAIL_AT].min() - 0.1
+
+
+def slow_contrast(frame_rgb: np.ndarray, box) -> float:
+    """The contrast signal written out pixel by pixel: HSV histograms (8 x 4 x 4 bins) of the box and of the ring
+    around it (the box scaled by sqrt(2) about its centre, minus the box), then 1 - Bhattacharyya coefficient."""
+    x, y, w, h = box
+    height, width = frame_rgb.shape[:2]
+    hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV).astype(int)
+    cx, cy, s = x + w / 2, y + h / 2, np.sqrt(2.0)
+    inside, around = np.zeros(128), np.zeros(128)
+    for r in range(height):
+        for c in range(width):
+            in_box = round(x) <= c < round(x + w) and round(y) <= r < round(y + h)
+            in_ring = round(cx - w * s / 2) <= c < round(cx + w * s / 2) and round(cy - h * s / 2) <= r < round(cy + h * s / 2)
+            b = (hsv[r, c, 0] * 8 // 180) * 16 + (hsv[r, c, 1] * 4 // 256) * 4 + hsv[r, c, 2] * 4 // 256
+            if in_box:
+                inside[b] += 1
+            elif in_ring:
+                around[b] += 1
+    if inside.sum() < 100 or around.sum() < 100:  # too few pixels to compare histograms
+        return float("nan")
+    return 1.0 - float(np.sqrt(inside / inside.sum() * around / around.sum()).sum())
+
+
+@pytest.mark.parametrize("box", [(60.3, 40.6, 32.0, 28.0), (-8.0, 50.0, 30.0, 20.0), (140.0, 100.0, 30.0, 30.0),
+                                 (20.0, -12.0, 24.0, 30.0), (10.0, 10.0, 10.0, 10.0), (10.0, 10.0, 11.0, 11.0)])
+def test_the_contrast_signal_equals_its_pixel_by_pixel_definition(clip, box):
+    frame = clip.frames[5]
+    assert colour_contrast(frame, np.array(box)) == pytest.approx(slow_contrast(frame, box), abs=1e-6, nan_ok=True)
+
+
+def test_the_contrast_of_a_box_off_the_image_is_not_measured(clip):
+    frame = clip.frames[0]
+    for box in ([200.0, 10.0, 20.0, 20.0], [10.0, -60.0, 20.0, 20.0], [10.0, 10.0, 0.0, 5.0], [np.nan, 1.0, 5.0, 5.0]):
+        assert np.isnan(colour_contrast(frame, np.array(box))), box
+    # A uniform image: the box and its ring have the same colours.
+    assert colour_contrast(np.full((50, 60, 3), 90, np.uint8), np.array([20.0, 15.0, 20.0, 15.0])) == pytest.approx(0.0)
+    # Colour noise: box and ring are two samples of one distribution, which look alike once they are large enough;
+    # histograms of fewer than 100 pixels are not compared at all.
+    noise = np.random.default_rng(0).integers(0, 256, (200, 200, 3), dtype=np.uint8)
+    assert colour_contrast(noise, np.array([70.0, 70.0, 48.0, 48.0])) < 0.05
+    assert np.isnan(colour_contrast(noise, np.array([70.0, 70.0, 9.0, 9.0])))
 
 
 def test_score_signals_follow_the_tracker_and_the_candidates():
@@ -241,12 +289,14 @@ def test_a_foreign_or_damaged_model_file_is_refused(tmp_path, edit, fragment):
 
 
 def small_samples() -> list[Sample]:
-    rng = np.random.default_rng(11)
     samples = []
     for k, name in enumerate(["A", "B", "C", "D"]):
         n = 60
         failed = np.arange(n) > 30 + 5 * k
-        features = rng.normal(0, 1, (n, len(FEATURES)))
+        # Each column drawn from its own generator, named by the feature: a feature added later leaves the others'
+        # numbers as they were.
+        features = np.stack([np.random.default_rng([11, k, zlib.crc32(f.encode())]).normal(0, 1, n)
+                             for f in FEATURES], axis=1)
         features[:, FEATURES.index("flow_iou")] -= 2.0 * failed
         use = np.ones(n, bool)
         use[0] = False
@@ -288,7 +338,7 @@ def test_platt_recovers_a_known_slope_and_offset():
         platt(np.full(5, 0.3), np.zeros(5, bool))
 
 
-def test_fit_model_folds_the_recalibration_into_its_coefficients():
+def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     samples = small_samples()
     raw = fit_model(samples, C=0.01, calibrate=False)
     calibrated = fit_model(samples, C=0.01)
@@ -307,10 +357,15 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients():
     want = 1 / (1 + np.exp(-(slope * np.log(q / (1 - q)) + offset)))
     np.testing.assert_allclose(calibrated.p_fail(features), want, rtol=1e-9, atol=1e-12)
     assert "calibration" not in raw.info
-    # The threshold is chosen on the calibrated probabilities.
+    # The threshold is chosen on the calibrated probabilities: with a recalibration that shifts them up a lot,
+    # the threshold moves up with them.
     X = np.concatenate([s.features[s.use] for s in samples])
     y = np.concatenate([s.failed[s.use] for s in samples])
-    assert calibrated.threshold == choose_threshold(calibrated.p_fail(X), y) != raw.threshold
+    assert calibrated.threshold == choose_threshold(calibrated.p_fail(X), y)
+    assert raw.threshold == choose_threshold(raw.p_fail(X), y)
+    monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
+    shifted = fit_model(samples, C=0.01)
+    assert shifted.threshold == choose_threshold(shifted.p_fail(X), y) > raw.threshold
     # One sequence has no held-out predictions to calibrate on: the model stays raw.
     assert "calibration" not in fit_model(samples[:1], C=0.01).info
 

@@ -154,23 +154,56 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
-def test_reflag_reads_run_iou_not_measured_as_the_models_mean():
-    """A one-run track (or a store from before run_iou) has NaN there: the model neither raises nor lowers p_fail."""
-    from annotator.failure import FEATURES, SIGNALS, feature_matrix, load_model
+@pytest.mark.parametrize("name", ["run_iou", "contrast"])
+def test_reflag_reads_a_signal_not_measured_as_the_models_mean(name, tmp_path):
+    """A one-run track, or a store from before the signal existed, has NaN there: the model neither raises nor lowers
+    p_fail."""
+    from annotator.failure import FEATURES, SIGNALS, feature_matrix
+    from annotator.failure.model import model_from_fit
 
     n = 10
     rng = np.random.default_rng(2)
-    signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
+    signals = {signal: rng.uniform(0, 1, n) for signal in SIGNALS}
     keyframe, outside = np.zeros(n, bool), np.zeros(n, bool)
     keyframe[0] = True
-    missing = {**signals, "run_iou": np.full(n, np.nan)}
-    model = load_model()
+    missing = {**signals, name: np.full(n, np.nan)}
+    # A model that weighs every feature, so that what the missing signal is read as shows in p_fail.
+    model = model_from_fit(FEATURES, rng.uniform(0.2, 0.8, len(FEATURES)), rng.uniform(0.5, 2.0, len(FEATURES)),
+                           rng.uniform(0.5, 1.5, len(FEATURES)), -0.5, 0.4, {})
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(model.to_json()))
+    config = dataclasses.replace(CONFIG, failure_model=str(path))
     features = feature_matrix(missing, keyframe)
-    cols = [FEATURES.index("run_iou"), FEATURES.index("run_iou_w5")]
+    cols = [FEATURES.index(name), FEATURES.index(f"{name}_w5")]
     features[:, cols] = model.mean[cols]  # where the model reads a feature not measured
-    p_missing = reflag(missing, keyframe, outside, CONFIG)[2]
+    p_missing = reflag(missing, keyframe, outside, config)[2]
     np.testing.assert_allclose(p_missing, np.where(keyframe, 0.0, model.p_fail(features)), rtol=0, atol=1e-12)
-    assert not np.allclose(p_missing, reflag({**signals, "run_iou": np.ones(n)}, keyframe, outside, CONFIG)[2])
+    assert not np.allclose(p_missing, reflag({**signals, name: np.ones(n)}, keyframe, outside, config)[2])
+    # A store written before the signal existed lacks it altogether: the same as not measured.
+    absent = {k: v for k, v in signals.items() if k != name}
+    np.testing.assert_array_equal(reflag(absent, keyframe, outside, config)[2], p_missing)
+
+
+def test_a_store_from_before_the_contrast_signal_is_retracked_and_exported(corrected, tmp_path):
+    """Tracks stored without ``contrast`` (older versions) re-track, keep the signal not measured on the rows they
+    keep, and write a flags file whose contrast cells are empty there."""
+    from annotator.exports.flags import write_flags_csv
+
+    old = corrected.tracks[0]  # anchors at 0 and 10
+    old = dataclasses.replace(old, signals={k: v for k, v in old.signals.items() if k != "contrast"})
+    result = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {14: tuple(CLIP.boxes_xywh[14])}}, CONFIG,
+                            previous={1: PreviousTrack(old, corrected.scoring[1])}, width=96, height=72)
+    track = result.tracks[0]
+    contrast = track.signals["contrast"]
+    np.testing.assert_array_equal(track.boxes_xywh[:11], old.boxes_xywh[:11])  # 0..10 kept as they were
+    assert np.isnan(contrast[:11]).all() and np.isnan(contrast[14])  # kept rows and anchors: not measured
+    assert np.isfinite(contrast[[11, 12, 13, 15]]).all()  # re-tracked from the anchors at 10 and 14: measured
+    write_flags_csv(tmp_path / "flags.csv", [track])
+    text = (tmp_path / "flags.csv").read_text().splitlines()
+    column = text[0].split(",").index("contrast")
+    cells = [line.split(",")[column] for line in text[1:]]
+    assert cells[:11] == [""] * 11 and all(cells[k] for k in (11, 12, 13, 15))
+    assert len(read_flags_csv(tmp_path / "flags.csv").frame) == 16
 
 
 # --------------------------------------------------------------------------- the algorithm

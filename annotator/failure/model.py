@@ -82,7 +82,7 @@ MODEL_PATH = "data/failure_model.json"
 LOOKAHEAD = 2  # frames after a frame that its features read
 LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
 TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
-_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou")
+_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "contrast")
 
 FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED))
 
@@ -96,6 +96,7 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "flow_iou": "flow", "flow_fb": "flow", "flow_kept": "flow", "flow_iou_w5": "flow",
     "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance",
     "run_iou": "runs", "run_iou_w5": "runs",
+    "contrast": "contrast", "contrast_w5": "contrast",
 }
 
 
@@ -184,9 +185,9 @@ def _nanmean(values: np.ndarray) -> float:
 
 
 def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:
+    """The columns of :data:`_SMOOTHED`, in its order: signals from ``raw``, ``ll_subspace`` from ``causal``."""
     names = list(SIGNALS)
-    cols = [raw[:, names.index("flow_iou")], raw[:, names.index("ncc_first")], causal[:, 0],
-            raw[:, names.index("run_iou")]]
+    cols = [causal[:, 0] if name == "ll_subspace" else raw[:, names.index(name)] for name in _SMOOTHED]
     return np.stack(cols, axis=1)
 
 

@@ -1,8 +1,8 @@
 """Per-frame signals of tracking failure, measured while tracking (or re-tracking), one frame at a time.
 
 Each signal is a number per processed frame, computed from what is known at
-that frame: the tracker's own scores, the box against earlier boxes, and two
-checks independent of SPTPT's model, both from OpenCV:
+that frame: the tracker's own scores, the box against earlier boxes, and three
+checks independent of SPTPT's model, all from OpenCV:
 
 * **flow**: pyramidal Lucas-Kanade "median flow" (Kalal et al., ICPR 2010)
   moves the previous box to this frame from points tracked forward and back;
@@ -12,6 +12,12 @@ checks independent of SPTPT's model, both from OpenCV:
 * **appearance**: normalised cross-correlation of the grey patch under the
   box with the first frame's (``ncc_first``) and the previous frame's
   (``ncc_prev``).
+* **contrast**: how far the colours inside the box differ from those of a
+  ring around it (``contrast``). An object stands out from its
+  surroundings, wherever it goes and however its look changes; a box that
+  has slid onto background looks like the background around it. This is the
+  cue the appearance checks lack: they fall both when the object changes its
+  look and when the box leaves it.
 
 The rest come from the tracker: its log-likelihood and scoring stage, the
 gap between its best candidate and the next best ones (a flat posterior
@@ -25,10 +31,14 @@ Signals are the raw material; :mod:`annotator.failure.model` turns them into
 features (running levels, short windows) and a failure probability. Where a
 signal cannot be measured on a frame (the first frame, a box outside the
 image) it takes its "nothing wrong" value, documented per name in
-:data:`SIGNALS`. One signal can be missing for a whole track: ``run_iou`` is
-NaN when the tracker has one run (``paper``, ``fast``), because "nothing to
-compare with" is not "the runs agree"; the model reads a NaN feature as its
-training mean, so it neither raises nor lowers ``p_fail``.
+:data:`SIGNALS` and :data:`NEUTRAL`, or, for ``run_iou`` and ``contrast``,
+NaN: "not measured". ``run_iou`` is NaN for a whole track when the tracker
+has one run (``paper``, ``fast``), because "nothing to compare with" is not
+"the runs agree"; ``contrast`` is NaN on a box a person gave and where the
+box or its ring has too few pixels in the image; a store written before a
+signal existed lacks it altogether, and re-tracking reads it as NaN. The
+model reads a NaN feature as its training mean, so it neither raises nor
+lowers ``p_fail``.
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
+__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "colour_contrast", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -61,6 +71,9 @@ SIGNALS: Mapping[str, str] = {
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
     "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (NaN with one run: "
                "not measured)",
+    "contrast": "1 - Bhattacharyya coefficient of the HSV colour histograms inside the box and in a ring of the "
+                "box's own area around it, in [0, 1] (NaN, not measured, on a box a person gave and where the box or "
+                "the ring has fewer than 100 pixels in the image: too few to compare histograms)",
 }
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
@@ -70,12 +83,22 @@ NEUTRAL: Mapping[str, float] = {
     "ncc_first": 1.0, "ncc_prev": 1.0,
     # Not measured: a given box has no runs to compare, and a one-run tracker none at all (module docstring).
     "run_iou": math.nan,
+    # Not measured on a box a person gave (as re-tracking stores its anchors), nor on rows no pass scored.
+    "contrast": math.nan,
 }
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
 _LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 _TOP_SHARE = 0.05
+# The ring is the box scaled by sqrt(2) per side, minus the box: as many pixels around the box as in it.
+_RING_SCALE = math.sqrt(2.0)
+_HSV_BINS = [8, 4, 4]  # hue, saturation, value: hue carries colour, coarse S and V tolerate lighting
+_HSV_RANGES = [0, 180, 0, 256, 0, 256]
+# 1 - Bhattacharyya between two histograms of 128 bins is biased upwards when they hold few pixels (two samples
+# of one colour distribution look different): below this many pixels in the box or the ring the signal is not
+# measured. On ../shared/otb the fewest were 181 (Skiing), so the fitted model never saw the bias's worst.
+_MIN_PIXELS = 100
 
 
 def _grey(frame_rgb: np.ndarray) -> np.ndarray:
@@ -98,6 +121,32 @@ def _patch(grey: np.ndarray, box: np.ndarray) -> np.ndarray | None:
 
 def _ncc(a: np.ndarray | None, b: np.ndarray | None) -> float:
     return float(np.clip(np.sum(a * b), -1.0, 1.0)) if a is not None and b is not None else 0.0
+
+
+def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
+    """The ``contrast`` signal of ``box`` (x, y, w, h) on an RGB frame; NaN where it cannot be measured."""
+    height, width = frame_rgb.shape[:2]
+    x, y, w, h = (float(v) for v in box)
+    if not all(math.isfinite(v) for v in (x, y, w, h)) or w <= 0 or h <= 0:
+        return math.nan
+    cx, cy = x + w / 2, y + h / 2
+    rx0, ry0 = max(int(round(cx - w * _RING_SCALE / 2)), 0), max(int(round(cy - h * _RING_SCALE / 2)), 0)
+    rx1, ry1 = min(int(round(cx + w * _RING_SCALE / 2)), width), min(int(round(cy + h * _RING_SCALE / 2)), height)
+    if rx1 - rx0 < 2 or ry1 - ry0 < 2:
+        return math.nan
+    crop = np.ascontiguousarray(frame_rgb[ry0:ry1, rx0:rx1])
+    inner = np.zeros(crop.shape[:2], np.uint8)
+    bx0, by0 = max(int(round(x)) - rx0, 0), max(int(round(y)) - ry0, 0)
+    bx1, by1 = max(int(round(x + w)) - rx0, 0), max(int(round(y + h)) - ry0, 0)
+    inner[by0:by1, bx0:bx1] = 1
+    ring = (1 - inner).astype(np.uint8)
+    if inner.sum() < _MIN_PIXELS or ring.sum() < _MIN_PIXELS:
+        return math.nan
+    hsv = cv2.cvtColor(crop, cv2.COLOR_RGB2HSV)
+    inside = cv2.calcHist([hsv], [0, 1, 2], inner, _HSV_BINS, _HSV_RANGES).ravel()
+    around = cv2.calcHist([hsv], [0, 1, 2], ring, _HSV_BINS, _HSV_RANGES).ravel()
+    overlap = float(np.sqrt((inside / inside.sum()) * (around / around.sum())).sum())
+    return float(np.clip(1.0 - overlap, 0.0, 1.0))
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -180,6 +229,7 @@ class SignalMeter:
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
             "run_iou": math.nan if run_boxes_xywh is None else min(_iou(box, other) for other in run_boxes_xywh),
+            "contrast": colour_contrast(frame_rgb, box),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
         return signals
