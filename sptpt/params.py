@@ -18,7 +18,10 @@ from typing import Any, Mapping
 
 from sptpt.subspace import RE_MODES
 
-__all__ = ["TrackerParams", "PRESETS", "get_preset", "params_from_mapping", "UnknownParameterError"]
+__all__ = ["RUN_CHOICES", "TrackerParams", "PRESETS", "get_preset", "params_from_mapping", "UnknownParameterError"]
+
+#: How a tracker of several independent runs picks the run it reports (``TrackerParams.run_choice``).
+RUN_CHOICES = ("confidence", "contrast")
 
 
 @dataclass(frozen=True)
@@ -72,13 +75,23 @@ class TrackerParams:
 
     independent_runs: int = 1
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
-    dictionary, candidates, negatives and models; each frame reports the run whose winner scores higher (a
-    subspace score ranks above a bootstrap one), and ``FrameResult.run_boxes_xywh`` carries every run's box.
+    dictionary, candidates, negatives and models; each frame reports one run (``run_choice``), and
+    ``FrameResult.run_boxes_xywh`` carries every run's box.
     One run of robust keeps or loses a sequence depending on the seed (Singer2 0.04 with one seed, 0.68 with
     another). On ``../shared/otb`` over six seeds two runs score 0.506 ± 0.015 against 0.494 ± 0.033 for the
     same twelve runs alone: +0.012 paired (5 of 6 seeds), and half the seed spread. Costs one run's time per
     run; on Human9 and Singer2 the run that has lost the target scores higher. 2 in ``robust``.
     [ours, benchmarks/RESULTS.md "OTB, 6 seeds"]"""
+
+    run_choice: str = "confidence"
+    """Which of the ``independent_runs`` each frame reports. ``"confidence"``: the run whose winner scores higher
+    (a subspace score above a bootstrap one). ``"contrast"``: the run whose box's colours differ most from those
+    around it (:func:`sptpt.contrast.colour_contrast`; the confident run where they are equal or cannot be
+    measured): an object stands out from its surroundings, a run that has slid onto background does not, and
+    the run that has lost the target often scores higher (Human9, Singer2). On ``../shared/otb``, from the same
+    runs of six seeds, 0.521 ± 0.021 against 0.506 ± 0.015 by confidence, higher on 12 of 17 sequences
+    (Human9 +0.11, Singer2 +0.07), lower on 5 (Bolt2 -0.02, Girl -0.02). ``"contrast"`` in ``robust``.
+    [ours, benchmarks/RESULTS.md "robust"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
@@ -171,6 +184,8 @@ class TrackerParams:
         _check(self.redetect_after == 0 or (self.redetect_particles > 0 and self.level_window > 0),
                "redetect_after", self.redetect_after, "0 unless redetect_particles and level_window are > 0")
         _check(self.independent_runs >= 1, "independent_runs", self.independent_runs, "an integer >= 1")
+        _check(self.run_choice in RUN_CHOICES, "run_choice", self.run_choice,
+               " or ".join(repr(c) for c in RUN_CHOICES))
         _check(self.refine_particles >= 0, "refine_particles", self.refine_particles, "an integer >= 0")
         _check(0 < self.refine_sigma_scale <= 1, "refine_sigma_scale", self.refine_sigma_scale, "a number in (0, 1]")
         _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")
@@ -203,13 +218,14 @@ PRESETS: dict[str, TrackerParams] = {
     # Keeping the target on ordinary videos (issue #10): the fast preset's candidates, plus acceptance
     # relative to a running level (the paper's absolute Phi freezes the positive model after the first
     # batch), motion proportional to the object's size, and a wide re-detection search once the target
-    # has been rejected for several frames; two independent runs, each frame from the more confident.
+    # has been rejected for several frames; two independent runs, each frame from the one whose box stands out
+    # from its surroundings.
     # Each departure is measured in benchmarks/RESULTS.md.
     "robust": TrackerParams(
         n_particles=150, refine_particles=75, n_negatives=100, negative_every=4,
         relative_motion=True, motion_sigma=(0.15, 0.15, 0.01, 0.0, 0.0, 0.0),
         level_window=20, level_min_count=5, accept_drop=3.0,
-        redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=2,
+        redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=2, run_choice="contrast",
     ),
 }
 

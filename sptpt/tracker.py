@@ -21,6 +21,7 @@ from threadpoolctl import ThreadpoolController
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.coding import encode_nonnegative, learn_dictionary
+from sptpt.contrast import colour_contrast
 from sptpt.features import superpixel_features
 from sptpt.params import TrackerParams, get_preset
 from sptpt.results import FrameResult, confidence_from_log_likelihood
@@ -77,8 +78,9 @@ class Tracker:
         tracker measuring anything itself.
 
     With ``params.independent_runs`` R > 1 the tracker follows the object with R
-    independent runs and reports, each frame, the more confident one; every
-    run's box is in ``FrameResult.run_boxes_xywh``.
+    independent runs and reports, each frame, the one ``params.run_choice``
+    picks (the more confident, or the one whose box stands out most from its
+    surroundings); every run's box is in ``FrameResult.run_boxes_xywh``.
 
     Examples
     --------
@@ -147,7 +149,10 @@ class Tracker:
         with _single_threaded_blas():
             # Each run checks the frame (and that init came first) itself.
             results = [run.update(frame, details=details) for run in self._runs]
-        return _reported(results, _more_confident(results))
+        chosen = _more_confident(results)
+        if len(results) > 1 and self.params.run_choice == "contrast":
+            chosen = _most_contrasted(results, _as_rgb(frame), chosen)
+        return _reported(results, chosen)
 
 
 class _Run:
@@ -416,6 +421,21 @@ def _more_confident(results: list[FrameResult]) -> int:
         return (1 if result.scoring == "subspace" else 0, ll)
 
     return max(range(len(results)), key=lambda i: rank(results[i]))  # max keeps the first of equal ranks
+
+
+def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int) -> int:
+    """Index of the run whose box stands out most from its surroundings (:func:`colour_contrast`).
+
+    The ``confident`` run keeps the frame unless another run's contrast is strictly higher; a contrast that
+    cannot be measured (a box with too few pixels in the frame) ranks below every measured one.
+    """
+    contrast = [colour_contrast(rgb, r.box_xywh) for r in results]
+    rank = [c if np.isfinite(c) else -np.inf for c in contrast]
+    best = confident
+    for i, c in enumerate(rank):
+        if c > rank[best]:
+            best = i
+    return best
 
 
 def _size(state: np.ndarray, template_size: int) -> float:

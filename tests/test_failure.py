@@ -29,9 +29,9 @@ from annotator.failure import (
 from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, choose_threshold, fit_model,
                                    fit_pass_agreement, group_features, leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
-from annotator.failure.signals import colour_contrast
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
+from sptpt.contrast import colour_contrast
 
 FAIL_AT = 12
 

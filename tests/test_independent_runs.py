@@ -1,4 +1,5 @@
-"""``independent_runs``: several SPTPT runs side by side, each frame reported by the more confident one."""
+"""``independent_runs``: several SPTPT runs side by side, each frame reported by the more confident one or by the one
+whose box stands out most from its surroundings (``run_choice``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import pytest
 from annotator.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
-from sptpt.tracker import Tracker, _more_confident
+from sptpt.contrast import colour_contrast
+from sptpt.tracker import Tracker, _more_confident, _most_contrasted
 
 
 def _result(ll: float, scoring: str = "subspace", x: float = 0.0) -> FrameResult:
@@ -28,8 +30,32 @@ def test_the_higher_score_of_the_same_stage_wins_and_subspace_outranks_bootstrap
     assert _more_confident([_result(-1.0), _result(3.0), _result(2.0)]) == 1
 
 
-def _params(runs: int):
-    return dataclasses.replace(get_preset("robust"), independent_runs=runs)
+def _params(runs: int, choice: str = "confidence"):
+    return dataclasses.replace(get_preset("robust"), independent_runs=runs, run_choice=choice)
+
+
+def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A grey-textured frame with one red square: a box on the square, and one of its size on the background."""
+    rng = np.random.default_rng(0)
+    frame = np.repeat(rng.integers(90, 130, (120, 160, 1), dtype=np.uint8), 3, axis=2)
+    frame[40:70, 50:80] = (200, 30, 30)
+    return frame, np.array([50.0, 40.0, 30.0, 30.0]), np.array([110.0, 70.0, 30.0, 30.0])
+
+
+def test_the_run_whose_box_stands_out_is_reported_even_when_less_confident():
+    frame, on_object, on_background = _scene()
+    object_run = FrameResult(box_xywh=on_object, log_likelihood=1.0, confidence=0.5, accepted=True, scoring="subspace")
+    lost_run = FrameResult(box_xywh=on_background, log_likelihood=5.0, confidence=0.9, accepted=True,
+                           scoring="subspace")
+    results = [lost_run, object_run]
+    assert colour_contrast(frame, on_object) > 0.5 > colour_contrast(frame, on_background)
+    assert _more_confident(results) == 0 and _most_contrasted(results, frame, 0) == 1
+    assert _most_contrasted(results[::-1], frame, 1) == 0
+    # Equal contrast: the confident run stays; a box too small to measure ranks below a measured one.
+    assert _most_contrasted([object_run, object_run], frame, 1) == 1
+    tiny = dataclasses.replace(object_run, box_xywh=np.array([55.0, 45.0, 5.0, 5.0]))
+    assert _most_contrasted([tiny, lost_run], frame, 0) == 1
+    assert _most_contrasted([tiny, tiny], frame, 1) == 1  # neither measured: the confident run
 
 
 def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_seeds():
@@ -55,11 +81,33 @@ def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_se
     assert 0 < picked_second < len(clip.frames) - 1  # the clip exercises both runs
 
 
-def test_same_seed_same_boxes():
+def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
+    clip = make_clip(25, seed=3)
+    pair = Tracker(_params(2, "contrast"), seed=11)
+    seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=2)
+    singles = [Tracker(_params(1), seed=int(s)) for s in seeds]
+    pair.init(clip.frames[0], clip.boxes_xywh[0])
+    for single in singles:
+        single.init(clip.frames[0], clip.boxes_xywh[0])
+    overruled = 0
+    for frame in clip.frames[1:]:
+        got = pair.update(frame)
+        alone = [single.update(frame) for single in singles]
+        contrast = [colour_contrast(frame, a.box_xywh) for a in alone]
+        confident = _more_confident(alone)
+        want = alone[int(np.argmax(contrast))] if contrast[0] != contrast[1] else alone[confident]
+        np.testing.assert_array_equal(got.box_xywh, want.box_xywh)
+        np.testing.assert_array_equal(got.run_boxes_xywh, np.stack([a.box_xywh for a in alone]))
+        overruled += want is not alone[confident]
+    assert overruled > 0  # the clip has frames where contrast and confidence pick different runs
+
+
+@pytest.mark.parametrize("choice", ["confidence", "contrast"])
+def test_same_seed_same_boxes(choice):
     clip = make_clip(15, seed=3)
 
     def boxes(seed):
-        tracker = Tracker(_params(2), seed=seed)
+        tracker = Tracker(_params(2, choice), seed=seed)
         tracker.init(clip.frames[0], clip.boxes_xywh[0])
         return np.array([tracker.update(frame).box_xywh for frame in clip.frames[1:]])
 

@@ -36,6 +36,8 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _params(preset: str):
     if preset == "robust-one-run":  # robust before it tracked two runs side by side
         return dataclasses.replace(get_preset("robust"), independent_runs=1)
+    if preset == "robust-confidence":  # robust before it reported the run whose box stands out most
+        return dataclasses.replace(get_preset("robust"), run_choice="confidence")
     return get_preset(preset)
 
 
@@ -114,10 +116,11 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
     assert overlap[found:].mean() >= 0.5, overlap.round(2)  # and keeps it
 
 
-@pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust"])
+@pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust"])
 def test_preset_boxes_are_unchanged(preset):
     # robust's one-run boxes were recorded before the scale_filter and independent_runs switches; its two-run
-    # boxes when robust became two runs (each of its runs is a one-run tracker: test_independent_runs).
+    # boxes by confidence when robust became two runs (each of its runs is a one-run tracker:
+    # test_independent_runs), and by contrast when run_choice became "contrast".
     clip = make_clip(40, seed=3)
     recorded = np.loadtxt(GOLDEN / f"{preset}_clip3_seed5_boxes.txt")
     # Tolerance only for floating-point reassociation in faster kernels; any algorithmic change moves boxes by pixels.

@@ -49,7 +49,9 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "colour_contrast", "particle_stats"]
+from sptpt.contrast import colour_contrast
+
+__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -91,14 +93,6 @@ _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
 _LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 _TOP_SHARE = 0.05
-# The ring is the box scaled by sqrt(2) per side, minus the box: as many pixels around the box as in it.
-_RING_SCALE = math.sqrt(2.0)
-_HSV_BINS = [8, 4, 4]  # hue, saturation, value: hue carries colour, coarse S and V tolerate lighting
-_HSV_RANGES = [0, 180, 0, 256, 0, 256]
-# 1 - Bhattacharyya between two histograms of 128 bins is biased upwards when they hold few pixels (two samples
-# of one colour distribution look different): below this many pixels in the box or the ring the signal is not
-# measured. On ../shared/otb the fewest were 181 (Skiing), so the fitted model never saw the bias's worst.
-_MIN_PIXELS = 100
 
 
 def _grey(frame_rgb: np.ndarray) -> np.ndarray:
@@ -121,32 +115,6 @@ def _patch(grey: np.ndarray, box: np.ndarray) -> np.ndarray | None:
 
 def _ncc(a: np.ndarray | None, b: np.ndarray | None) -> float:
     return float(np.clip(np.sum(a * b), -1.0, 1.0)) if a is not None and b is not None else 0.0
-
-
-def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
-    """The ``contrast`` signal of ``box`` (x, y, w, h) on an RGB frame; NaN where it cannot be measured."""
-    height, width = frame_rgb.shape[:2]
-    x, y, w, h = (float(v) for v in box)
-    if not all(math.isfinite(v) for v in (x, y, w, h)) or w <= 0 or h <= 0:
-        return math.nan
-    cx, cy = x + w / 2, y + h / 2
-    rx0, ry0 = max(int(round(cx - w * _RING_SCALE / 2)), 0), max(int(round(cy - h * _RING_SCALE / 2)), 0)
-    rx1, ry1 = min(int(round(cx + w * _RING_SCALE / 2)), width), min(int(round(cy + h * _RING_SCALE / 2)), height)
-    if rx1 - rx0 < 2 or ry1 - ry0 < 2:
-        return math.nan
-    crop = np.ascontiguousarray(frame_rgb[ry0:ry1, rx0:rx1])
-    inner = np.zeros(crop.shape[:2], np.uint8)
-    bx0, by0 = max(int(round(x)) - rx0, 0), max(int(round(y)) - ry0, 0)
-    bx1, by1 = max(int(round(x + w)) - rx0, 0), max(int(round(y + h)) - ry0, 0)
-    inner[by0:by1, bx0:bx1] = 1
-    ring = (1 - inner).astype(np.uint8)
-    if inner.sum() < _MIN_PIXELS or ring.sum() < _MIN_PIXELS:
-        return math.nan
-    hsv = cv2.cvtColor(crop, cv2.COLOR_RGB2HSV)
-    inside = cv2.calcHist([hsv], [0, 1, 2], inner, _HSV_BINS, _HSV_RANGES).ravel()
-    around = cv2.calcHist([hsv], [0, 1, 2], ring, _HSV_BINS, _HSV_RANGES).ravel()
-    overlap = float(np.sqrt((inside / inside.sum()) * (around / around.sum())).sum())
-    return float(np.clip(1.0 - overlap, 0.0, 1.0))
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
