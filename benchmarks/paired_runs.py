@@ -2,9 +2,12 @@
 
     python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust
     python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust --sequences Girl,Human9
+    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust --rechoose contrast
 
 A tracker with ``independent_runs`` R > 1 (``robust``) tracks R one-run
-trackers side by side and reports, each frame, the more confident run's box.
+trackers side by side and reports, each frame, one run's box
+(``TrackerParams.run_choice``: the more confident run, or the one whose box
+stands out most from its surroundings).
 The runs never see each other's results, so each run's boxes are exactly what
 that run would have given alone (``tests/test_independent_runs.py`` checks
 this). ``benchmarks/_sptpt_runner.py`` stores them (``run_boxes`` in
@@ -12,6 +15,13 @@ this). ``benchmarks/_sptpt_runner.py`` stores them (``run_boxes`` in
 luck of the seeds costs no extra tracking: for every seed folder of an
 ``otb_benchmark.py`` run, the success AUC of the choice, of each run alone,
 and of the choice minus the mean of its runs, per seed and per sequence.
+
+``--rechoose contrast`` scores instead the choice ``run_choice="contrast"``
+would have made from the same runs (:func:`sptpt.contrast.most_contrasted`
+on each frame, read again from ``--otb``; the stored choice breaks ties, as
+the tracker's confident run does when the stored run chose by confidence).
+Exact, because a run's boxes do not depend on the choice: this is how the
+contrast choice was measured from runs tracked by confidence.
 """
 
 from __future__ import annotations
@@ -28,7 +38,9 @@ sys.path.insert(0, str(HERE))
 from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.evaluation.metrics import evaluate_sequence  # noqa: E402
+from annotator.frames import open_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
+from sptpt.contrast import most_contrasted  # noqa: E402
 
 
 class PairedError(ValueError):
@@ -41,8 +53,13 @@ def seed_folders(out: Path) -> list[Path]:
     return sorted(folders, key=lambda p: int(p.name[4:])) or [out]
 
 
-def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Sequence -> AUC of ``[choice, run 1 alone, run 2 alone, ...]`` from one seed's stored results."""
+def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray], rechoose: str | None = None,
+                  otb: Path | None = None) -> dict[str, np.ndarray]:
+    """Sequence -> AUC of ``[choice, run 1 alone, run 2 alone, ...]`` from one seed's stored results.
+
+    ``rechoose="contrast"``: the choice is made again from the run boxes by colour contrast, on the frames of
+    ``otb``/<sequence>.
+    """
     aucs = {}
     for name, truth in gt.items():
         frames = folder / tracker / f"{name}.frames.npz"
@@ -56,9 +73,21 @@ def sequence_aucs(folder: Path, tracker: str, gt: dict[str, np.ndarray]) -> dict
             runs = stored["run_boxes"]
         choice = read_otb_boxes(folder / tracker / f"{name}.txt")
         truth = truth[: len(choice)]
+        if rechoose == "contrast":
+            choice = contrast_choice(otb / name, runs, choice)
         boxes = [choice, *(runs[:, r] for r in range(runs.shape[1]))]
         aucs[name] = np.array([evaluate_sequence(b, truth, name=name).auc for b in boxes])
     return aucs
+
+
+def contrast_choice(seq_dir: Path, runs: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """Per frame, the run box :func:`most_contrasted` picks, the stored choice's run breaking ties."""
+    boxes = stored.copy()
+    for k, (_, frame) in enumerate(open_frames(seq_dir, stop=len(stored))):
+        # The stored text keeps 3 decimals: the stored choice is the run whose box it rounds.
+        default = int(np.argmin(np.abs(runs[k] - stored[k]).max(axis=1)))
+        boxes[k] = runs[k, most_contrasted(frame, runs[k], default)]
+    return boxes
 
 
 def _mean_std(values: np.ndarray) -> str:
@@ -103,17 +132,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tracker", default="robust", help="the SPTPT tracker name in that run (default robust)")
     parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
     parser.add_argument("--sequences", default="", help="comma-separated names, or 'all' (the default)")
+    parser.add_argument("--rechoose", choices=("contrast",), default=None,
+                        help="score the choice run_choice='contrast' makes from the stored runs instead of the stored one")
     args = parser.parse_args(argv)
     try:
         sequences = select_sequences(args.otb, args.sequences)
         if not args.out.is_dir():
             raise PairedError(f"{args.out}: not a folder; give the --out folder of an otb_benchmark.py run")
         gt = {s.name: read_otb_boxes(s / "groundtruth_rect.txt") for s in sequences}
-        per_seed = {folder: sequence_aucs(folder, args.tracker, gt) for folder in seed_folders(args.out)}
+        per_seed = {folder: sequence_aucs(folder, args.tracker, gt, args.rechoose, args.otb)
+                    for folder in seed_folders(args.out)}
     except (SequenceError, PairedError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    print(f"Success AUC of `{args.tracker}`'s per-frame choice and of each of its runs alone ({args.out}, "
+    what = "the choice by contrast made again from its runs" if args.rechoose else "its per-frame choice"
+    print(f"Success AUC of `{args.tracker}`: {what}, and each of its runs alone ({args.out}, "
           f"{len(sequences)} sequences):\n")
     print(paired_table(per_seed))
     print("\nPer sequence, mean over seed folders:\n")

@@ -15,7 +15,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["colour_contrast"]
+__all__ = ["colour_contrast", "most_contrasted"]
 
 # The ring is the box scaled by sqrt(2) per side, minus the box: as many pixels around the box as in it.
 _RING_SCALE = math.sqrt(2.0)
@@ -55,3 +55,17 @@ def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
     around = cv2.calcHist([hsv], [0, 1, 2], ring, _HSV_BINS, _HSV_RANGES).ravel()
     overlap = float(np.sqrt((inside / inside.sum()) * (around / around.sum())).sum())
     return float(np.clip(1.0 - overlap, 0.0, 1.0))
+
+
+def most_contrasted(frame_rgb: np.ndarray, boxes_xywh, default: int) -> int:
+    """Index of the box that stands out most from its surroundings (:func:`colour_contrast`).
+
+    ``default`` (the confident run, for the tracker) keeps it unless another box's contrast is strictly higher;
+    a contrast that cannot be measured ranks below every measured one.
+    """
+    rank = [c if math.isfinite(c) else -math.inf for c in (colour_contrast(frame_rgb, b) for b in boxes_xywh)]
+    best = default
+    for i, c in enumerate(rank):
+        if c > rank[best]:
+            best = i
+    return best

@@ -78,9 +78,10 @@ class TrackerParams:
     dictionary, candidates, negatives and models; each frame reports one run (``run_choice``), and
     ``FrameResult.run_boxes_xywh`` carries every run's box.
     One run of robust keeps or loses a sequence depending on the seed (Singer2 0.04 with one seed, 0.68 with
-    another). On ``../shared/otb`` over six seeds two runs score 0.506 ± 0.015 against 0.494 ± 0.033 for the
-    same twelve runs alone: +0.012 paired (5 of 6 seeds), and half the seed spread. Costs one run's time per
-    run; on Human9 and Singer2 the run that has lost the target scores higher. 2 in ``robust``.
+    another). On ``../shared/otb`` over six seeds two runs chosen by confidence score 0.506 ± 0.015 against
+    0.494 ± 0.033 for the same twelve runs alone: +0.012 paired (5 of 6 seeds), and half the seed spread.
+    Costs one run's time per run; on Human9 and Singer2 the run that has lost the target scores higher (hence
+    ``run_choice``). 2 in ``robust``.
     [ours, benchmarks/RESULTS.md "OTB, 6 seeds"]"""
 
     run_choice: str = "confidence"
@@ -91,7 +92,7 @@ class TrackerParams:
     the run that has lost the target often scores higher (Human9, Singer2). On ``../shared/otb``, from the same
     runs of six seeds, 0.521 ± 0.021 against 0.506 ± 0.015 by confidence, higher on 12 of 17 sequences
     (Human9 +0.11, Singer2 +0.07), lower on 5 (Bolt2 -0.02, Girl -0.02). ``"contrast"`` in ``robust``.
-    [ours, benchmarks/RESULTS.md "robust"]"""
+    With one run there is nothing to choose and the field has no effect. [ours, benchmarks/RESULTS.md "robust"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""

@@ -21,7 +21,7 @@ from threadpoolctl import ThreadpoolController
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.coding import encode_nonnegative, learn_dictionary
-from sptpt.contrast import colour_contrast
+from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
 from sptpt.params import TrackerParams, get_preset
 from sptpt.results import FrameResult, confidence_from_log_likelihood
@@ -424,18 +424,9 @@ def _more_confident(results: list[FrameResult]) -> int:
 
 
 def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int) -> int:
-    """Index of the run whose box stands out most from its surroundings (:func:`colour_contrast`).
-
-    The ``confident`` run keeps the frame unless another run's contrast is strictly higher; a contrast that
-    cannot be measured (a box with too few pixels in the frame) ranks below every measured one.
-    """
-    contrast = [colour_contrast(rgb, r.box_xywh) for r in results]
-    rank = [c if np.isfinite(c) else -np.inf for c in contrast]
-    best = confident
-    for i, c in enumerate(rank):
-        if c > rank[best]:
-            best = i
-    return best
+    """Index of the run whose box stands out most from its surroundings; the ``confident`` run on ties (see
+    :func:`sptpt.contrast.most_contrasted`)."""
+    return most_contrasted(rgb, [r.box_xywh for r in results], confident)
 
 
 def _size(state: np.ndarray, template_size: int) -> float:

@@ -66,3 +66,29 @@ def test_a_run_without_per_run_boxes_is_refused_in_one_line(tmp_path, capsys):
 def test_unknown_sequences_are_refused(tmp_path, names):
     otb, out = _write_run(tmp_path)
     assert _module().main([str(out), "--otb", str(otb), "--sequences", names]) == 2
+
+
+def test_rechoose_contrast_reports_the_run_whose_box_stands_out(tmp_path, capsys):
+    """With frames to read, --rechoose contrast picks per frame the run on the object (a red square on grey
+    texture), whatever the stored choice was: B's stored choice is the lost run, its re-made choice the good one."""
+    import cv2
+
+    paired = _module()
+    otb, out = _write_run(tmp_path)
+    truth = np.loadtxt(otb / "A" / "groundtruth_rect.txt", delimiter=",") - [1, 1, 0, 0]
+    rng = np.random.default_rng(0)
+    for name in ("A", "B"):
+        (otb / name / "img").mkdir()
+        for k, (x, y, w, h) in enumerate(truth):
+            frame = np.repeat(rng.integers(90, 130, (80, 320, 1), dtype=np.uint8), 3, axis=2)
+            frame[int(y):int(y + h), int(x):int(x + w)] = (30, 30, 200)  # BGR: red
+            cv2.imwrite(str(otb / name / "img" / f"{k + 1:04d}.jpg"), frame)
+    gt = {n: truth for n in ("A", "B")}
+    stored = paired.sequence_aucs(out / "seed0", "robust", gt)
+    again = paired.sequence_aucs(out / "seed0", "robust", gt, rechoose="contrast", otb=otb)
+    good, bad = stored["A"][1], stored["A"][2]
+    assert stored["B"][0] == pytest.approx(bad) and again["B"][0] == pytest.approx(good)
+    assert again["A"][0] == pytest.approx(good)
+    np.testing.assert_array_equal(again["B"][1:], stored["B"][1:])  # the runs alone do not change
+    assert paired.main([str(out), "--otb", str(otb), "--rechoose", "contrast"]) == 0
+    assert "choice by contrast" in capsys.readouterr().out

@@ -74,9 +74,10 @@ def test_details_carry_particles_and_superpixels(clip, paper_run):
     assert paper_run[8].particles_xywh is None
 
 
-def test_grayscale_frames_are_accepted(clip):
+@pytest.mark.parametrize("preset", ["paper", "robust"])  # robust: two runs, chosen by colour contrast
+def test_grayscale_frames_are_accepted(clip, preset):
     gray = clip.frames[:4].mean(axis=3).astype(np.uint8)
-    tracker = Tracker(seed=0)
+    tracker = Tracker(get_preset(preset), seed=0)
     tracker.init(gray[0], clip.boxes_xywh[0])
     result = tracker.update(gray[1])
     assert result.box_xywh.shape == (4,)

@@ -18,6 +18,9 @@ checks independent of SPTPT's model, all from OpenCV:
   has slid onto background looks like the background around it. This is the
   cue the appearance checks lack: they fall both when the object changes its
   look and when the box leaves it.
+  The measure is :func:`sptpt.contrast.colour_contrast`: ``robust`` also uses
+  it to choose which of its runs to report, so there the reported box is the
+  one of higher contrast, and the signal says less than with one run.
 
 The rest come from the tracker: its log-likelihood and scoring stage, the
 gap between its best candidate and the next best ones (a flat posterior
