@@ -231,6 +231,9 @@ class _Run:
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
+        if p.contrast_candidates > 1:
+            with self._time("scoring"):
+                best = _most_contrasted_candidate(rgb, states, scores, p.contrast_candidates, p.template_size)
         self._state = states[best].copy()
         if self._scale_filter is not None:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
@@ -427,6 +430,34 @@ def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int
     """Index of the run whose box stands out most from its surroundings; the ``confident`` run on ties (see
     :func:`sptpt.contrast.most_contrasted`)."""
     return most_contrasted(rgb, [r.box_xywh for r in results], confident)
+
+
+#: The candidates re-ranked by contrast overlap the best-scoring one at least this much: contrast corrects a box that
+#: straddles the object's edge; between distant places (a re-detection search) the subspace score decides.
+_NEAR_IOU = 0.5
+
+
+def _most_contrasted_candidate(rgb: np.ndarray, states: np.ndarray, scores: np.ndarray, k: int,
+                               template_size: int) -> int:
+    """Index of the candidate, of the ``k`` best by score, whose box stands out most from its surroundings.
+
+    The best by score wins ties and keeps the choice when no box's contrast can be measured.
+    """
+    top = np.argsort(-scores, kind="stable")[:k]
+    boxes = np.array([box_xywh_from_states(states[i], template_size) for i in top])
+    near = _iou_with(boxes, boxes[0]) >= _NEAR_IOU
+    top, boxes = top[near], boxes[near]
+    return int(top[most_contrasted(rgb, boxes, 0)])
+
+
+def _iou_with(boxes: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """IoU of each xywh box of ``boxes`` with ``box``."""
+    x0 = np.maximum(boxes[:, 0], box[0])
+    y0 = np.maximum(boxes[:, 1], box[1])
+    x1 = np.minimum(boxes[:, 0] + boxes[:, 2], box[0] + box[2])
+    y1 = np.minimum(boxes[:, 1] + boxes[:, 3], box[1] + box[3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    return inter / (boxes[:, 2] * boxes[:, 3] + box[2] * box[3] - inter)
 
 
 def _size(state: np.ndarray, template_size: int) -> float:

@@ -8,11 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from annotator.evaluation import iou_xywh
 from annotator.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.contrast import colour_contrast
-from sptpt.tracker import Tracker, _more_confident, _most_contrasted
+from sptpt.affine import box_xywh_from_states, state_from_box_xywh
+from sptpt.tracker import Tracker, _more_confident, _most_contrasted, _most_contrasted_candidate
 
 
 def _result(ll: float, scoring: str = "subspace", x: float = 0.0) -> FrameResult:
@@ -58,6 +60,56 @@ def test_the_run_whose_box_stands_out_is_reported_even_when_less_confident():
     assert _most_contrasted([tiny, lost_run], frame, 0) == 1
     assert _most_contrasted([tiny, tiny], frame, 1) == 1  # neither measured: the confident run
     assert _most_contrasted([tiny, tiny], frame, 0) == 0
+
+
+def test_of_the_best_candidates_near_the_best_score_the_one_whose_box_stands_out_is_taken():
+    frame, on_object, on_background = _scene()
+    frame[80:110, 115:145] = (200, 30, 30)  # a look-alike far from the object
+    look_alike = np.array([115.0, 80.0, 30.0, 30.0])
+    straddling = on_object + [8.0, 0.0, 0.0, 0.0]  # IoU 0.58 with the object's box
+    tiny = np.array([55.0, 45.0, 5.0, 5.0])
+
+    def states(*boxes):
+        return np.stack([state_from_box_xywh(b, 32) for b in boxes])
+
+    np.testing.assert_allclose(box_xywh_from_states(states(on_object)[0], 32), on_object)
+    assert colour_contrast(frame, on_object) > colour_contrast(frame, straddling)
+    assert colour_contrast(frame, look_alike) > colour_contrast(frame, straddling)
+    candidates = states(straddling, look_alike, on_object, on_background)
+    scores = np.array([5.0, 4.0, 3.0, 2.0])
+    assert _most_contrasted_candidate(frame, candidates, scores, 3, 32) == 2  # the look-alike is too far to compete
+    assert _most_contrasted_candidate(frame, candidates, scores, 2, 32) == 0  # the object's box is not among the best 2
+    assert _most_contrasted_candidate(frame, candidates, scores, 1, 32) == 0
+    assert _most_contrasted_candidate(frame, candidates, scores, 10, 32) == 2  # more than there are: all of them
+    # The best-scoring far from the object: the object's box is not near it and does not compete.
+    assert _most_contrasted_candidate(frame, candidates, np.array([1.0, 4.0, 3.0, 2.0]), 4, 32) == 1
+    # Equal contrast (the same box twice): the better score; no contrast measured: the best score.
+    assert _most_contrasted_candidate(frame, states(on_object, on_object), np.array([1.0, 2.0]), 2, 32) == 1
+    small = np.array([53.0, 43.0, 7.0, 7.0])  # too small to measure as well, IoU 0.51 with tiny
+    assert _most_contrasted_candidate(frame, states(tiny, small), np.array([2.0, 1.0]), 2, 32) == 0
+    assert _most_contrasted_candidate(frame, states(tiny, small), np.array([1.0, 2.0]), 2, 32) == 1
+
+
+def test_each_frame_takes_the_most_contrasted_of_its_best_candidates():
+    params = dataclasses.replace(_params(1), contrast_candidates=5)
+    clip = make_clip(25, seed=3)
+    tracker = Tracker(params, seed=2)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    overruled = 0
+    for frame in clip.frames[1:]:
+        got = tracker.update(frame, details=True)
+        top = np.argsort(-got.particle_scores, kind="stable")[:5]
+        boxes = got.particles_xywh[top]
+        top = top[iou_xywh(boxes, np.repeat(boxes[:1], len(boxes), axis=0)) >= 0.5]  # near the best score
+        contrast = np.array([colour_contrast(frame, got.particles_xywh[i]) for i in top])
+        assert np.isfinite(contrast).all()  # every candidate's box is measured on this clip
+        want = top[int(np.argmax(contrast))]
+        np.testing.assert_allclose(got.box_xywh, got.particles_xywh[want], rtol=0, atol=1e-9)
+        assert got.log_likelihood == got.particle_scores[want]
+        overruled += want != top[0]
+    assert overruled > 0  # the clip has frames where the best score is not the box that stands out most
+    with pytest.raises(ValueError, match="contrast_candidates=-1 is invalid"):
+        dataclasses.replace(params, contrast_candidates=-1)
 
 
 def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_seeds():

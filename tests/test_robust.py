@@ -34,10 +34,14 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _params(preset: str):
-    if preset == "robust-one-run":  # robust before it tracked two runs side by side
-        return dataclasses.replace(get_preset("robust"), independent_runs=1)
-    if preset == "robust-confidence":  # robust before it reported the run whose box stands out most
-        return dataclasses.replace(get_preset("robust"), run_choice="confidence")
+    # robust as it was before each of its later switches: each switch alone changes the boxes.
+    before_candidates = dataclasses.replace(get_preset("robust"), contrast_candidates=0)
+    if preset == "robust-one-run":  # before it tracked two runs side by side
+        return dataclasses.replace(before_candidates, independent_runs=1)
+    if preset == "robust-confidence":  # before it reported the run whose box stands out most
+        return dataclasses.replace(before_candidates, run_choice="confidence")
+    if preset == "robust-best-score":  # before each run took, of its best candidates, the one that stands out
+        return before_candidates
     return get_preset(preset)
 
 
@@ -116,11 +120,13 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
     assert overlap[found:].mean() >= 0.5, overlap.round(2)  # and keeps it
 
 
-@pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust"])
+@pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust-best-score",
+                                    "robust"])
 def test_preset_boxes_are_unchanged(preset):
     # robust's one-run boxes were recorded before the scale_filter and independent_runs switches; its two-run
     # boxes by confidence when robust became two runs (each of its runs is a one-run tracker:
-    # test_independent_runs), and by contrast when run_choice became "contrast".
+    # test_independent_runs), by contrast when run_choice became "contrast", and with the candidates re-ranked
+    # by contrast when contrast_candidates became 5.
     clip = make_clip(40, seed=3)
     recorded = np.loadtxt(GOLDEN / f"{preset}_clip3_seed5_boxes.txt")
     # Tolerance only for floating-point reassociation in faster kernels; any algorithmic change moves boxes by pixels.

@@ -19,8 +19,9 @@ checks independent of SPTPT's model, all from OpenCV:
   cue the appearance checks lack: they fall both when the object changes its
   look and when the box leaves it.
   The measure is :func:`sptpt.contrast.colour_contrast`: ``robust`` also uses
-  it to choose which of its runs to report, so there the reported box is the
-  one of higher contrast, and the signal says less than with one run.
+  it to choose, among a run's best candidates, its estimate, and which of its
+  runs to report, so there the reported box is already the one of highest
+  contrast nearby, and the signal says less than with ``paper`` or ``fast``.
 
 The rest come from the tracker: its log-likelihood and scoring stage, the
 gap between its best candidate and the next best ones (a flat posterior
