@@ -76,8 +76,8 @@ from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402
 from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail  # noqa: E402
 from failure_model import load_samples  # noqa: E402
-from annotator.review.segments import _iou  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
+from sptpt.boxes import iou_xywh  # noqa: E402
 
 PRESET = "robust"
 
@@ -107,7 +107,8 @@ def generate(job: dict) -> str:
     use = ~np.isnan(pass_iou) & ~track.keyframe & ~track.outside
     out = Path(job["out"])
     np.savez(out, p_track=p_track[use], pass_iou=pass_iou[use], features=features[use], stop=job["stop"],
-             failed=_iou(track.boxes_xywh[use], gt[use]) < 0.5, position=np.flatnonzero(use))
+             failed=np.nan_to_num(iou_xywh(track.boxes_xywh[use], gt[use]), nan=0.0) < 0.5,
+             position=np.flatnonzero(use))
     print(f"{seq_dir.name} seed {job['seed']} every {job['every']}: {int(use.sum())} frames", file=sys.stderr,
           flush=True)
     return str(out)

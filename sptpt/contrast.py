@@ -3,9 +3,10 @@
 An object stands out from its surroundings however its own look changes; a box that has slid onto
 background looks like the background around it. :func:`colour_contrast` measures that as 1 - the
 Bhattacharyya coefficient of the HSV colour histograms inside the box and in a ring of the box's own area
-around it. Two uses: the ``robust`` preset reports, of its independent runs, the one whose box stands out
-most (``TrackerParams.run_choice``), and the tool reads it as a failure signal
-(``annotator.failure.signals``).
+around it. Three uses: each run of the ``robust`` preset takes, of its best candidates near the best score, the
+one whose box stands out most (``TrackerParams.contrast_candidates``); ``robust`` reports, of its independent
+runs, the one whose box stands out most (``TrackerParams.run_choice``); and the tool reads it as a failure
+signal (``annotator.failure.signals``).
 """
 
 from __future__ import annotations

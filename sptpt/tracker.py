@@ -5,9 +5,10 @@ warp each into a 32x32 template, cut it into SNIC superpixels, describe each
 superpixel by its midlevel cue histograms, sparse-code those against the
 first-frame dictionary, pool the codes into a ``z x s`` tensor per candidate,
 and score each tensor by how much better the positive subspace model
-reconstructs it than the negative one. The best candidate is the estimate;
-if it scores above Phi it joins the positive model, and the negative model
-is refitted from samples drawn around it.
+reconstructs it than the negative one. The best candidate is the estimate
+(``robust``: of the few best near it, the one whose box stands out most from
+its surroundings); if it scores above Phi it joins the positive model, and
+the negative model is refitted from samples drawn around it.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
+from sptpt.boxes import iou_xywh
 from sptpt.coding import encode_nonnegative, learn_dictionary
 from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
@@ -232,8 +234,9 @@ class _Run:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
         if p.contrast_candidates > 1:
-            with self._time("scoring"):
-                best = _most_contrasted_candidate(rgb, states, scores, p.contrast_candidates, p.template_size)
+            with self._time("scoring"):  # choosing among the candidates is part of scoring them
+                best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
+                                                  p.template_size)
         self._state = states[best].copy()
         if self._scale_filter is not None:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
@@ -437,27 +440,20 @@ def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int
 _NEAR_IOU = 0.5
 
 
-def _most_contrasted_candidate(rgb: np.ndarray, states: np.ndarray, scores: np.ndarray, k: int,
+def _most_contrasted_candidate(rgb: np.ndarray, states: np.ndarray, scores: np.ndarray, best: int, k: int,
                                template_size: int) -> int:
-    """Index of the candidate, of the ``k`` best by score, whose box stands out most from its surroundings.
+    """Index of the candidate whose box stands out most from its surroundings, of ``best`` and the next best by
+    score, ``k`` in all, that overlap ``best``'s box by at least :data:`_NEAR_IOU`.
 
-    The best by score wins ties and keeps the choice when no box's contrast can be measured.
+    ``best`` wins ties and keeps the choice when no box's contrast can be measured, or its own box is degenerate.
     """
-    top = np.argsort(-scores, kind="stable")[:k]
-    boxes = np.array([box_xywh_from_states(states[i], template_size) for i in top])
-    near = _iou_with(boxes, boxes[0]) >= _NEAR_IOU
+    order = np.argsort(-scores, kind="stable")
+    top = np.concatenate([[best], order[order != best]])[:k]
+    boxes = box_xywh_from_states(states[top], template_size)
+    near = iou_xywh(boxes, boxes[0]) >= _NEAR_IOU
+    near[0] = True  # a degenerate best box overlaps nothing, not even itself
     top, boxes = top[near], boxes[near]
     return int(top[most_contrasted(rgb, boxes, 0)])
-
-
-def _iou_with(boxes: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """IoU of each xywh box of ``boxes`` with ``box``."""
-    x0 = np.maximum(boxes[:, 0], box[0])
-    y0 = np.maximum(boxes[:, 1], box[1])
-    x1 = np.minimum(boxes[:, 0] + boxes[:, 2], box[0] + box[2])
-    y1 = np.minimum(boxes[:, 1] + boxes[:, 3], box[1] + box[3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    return inter / (boxes[:, 2] * boxes[:, 3] + box[2] * box[3] - inter)
 
 
 def _size(state: np.ndarray, template_size: int) -> float:

@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from annotator.evaluation import iou_xywh
 from annotator.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.contrast import colour_contrast
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
+from sptpt.boxes import iou_xywh
 from sptpt.tracker import Tracker, _more_confident, _most_contrasted, _most_contrasted_candidate
 
 
@@ -77,17 +77,30 @@ def test_of_the_best_candidates_near_the_best_score_the_one_whose_box_stands_out
     assert colour_contrast(frame, look_alike) > colour_contrast(frame, straddling)
     candidates = states(straddling, look_alike, on_object, on_background)
     scores = np.array([5.0, 4.0, 3.0, 2.0])
-    assert _most_contrasted_candidate(frame, candidates, scores, 3, 32) == 2  # the look-alike is too far to compete
-    assert _most_contrasted_candidate(frame, candidates, scores, 2, 32) == 0  # the object's box is not among the best 2
-    assert _most_contrasted_candidate(frame, candidates, scores, 1, 32) == 0
-    assert _most_contrasted_candidate(frame, candidates, scores, 10, 32) == 2  # more than there are: all of them
-    # The best-scoring far from the object: the object's box is not near it and does not compete.
-    assert _most_contrasted_candidate(frame, candidates, np.array([1.0, 4.0, 3.0, 2.0]), 4, 32) == 1
+
+    def pick(candidates, scores, k):
+        return _most_contrasted_candidate(frame, candidates, scores, int(np.argmax(scores)), k, 32)
+
+    assert pick(candidates, scores, 3) == 2  # the look-alike is too far to compete
+    assert pick(candidates, scores, 2) == 0  # neither the far look-alike nor the object's box (not among the best 2)
+    assert pick(candidates, scores, 1) == 0
+    assert pick(candidates, scores, 10) == 2  # more than there are: all of them
+    # The best-scoring candidate is half on the far look-alike: the object's box, which stands out more but is not
+    # near it, does not compete.
+    half_on_look_alike = look_alike - [15.0, 0.0, 0.0, 0.0]
+    assert colour_contrast(frame, on_object) > colour_contrast(frame, half_on_look_alike) > 0
+    assert pick(states(straddling, half_on_look_alike, on_object), np.array([1.0, 4.0, 3.0]), 3) == 1
     # Equal contrast (the same box twice): the better score; no contrast measured: the best score.
-    assert _most_contrasted_candidate(frame, states(on_object, on_object), np.array([1.0, 2.0]), 2, 32) == 1
+    assert pick(states(on_object, on_object), np.array([1.0, 2.0]), 2) == 1
     small = np.array([53.0, 43.0, 7.0, 7.0])  # too small to measure as well, IoU 0.51 with tiny
-    assert _most_contrasted_candidate(frame, states(tiny, small), np.array([2.0, 1.0]), 2, 32) == 0
-    assert _most_contrasted_candidate(frame, states(tiny, small), np.array([1.0, 2.0]), 2, 32) == 1
+    assert pick(states(tiny, small), np.array([2.0, 1.0]), 2) == 0
+    assert pick(states(tiny, small), np.array([1.0, 2.0]), 2) == 1
+    # A degenerate best box (zero width) overlaps nothing, not even itself: it stays the choice.
+    flat = states(on_object, on_object)
+    flat[0, 2] = 0.0
+    assert pick(flat, np.array([2.0, 1.0]), 2) == 0
+    # The best is whichever the caller chose, also when another candidate has the same score.
+    assert _most_contrasted_candidate(frame, candidates, np.array([3.0, 0.0, 3.0, 0.0]), 2, 1, 32) == 2
 
 
 def test_each_frame_takes_the_most_contrasted_of_its_best_candidates():
@@ -100,7 +113,7 @@ def test_each_frame_takes_the_most_contrasted_of_its_best_candidates():
         got = tracker.update(frame, details=True)
         top = np.argsort(-got.particle_scores, kind="stable")[:5]
         boxes = got.particles_xywh[top]
-        top = top[iou_xywh(boxes, np.repeat(boxes[:1], len(boxes), axis=0)) >= 0.5]  # near the best score
+        top = top[iou_xywh(boxes, boxes[0]) >= 0.5]  # near the best score
         contrast = np.array([colour_contrast(frame, got.particles_xywh[i]) for i in top])
         assert np.isfinite(contrast).all()  # every candidate's box is measured on this clip
         want = top[int(np.argmax(contrast))]

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from annotator.synthetic import _texture, make_clip
+from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.tracker import Tracker
 
@@ -24,13 +25,6 @@ GOLDEN = Path(__file__).parent / "golden" / "tracker"
 # Covered or away for this many frames; the target must be found within REFIND frames of its return.
 GAP = 10
 REFIND = 10
-
-
-def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, 0], b[:, 0]); y1 = np.maximum(a[:, 1], b[:, 1])
-    x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]); y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    return inter / (a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter)
 
 
 def _params(preset: str):

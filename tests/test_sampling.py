@@ -5,21 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
+from sptpt.boxes import iou_xywh
 from sptpt.sampling import draw_candidates, draw_negatives
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, 0], b[0]); y1 = np.maximum(a[:, 1], b[1])
-    x2 = np.minimum(a[:, 0] + a[:, 2], b[0] + b[2]); y2 = np.minimum(a[:, 1] + a[:, 3], b[1] + b[3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    return inter / (a[:, 2] * a[:, 3] + b[2] * b[3] - inter)
 
 
 def test_negatives_overlap_the_estimate_little():
     state = state_from_box_xywh(np.array([100.0, 100.0, 48.0, 40.0]), 32)
     negatives = draw_negatives(state, 2000, 32, np.random.default_rng(0))
     assert (negatives[:, 2:] == state[2:]).all()
-    overlaps = iou(box_xywh_from_states(negatives, 32), box_xywh_from_states(state, 32))
+    overlaps = iou_xywh(box_xywh_from_states(negatives, 32), box_xywh_from_states(state, 32))
     assert overlaps.max() <= 0.5625 / 1.4375 + 1e-9
 
 

@@ -6,16 +6,10 @@ import numpy as np
 import pytest
 
 from annotator.synthetic import make_clip
+from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
-
-
-def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, 0], b[:, 0]); y1 = np.maximum(a[:, 1], b[:, 1])
-    x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2]); y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    return inter / (a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter)
 
 
 def run(clip, seed, params=None, n=None) -> list[FrameResult]:

@@ -67,6 +67,8 @@ from typing import Literal, Mapping
 
 import numpy as np
 
+from sptpt.boxes import iou_xywh as boxes_iou_xywh
+
 __all__ = [
     "SUCCESS_THRESHOLDS",
     "PRECISION_THRESHOLDS",
@@ -159,25 +161,14 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         In ``[0, 1]``. A box with a non-positive width or height is empty
         (IoU 0); a row holding NaN gives NaN. No invalid-row rule is applied
         here: that is :func:`evaluate_sequence`'s job.
+
+    The arithmetic is :func:`sptpt.boxes.iou_xywh`'s, shared with the tracker; this checks the shapes.
     """
     a = _as_boxes(a, "a")
     b = _as_boxes(b, "b")
     if a.shape != b.shape:
         raise EvaluationError(f"iou_xywh pairs boxes row by row: got {len(a)} and {len(b)} rows")
-    a_x2, a_y2 = a[:, 0] + a[:, 2], a[:, 1] + a[:, 3]
-    b_x2, b_y2 = b[:, 0] + b[:, 2], b[:, 1] + b[:, 3]
-    inter_w = np.clip(np.minimum(a_x2, b_x2) - np.maximum(a[:, 0], b[:, 0]), 0.0, None)
-    inter_h = np.clip(np.minimum(a_y2, b_y2) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
-    inter = inter_w * inter_h
-    area_a = np.clip(a_x2 - a[:, 0], 0.0, None) * np.clip(a_y2 - a[:, 1], 0.0, None)
-    area_b = np.clip(b_x2 - b[:, 0], 0.0, None) * np.clip(b_y2 - b[:, 1], 0.0, None)
-    union = area_a + area_b - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
-    iou = np.clip(iou, 0.0, 1.0)  # rounding can leave 1 + 1 ulp
-    nan_rows = np.isnan(a).any(axis=1) | np.isnan(b).any(axis=1)
-    iou[nan_rows] = np.nan
-    return iou
+    return boxes_iou_xywh(a, b)
 
 
 def center_error_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -53,6 +53,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
+from sptpt.boxes import iou_xywh
 from sptpt.contrast import colour_contrast
 
 __all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
@@ -121,14 +122,6 @@ def _ncc(a: np.ndarray | None, b: np.ndarray | None) -> float:
     return float(np.clip(np.sum(a * b), -1.0, 1.0)) if a is not None and b is not None else 0.0
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    union = a[2] * a[3] + b[2] * b[3] - inter
-    return float(inter / union) if union > 0 else 0.0
-
-
 def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None, box: np.ndarray) -> tuple[float, float]:
     """``(score_gap, particle_spread)`` of a frame's candidates (see :data:`SIGNALS`)."""
     if particles_xywh is None or scores is None or len(scores) < 2:
@@ -184,6 +177,9 @@ class SignalMeter:
         patch = _patch(grey, box)
         gap, spread = particle_stats(particles_xywh, particle_scores, box)
         ll = float(log_likelihood) if np.isfinite(log_likelihood) else -50.0
+        # With one run there is nothing to compare (NaN); a run without a box overlaps nothing (0).
+        run_iou = (math.nan if run_boxes_xywh is None
+                   else float(np.nan_to_num(iou_xywh(np.asarray(run_boxes_xywh), box), nan=0.0).min()))
         signals = {
             "log_likelihood": float(np.clip(ll, -50.0, 50.0)),
             "bootstrap": 1.0 if scoring == "bootstrap" else 0.0,
@@ -200,7 +196,7 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
-            "run_iou": math.nan if run_boxes_xywh is None else min(_iou(box, other) for other in run_boxes_xywh),
+            "run_iou": run_iou,
             "contrast": colour_contrast(frame_rgb, box),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
@@ -233,4 +229,4 @@ class SignalMeter:
         cx, cy = x + w / 2 + dx, y + h / 2 + dy
         moved = np.array([cx - w * scale / 2, cy - h * scale / 2, w * scale, h * scale])
         size = math.sqrt(max(w * h, 1e-9))
-        return _iou(moved, box), float(min(median_fb / size, 10.0)), float(kept.mean())
+        return float(np.nan_to_num(iou_xywh(moved, box), nan=0.0)), float(min(median_fb / size, 10.0)), float(kept.mean())

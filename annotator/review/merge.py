@@ -16,7 +16,7 @@ from annotator.config import RunConfig
 from annotator.failure import SIGNALS, FailureModel, load_model, score_track
 from annotator.failure.signals import NEUTRAL
 from annotator.flagging import flag_p_fail
-from annotator.review.segments import _iou
+from sptpt.boxes import iou_xywh
 
 __all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "filled_signals", "merge_passes", "reflag",
            "track_p_fail"]
@@ -109,7 +109,7 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         signals=pick(fwd.signals, bwd.signals),
         # NaN, not 0, where a pass has no box: nothing was compared, so nothing speaks for a loss.
         pass_iou=np.where(np.isfinite(fwd.boxes_xywh).all(axis=1) & np.isfinite(bwd.boxes_xywh).all(axis=1),
-                          _iou(fwd.boxes_xywh, bwd.boxes_xywh), np.nan),
+                          iou_xywh(fwd.boxes_xywh, bwd.boxes_xywh), np.nan),
     )
     if method == "blend":
         total = cf + cb

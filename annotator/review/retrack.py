@@ -69,11 +69,11 @@ from annotator.review.segments import (
     PreviousTrack,
     Segment,
     SegmentChange,
-    _iou,
     plan_segments,
     same_box,
 )
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from sptpt.boxes import iou_xywh
 
 __all__ = ["RetrackResult", "retrack_tracks"]
 
@@ -313,7 +313,7 @@ def retrack_tracks(
             if hi <= lo:
                 continue
             if prev is not None:
-                iou = _iou(prev.track.boxes_xywh[lo:hi], boxes[lo:hi])
+                iou = np.nan_to_num(iou_xywh(prev.track.boxes_xywh[lo:hi], boxes[lo:hi]), nan=0.0)  # a missing box overlaps nothing
                 both_outside = prev.track.outside[lo:hi] & outside[lo:hi]
                 iou = np.where(both_outside, 1.0, iou)
                 mean_iou, moved = float(iou.mean()), int((iou < 0.5).sum())

@@ -14,6 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from annotator.tracks import TrackResult
+from sptpt.boxes import iou_xywh
 
 __all__ = ["AnchorChange", "Box", "PreviousTrack", "Segment", "SegmentChange", "plan_segments", "same_box"]
 
@@ -121,24 +122,10 @@ def same_box(a: Box | None, b: Box | None, *, width: int, height: int, tol: floa
 
     return bool(np.all(np.abs(clip(a) - clip(b)) <= tol))
 
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise IoU of (N, 4) xywh boxes; 0 where either is NaN."""
-    a = np.asarray(a, dtype=np.float64).reshape(-1, 4)
-    b = np.asarray(b, dtype=np.float64).reshape(-1, 4)
-    x0 = np.maximum(a[:, 0], b[:, 0])
-    y0 = np.maximum(a[:, 1], b[:, 1])
-    x1 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
-    y1 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    union = a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        iou = inter / union
-    return np.where(np.isfinite(iou), iou, 0.0)
-
 def _iou_or_none(a: Box | None, b: Box | None) -> float | None:
     if a is None or b is None or not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
         return None
-    return round(float(_iou(np.array(a), np.array(b))[0]), 4)
+    return round(float(iou_xywh(a, b)), 4)
 
 def plan_segments(track_id: int, anchors: Mapping[int, Box | None], changed: set[int], n_frames: int) -> list[Segment]:
     """The segments of one track to re-track, given its anchors and which of them are new or changed.

@@ -1,0 +1,49 @@
+"""sptpt.boxes.iou_xywh: the one IoU of the tracker, the tool and the benchmarks, against a slow reference."""
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sptpt.boxes import iou_xywh
+
+coordinate = st.floats(-50, 50, allow_nan=False).map(lambda v: round(v * 4) / 4)
+side = st.floats(-2, 40, allow_nan=False).map(lambda v: round(v * 4) / 4)  # some empty boxes (w or h <= 0)
+box = st.tuples(coordinate, coordinate, side, side)
+
+
+def reference_iou(a, b) -> float:
+    """One pair, in plain Python: [x, x + w) x [y, y + h), an empty box (w or h <= 0) overlaps nothing."""
+    if any(math.isnan(v) for v in (*a, *b)):
+        return math.nan
+    if min(a[2], a[3], b[2], b[3]) <= 0:
+        return 0.0
+    inter = (max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+             * max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])))
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+
+
+@settings(max_examples=200, deadline=None)
+@given(pairs=st.lists(st.tuples(box, box), min_size=1, max_size=6))
+def test_pairs_row_by_row_agree_with_the_reference(pairs):
+    a = np.array([p[0] for p in pairs])
+    b = np.array([p[1] for p in pairs])
+    got = iou_xywh(a, b)
+    assert got.shape == (len(pairs),)
+    np.testing.assert_allclose(got, [reference_iou(*p) for p in pairs], rtol=0, atol=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(many=st.lists(box, min_size=1, max_size=6), one=box)
+def test_many_against_one_is_each_pair(many, one):
+    many = np.array(many)
+    np.testing.assert_array_equal(iou_xywh(many, np.array(one)), iou_xywh(many, np.tile(one, (len(many), 1))))
+    assert iou_xywh(many[0], np.array(one)).shape == ()  # one pair: a scalar
+
+
+def test_identical_boxes_exactly_one_nan_is_nan_empty_is_zero():
+    boxes = np.array([[0.1, 0.2, 30.3, 17.7], [5.0, 5.0, 0.0, 10.0], [np.nan, 0.0, 10.0, 10.0]])
+    got = iou_xywh(boxes, boxes)
+    assert got[0] == 1.0 and got[1] == 0.0 and np.isnan(got[2])
+    assert iou_xywh([0, 0, 10, 10], [5, 0, 10, 10]) == 1 / 3
