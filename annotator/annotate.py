@@ -36,7 +36,7 @@ from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
 
-__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "RESULT_FILES"]
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
@@ -210,7 +210,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
                    formats: Sequence[str], input_path: Path) -> None:
     run, out_dir = result.run, result.out_dir
     outputs = result.outputs
-    previous = _previous_outputs(out_dir)
+    previous = previous_outputs(out_dir)
     if run.frames_processed == 0:
         why = f" ({run.decode_error.reason})" if run.decode_error is not None else ""
         raise ToolError(f"{source.path}: no frame could be decoded in the selected range{why}; nothing was written",
@@ -272,7 +272,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
     outputs["provenance"] = [out_dir / "run.json"]
 
 
-def _previous_outputs(out_dir: Path) -> set[str]:
+def previous_outputs(out_dir: Path) -> set[str]:
     """Result files of an earlier run in ``out_dir``: the fixed names, and the files its run.json lists."""
     names = set(RESULT_FILES) - {"run.json"}
     try:

@@ -375,10 +375,62 @@ def test_usage_errors(argv, needle, capsys):
 def test_bad_batch_settings_exit_4(tmp_path, capsys):
     manifest = write_jsonl(tmp_path / "m.jsonl", [{"video": "a.mp4", "box": "1,2,3,4"}])
     for extra, needle in ((["--workers", "0"], "--workers 0"), (["--formats", "otb,gif"], "--formats gif"),
-                          (["--preset", "nope"], "unknown preset")):
+                          (["--preset", "nope"], "unknown preset"), (["--start", "-1"], "--start -1"),
+                          (["--start", "5", "--stop", "5"], "--stop 5")):
         with pytest.raises(SystemExit) as info:
             main(["batch", str(manifest), "--out", str(tmp_path / "out"), *extra])
         assert info.value.code == 4 and needle in capsys.readouterr().err
+
+
+def _tiny_otb_root(root: Path) -> Path:
+    import cv2
+
+    clip = make_clip(3, size=SIZE, object_size=OBJECT, seed=30)
+    (root / "Alpha" / "img").mkdir(parents=True)
+    for i, frame in enumerate(clip.frames):
+        cv2.imwrite(str(root / "Alpha" / "img" / f"{i + 1:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    x, y, w, h = clip.boxes_xywh[0]
+    (root / "Alpha" / "groundtruth_rect.txt").write_text(f"{x + 1},{y + 1},{w},{h}\n" * 3)
+    return root
+
+
+def test_an_out_folder_that_is_the_input_root_is_refused_and_nothing_is_touched(tmp_path, capsys):
+    root = _tiny_otb_root(tmp_path / "otb")
+    before = sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+    with pytest.raises(SystemExit) as info:
+        main(["batch", "--otb-root", str(root), "--out", str(root), "--workers", "1", "--no-render", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert info.value.code == 5
+    assert len(err) == 1 and "would write into its own input" in err[0] and "outside the input" in err[0]
+    assert sorted(str(p.relative_to(root)) for p in root.rglob("*")) == before
+
+
+def test_an_out_folder_holding_a_single_video_run_is_refused(tmp_path, capsys):
+    manifest = write_jsonl(tmp_path / "m.jsonl", [{"video": "a.mp4", "box": "1,2,3,4"}])
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text("{}")
+    (run / "annotations.json").write_text("{}")
+    with pytest.raises(SystemExit) as info:
+        main(["batch", str(manifest), "--out", str(run), "--force", "--quiet"])
+    assert info.value.code == 5 and "single-video run" in capsys.readouterr().err
+    assert (run / "annotations.json").read_text() == "{}" and sorted(p.name for p in run.iterdir()) == [
+        "annotations.json", "run.json"]
+
+
+def test_redoing_an_item_removes_only_what_its_earlier_run_wrote(tmp_path):
+    from annotator.batch.workers import _clear_item_folder
+
+    folder = tmp_path / "Alpha"
+    (folder / "times").mkdir(parents=True)
+    outputs = {"otb": ["Alpha.txt", "times/Alpha_time.txt"], "flags": ["flags.csv"], "yolo": ["yolo/frames.txt"]}
+    (folder / "run.json").write_text(json.dumps({"outputs": outputs}))
+    for name in ("Alpha.txt", "times/Alpha_time.txt", "flags.csv", "tracks.npz", ".flags.csv.123.tmp",
+                 "groundtruth_rect.txt", "notes.txt", "times/mine.txt"):
+        (folder / name).write_text("x")
+    _clear_item_folder(folder)
+    assert sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()) == [
+        "groundtruth_rect.txt", "notes.txt", "times/mine.txt"]
 
 
 def test_a_second_run_on_the_same_folder_is_refused(tmp_path):

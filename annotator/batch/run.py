@@ -20,7 +20,7 @@ from typing import Any, Mapping, Sequence, TextIO
 from annotator.formats import DEFAULT_FORMATS
 from annotator.batch.executors import default_workers, execute_items, threads_per_worker, worker_context
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
-from annotator.batch.plan import is_item_finished, plan_batch, read_run_json
+from annotator.batch.plan import PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.progress import BatchProgress
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError
@@ -66,6 +66,25 @@ def _prepare_out_dir(out_dir: Path) -> None:
     except OSError as exc:
         raise ToolError(f"output folder {out_dir} cannot be written ({exc.strerror}): choose a writable --out folder",
                         EXIT_OUTPUT) from None
+
+
+def _refuse_unsafe_out_dir(out_dir: Path, planned: Sequence[PlannedItem]) -> None:
+    """Refuse an ``--out`` whose use would overwrite inputs or another run's results.
+
+    An item's folder ``OUT/<id>`` that is its own input folder, or holds it,
+    would get result files written among the input's (``--otb-root R --out
+    R`` makes ``R/Deer`` both). A single-video run folder (``run.json`` at
+    its top) would have its ``annotations.json`` and ``report.html``
+    replaced by the batch's index.
+    """
+    for plan in planned:
+        folder, source = Path(plan.job.folder).resolve(), Path(plan.job.input_path).resolve()
+        if folder == source or folder in source.parents:
+            raise ToolError(f"--out {out_dir}: item {plan.job.item_id!r} would write into its own input {source}: "
+                            "choose an --out folder outside the input folders", EXIT_OUTPUT)
+    if (out_dir / "run.json").is_file():
+        raise ToolError(f"--out {out_dir} holds a single-video run (run.json): the batch's index would replace its "
+                        "files; choose another --out folder", EXIT_OUTPUT)
 
 
 def _remove_stale_temporaries(out_dir: Path) -> None:
@@ -140,6 +159,13 @@ def run_batch(
     out_dir = Path(out_dir)
     if workers is not None and workers < 1:
         raise ToolError(f"--workers {workers} is invalid: give 1 or more worker processes", EXIT_VALUE)
+    if start is not None and start < 0:
+        raise ToolError(f"--start {start} is invalid: give a first frame of 0 or more (0-based)", EXIT_VALUE)
+    if stop is not None and stop <= (start or 0):
+        raise ToolError(f"--stop {stop} is invalid: give a frame after --start ({start or 0}), or leave it out "
+                        "to run to the end", EXIT_VALUE)
+    if step is not None and step < 1:
+        raise ToolError(f"--step {step} is invalid: give 1 or more", EXIT_VALUE)
     if scheduler is not None and workers is not None:
         raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
                         "sends items to a Dask cluster; give one", EXIT_VALUE)
@@ -147,6 +173,7 @@ def run_batch(
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
     planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,
                          preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step)
+    _refuse_unsafe_out_dir(out_dir, planned)
     _prepare_out_dir(out_dir)
     started = time.perf_counter()
     with _exclusive(out_dir):

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from annotator.annotate import RESULT_FILES
+from annotator.annotate import previous_outputs
 from annotator.batch.plan import ItemJob
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
 from annotator.progress import Progress
@@ -131,11 +131,19 @@ def _peak_rss_mb() -> float | None:
 
 
 def _clear_item_folder(folder: Path) -> None:
-    """Remove a previous run's outputs: run.json first, so a half-redone folder never looks finished."""
-    for name in ("run.json", *[n for n in RESULT_FILES if n != "run.json"]):
-        with contextlib.suppress(FileNotFoundError):
+    """Remove a previous run's outputs: run.json first, so a half-redone folder never looks finished.
+
+    Only the files that run wrote (the fixed result names and those its
+    run.json lists) and this tool's temporaries go; anything else in the
+    folder is someone else's and stays.
+    """
+    names = previous_outputs(folder)  # read before run.json goes
+    with contextlib.suppress(FileNotFoundError):
+        (folder / "run.json").unlink()
+    for name in sorted(names):
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             (folder / name).unlink()
-    for pattern in ("*.txt", "times/*.txt", ".*.tmp*", "times/.*.tmp*"):
+    for pattern in (".*.tmp*", "times/.*.tmp*"):
         for path in folder.glob(pattern):
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 path.unlink()
