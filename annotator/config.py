@@ -79,6 +79,9 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file {path} does not exist: give the path of a YAML file", EXIT_INPUT) from None
     except OSError as exc:
         raise ConfigError(f"config file {path} cannot be read: {exc.strerror}", EXIT_INPUT) from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {path} is not a text file: give a YAML file with preset, seed, tracker "
+                          "and flags keys") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -247,6 +247,8 @@ def _read_coco(path: Path, text: str) -> list[Correction]:
         where = f"{path}:{image_lines[k]}" if image_lines else f"{path}: images[{k}]"
         if not isinstance(image, dict) or "id" not in image:
             raise ToolError(f"{where}: an image needs an 'id'", EXIT_VALUE)
+        if not isinstance(image["id"], (int, str)):
+            raise ToolError(f"{where}: an image 'id' must be an integer or a string, got {image['id']!r}", EXIT_VALUE)
         if "frame_index" in image:
             frames[image["id"]] = image["frame_index"]
     lines = _element_lines(text, "annotations", len(data["annotations"]))
@@ -258,7 +260,7 @@ def _read_coco(path: Path, text: str) -> list[Correction]:
         attributes = ann.get("attributes") or {}
         if not isinstance(attributes, dict) or attributes.get("keyframe") is not True:
             continue
-        if ann.get("image_id") not in frames:
+        if not isinstance(ann.get("image_id"), (int, str)) or ann["image_id"] not in frames:
             raise ToolError(f"{where}: annotation {ann.get('id')!r} refers to image {ann.get('image_id')!r}, which is "
                             "not among 'images' or has no 'frame_index' (the source frame index, as in the run's "
                             "annotations.json)", EXIT_VALUE)

@@ -53,8 +53,12 @@ def read_otb_boxes(path: str | os.PathLike, *, origin: int = 1) -> np.ndarray:
         raise ValueError(f"origin must be 0 or 1, got {origin!r}")
     path = Path(path)
     rows: list[list[float]] = []
-    with open(path, encoding="utf-8-sig") as handle:
-        lines = handle.read().splitlines()
+    try:
+        with open(path, encoding="utf-8-sig") as handle:
+            lines = handle.read().splitlines()
+    except UnicodeDecodeError:
+        raise OTBFormatError(f"{path} is not a text file: expected one 'x,y,w,h' row per frame "
+                             "(an OTB box file); check the path") from None
     # A trailing empty line is a file ending, not a frame.
     while lines and not lines[-1].strip():
         lines.pop()

@@ -143,3 +143,10 @@ def test_run_config_is_frozen():
     config = resolve_config()
     with pytest.raises(dataclasses.FrozenInstanceError):
         config.seed = 3  # type: ignore[misc]
+
+
+def test_a_binary_file_is_not_a_config(tmp_path):
+    path = tmp_path / "clip.mp4"
+    path.write_bytes(b"\x00\xff\xfe\x9c" * 50)
+    with pytest.raises(ConfigError, match=r"clip.mp4 is not a text file: give a YAML file"):
+        load_config_file(path)

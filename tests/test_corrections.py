@@ -125,6 +125,9 @@ def test_coco_outside_keyframe_is_an_absence(tmp_path):
         ('{"images": [\n{"id": 1, "frame_index": 0}\n],\n"annotations": [\n{"id": 7, "image_id": 1},\n'
          '{"id": 8, "image_id": 1, "bbox": [1,2,3], "attributes": {"keyframe": true}}\n]}', 6, "bbox must be four"),
         ('{"images": [], "annotations": {}}', 1, "expected a COCO object"),
+        ('{"images": [\n{"id": [1], "frame_index": 0}\n], "annotations": []}', 2, "an image 'id' must be"),
+        ('{"images": [\n{"id": 1, "frame_index": 0}\n],\n"annotations": [\n{"id": 1, "image_id": [1], '
+         '"bbox": [1,2,3,4], "attributes": {"keyframe": true}}\n]}', 5, "refers to image [1]"),
     ],
 )
 def test_coco_errors_name_file_and_line(tmp_path, text, line, fragment):

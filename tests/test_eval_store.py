@@ -161,3 +161,18 @@ def test_eval_scores_the_failure_probability_of_stores_and_plots_its_calibration
     expected_ece = (9 * 0.1 + 11 * abs(10 / 11 - 0.9)) / 20
     assert f"| expected calibration error (10 bins) | {expected_ece:.3f} |" in table
     assert (tmp_path / "eval" / "calibration.png").stat().st_size > 1000
+
+
+def test_eval_of_binary_files_and_an_out_that_is_a_file_are_one_line_errors(tmp_path):
+    gt = tmp_path / "gt.txt"
+    write_otb_boxes(gt, _gt(5))
+    binary = tmp_path / "clip.mp4"
+    binary.write_bytes(b"\x00\x00\x00\x18ftypmp42\xff\xfe\x9c" * 20)
+    for results, truth in ((gt, binary), (binary, gt)):
+        code, _, err = _run("eval", results, truth)
+        assert code == 4 and err.count("\n") == 1, err
+        assert f"{binary} is not a text file" in err and "x,y,w,h" in err
+    (tmp_path / "taken").write_text("mine")
+    code, table, err = _run("eval", gt, gt, "--out", tmp_path / "taken")
+    assert code == 5 and err.count("\n") == 1 and "--out" in err and "is a file" in err
+    assert (tmp_path / "taken").read_text() == "mine"

@@ -492,6 +492,10 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
     assert code == 4 and "m.json is not a sptpt-annotate failure model" in output
     code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "nope.json")
     assert code == 3 and "nope.json cannot be read" in output
+    (tmp_path / "m.bin").write_bytes(b"\x00\xff\xfe\x9c" * 50)
+    code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "m.bin", "--out", tmp_path / "o")
+    assert code == 4 and "m.bin is not a text file" in output and output.strip().count("\n") == 0
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("value, message", [

@@ -162,6 +162,34 @@ def test_labelstudio_rejects_files_without_rectangles(tmp_path, content, needle)
     assert info.value.exit_code == EXIT_VALUE and "\n" not in str(info.value)
 
 
+def _mangled(change) -> list[dict]:
+    tasks = reviewed_export(build_labelstudio_tasks(VIDEO, [shifted_track()], frames=SHIFTED), lambda seq: None)
+    change(tasks[0])
+    return tasks
+
+
+@pytest.mark.parametrize("change, needle", [
+    (lambda t: t.update(annotations=5, predictions=5), "no task with video rectangles"),
+    (lambda t: t["annotations"][0].update(result={"a": 1}), None),  # falls back to the predictions
+    (lambda t: t.update(data=["v.mp4"]), None),  # no sptpt record to check: read as is
+    (lambda t: t["annotations"][0]["result"][0].update(value=[1, 2]), "has no 'value' object"),
+    (lambda t: t["annotations"][0]["result"][0].update(id=["a"]), None),  # matched by count, as for other ids
+    (lambda t: t["annotations"][0]["result"][0]["value"]["sequence"][0].update(frame="4"), None),
+    (lambda t: t["annotations"][0]["result"][0]["value"]["sequence"][0].update(frame="four"),
+     "needs an integer 'frame'"),
+])
+def test_labelstudio_foreign_shapes_are_read_or_refused_in_one_line(tmp_path, change, needle):
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(_mangled(change), indent=2))
+    if needle is None:
+        read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+        return
+    with pytest.raises(ToolError) as info:
+        read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert str(info.value).startswith(f"{path}:") and needle in str(info.value)
+    assert info.value.exit_code == EXIT_VALUE and "\n" not in str(info.value)
+
+
 def test_labelstudio_rejects_another_runs_task(tmp_path):
     other = VideoInfo(path="b.mp4", name="b", width=64, height=48, fps=25.0, frame_count=30)
     tasks = build_labelstudio_tasks(other, [shifted_track()], frames=SHIFTED)

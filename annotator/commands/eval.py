@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from annotator.commands.common import fail
-from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError
 
 def eval_command(
     results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
@@ -30,6 +30,8 @@ def eval_command(
     notes: list[str] = []
     pairs: list = []
     try:
+        if out is not None and out.exists() and not out.is_dir():
+            raise ToolError(f"--out {out} is a file: give a folder for the plots and tables", EXIT_OUTPUT)
         try:
             if ground_truth.is_dir():
                 names = [n.strip() for n in sequences.split(",") if n.strip()] if sequences is not None else None
@@ -55,12 +57,17 @@ def eval_command(
         if failure is not None:
             typer.echo(failure_markdown(failure))
         if out is not None:
-            written = write_report(out, [score])
-            if failure is not None:
-                scored = [(pair, seq) for pair, seq in pairs if pair.p_fail is not None]
-                p_fail = np.concatenate([pair.p_fail for pair, _ in scored])
-                failed = np.concatenate([~(seq.ious >= 0.5) for _, seq in scored])
-                written["calibration"] = plot_calibration(out / "calibration.png", {tracker_name: (p_fail, failed)})
+            try:
+                written = write_report(out, [score])
+                if failure is not None:
+                    scored = [(pair, seq) for pair, seq in pairs if pair.p_fail is not None]
+                    p_fail = np.concatenate([pair.p_fail for pair, _ in scored])
+                    failed = np.concatenate([~(seq.ious >= 0.5) for _, seq in scored])
+                    written["calibration"] = plot_calibration(out / "calibration.png",
+                                                              {tracker_name: (p_fail, failed)})
+            except OSError as exc:
+                raise ToolError(f"--out {out} cannot be written ({exc.strerror or exc}): choose a writable folder "
+                                "(the table above is complete)", EXIT_OUTPUT) from None
             typer.echo(f"plots and tables written to {out}: {', '.join(p.name for p in written.values())}", err=True)
     except ToolError as error:
         fail(error, debug)

@@ -319,7 +319,11 @@ def load_model(path: str | os.PathLike | None = None) -> FailureModel:
         try:
             text = Path(path).read_text(encoding="utf-8")
         except OSError as exc:
-            raise FailureModelError(f"failure model {path} cannot be read ({exc.strerror or exc})") from None
+            raise FailureModelError(f"failure model {path} cannot be read ({exc.strerror or exc}): check the path, "
+                                    "or leave --failure-model out to use the shipped model") from None
+        except UnicodeDecodeError:
+            raise FailureModelError(f"failure model {path} is not a text file: give a model JSON written by "
+                                    "benchmarks/failure_model.py --write, or leave --failure-model out") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -40,7 +40,7 @@ import re
 import xml.etree.ElementTree as ET
 from xml.parsers import expat
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -270,12 +270,24 @@ def _next_processed(frames: range, frame: int) -> int | None:
     return after if after <= frames[-1] else None
 
 
+def _keyframe_order(item: Any) -> int:
+    """A keyframe's frame number for sorting; a malformed one sorts first and is refused with its line."""
+    try:
+        return int(item["frame"])
+    except (KeyError, TypeError, ValueError):
+        return 0
+
+
 def _regions(task: dict) -> tuple[list[dict], str]:
     """The videorectangle results of a task's latest usable annotation, else of its latest prediction."""
     for key in ("annotations", "completions", "predictions"):
-        entries = [e for e in task.get(key) or [] if isinstance(e, dict) and not e.get("was_cancelled")]
+        listed = task.get(key)
+        entries = [e for e in listed if isinstance(e, dict) and not e.get("was_cancelled")] \
+            if isinstance(listed, list) else []
         for entry in reversed(entries):  # Label Studio lists them oldest first
-            result = [r for r in entry.get("result") or [] if isinstance(r, dict) and r.get("type") == "videorectangle"]
+            results = entry.get("result")
+            result = [r for r in results if isinstance(r, dict) and r.get("type") == "videorectangle"] \
+                if isinstance(results, list) else []
             if result:
                 return result, key
     return [], ""
@@ -310,7 +322,8 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
         raise ToolError(f"{path}:1: {len(with_regions)} tasks (ids {', '.join(names)}) have video rectangles; "
                         "corrections apply to one run: export only this run's task", EXIT_VALUE)
     task, regions, _ = with_regions[0]
-    info = (task.get("data") or {}).get("sptpt")
+    data = task.get("data")
+    info = data.get("sptpt") if isinstance(data, dict) else None
     sptpt_key = '"sptpt"'
     if isinstance(info, dict):
         theirs = (info.get("width"), info.get("height"), info.get("frame_count"), info.get("start"), info.get("step"))
@@ -324,7 +337,8 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
                             "the task imported from this run's labelstudio.json", EXIT_VALUE)
 
     by_id = {labelstudio_region_id(t.track_id): t for t in tracks}
-    if all(r.get("id") in by_id for r in regions) and len({r.get("id") for r in regions}) == len(regions):
+    ids = [r.get("id") if isinstance(r.get("id"), str) else None for r in regions]
+    if all(i in by_id for i in ids) and len(set(ids)) == len(regions):
         matched = [(r, by_id[r["id"]]) for r in regions]
     elif len(regions) == len(seen := [t for t in tracks if visible(t).any()]):
         matched = list(zip(regions, seen))  # the exporter leaves out tracks never seen
@@ -337,7 +351,10 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
     for region, track in matched:
         region_id = region.get("id")
         line = _json_line(text, json.dumps(region_id)) if region_id is not None else 1
-        value = region.get("value") or {}
+        value = region.get("value")
+        if not isinstance(value, dict):
+            raise ToolError(f"{path}:{line}: region {region_id!r} has no 'value' object with its keyframes "
+                            "('sequence'): expected Label Studio's JSON export of the project", EXIT_VALUE)
         labels = value.get("labels") or []
         if labels and labels != [track.label]:
             raise ToolError(f"{path}:{line}: region {region_id!r} has labels {labels}, the run's track "
@@ -346,7 +363,7 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
         if not isinstance(sequence, list):
             raise ToolError(f"{path}:{line}: region {region_id!r} has no 'sequence' list of keyframes", EXIT_VALUE)
         run = _RunTrack(track, video)
-        items = sorted(sequence, key=lambda k: k.get("frame", 0) if isinstance(k, dict) else 0)
+        items = sorted(sequence, key=_keyframe_order)
         for n, item in enumerate(items):
             where = f"{path}:{line}"
             try:
