@@ -13,7 +13,7 @@ import traceback
 import typer
 
 from annotator import __version__
-from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ToolError
+from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, ToolError
 
 app = typer.Typer(
     add_completion=False,
@@ -50,16 +50,48 @@ def _with_default_command(argv: list[str]) -> list[str]:
     return ["track", *argv]
 
 
+def _mistyped_command(argv: list[str]) -> str | None:
+    """A first word that is not a path but close to a command name (``evall``): the command meant."""
+    import difflib
+    from pathlib import Path
+
+    first = argv[0] if argv else ""
+    if not first or first.startswith("-") or first in SUBCOMMANDS or Path(first).exists():
+        return None
+    close = difflib.get_close_matches(first, SUBCOMMANDS, n=1, cutoff=0.75)
+    return close[0] if close else None
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
+    # The click that typer raises from: its own copy in recent typer, the click package before.
+    click_errors = sys.modules[typer.BadParameter.__module__]
+    no_args_is_help = getattr(click_errors, "NoArgsIsHelpError", ())
+
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["--version"]:
         print(f"sptpt-annotate {__version__}")
         raise SystemExit(EXIT_OK)
+    meant = _mistyped_command(argv)
+    if meant is not None:
+        print(f"sptpt-annotate: error: {argv[0]!r} is neither a command nor an existing video or folder: did you "
+              f"mean 'sptpt-annotate {meant}'?", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
     debug = "--debug" in argv
     try:
-        app(args=_with_default_command(argv), prog_name="sptpt-annotate", standalone_mode=True)
-    except KeyboardInterrupt:
+        # Not standalone: click's usage errors come back here to be printed as one line, like every other error.
+        code = app(args=_with_default_command(argv), prog_name="sptpt-annotate", standalone_mode=False)
+    except no_args_is_help as exc:
+        exc.show()
+        raise SystemExit(exc.exit_code)
+    except click_errors.UsageError as exc:
+        where = exc.ctx.command_path if exc.ctx is not None else "sptpt-annotate"
+        print(f"sptpt-annotate: error: {exc.format_message().rstrip('.')} (see '{where} --help')", file=sys.stderr)
+        raise SystemExit(exc.exit_code)
+    except click_errors.ClickException as exc:
+        print(f"sptpt-annotate: error: {exc.format_message()}", file=sys.stderr)
+        raise SystemExit(exc.exit_code)
+    except (KeyboardInterrupt, typer.Abort):
         print("sptpt-annotate: interrupted", file=sys.stderr)
         raise SystemExit(EXIT_INTERRUPTED)
     except SystemExit:
@@ -73,6 +105,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"sptpt-annotate: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
               file=sys.stderr)
         raise SystemExit(EXIT_INTERNAL)
+    raise SystemExit(code if isinstance(code, int) else EXIT_OK)
 
 
 if __name__ == "__main__":  # pragma: no cover

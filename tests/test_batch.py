@@ -376,10 +376,13 @@ def test_bad_batch_settings_exit_4(tmp_path, capsys):
     manifest = write_jsonl(tmp_path / "m.jsonl", [{"video": "a.mp4", "box": "1,2,3,4"}])
     for extra, needle in ((["--workers", "0"], "--workers 0"), (["--formats", "otb,gif"], "--formats gif"),
                           (["--preset", "nope"], "unknown preset"), (["--start", "-1"], "--start -1"),
-                          (["--start", "5", "--stop", "5"], "--stop 5")):
+                          (["--start", "5", "--stop", "5"], "--stop 5"),
+                          (["--scheduler", "hello world"], "is not a Dask scheduler address")):
         with pytest.raises(SystemExit) as info:
             main(["batch", str(manifest), "--out", str(tmp_path / "out"), *extra])
-        assert info.value.code == 4 and needle in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert info.value.code == 4 and needle in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
 
 
 def _tiny_otb_root(root: Path) -> Path:

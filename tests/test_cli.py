@@ -24,7 +24,7 @@ from pycocotools.coco import COCO
 from typer.testing import CliRunner
 
 import annotator
-from annotator.cli import app
+from annotator.cli import app, main
 from annotator.exports import read_flags_csv
 from annotator.flagging import FlagParams
 from annotator.frames import open_frames
@@ -499,9 +499,27 @@ def test_bad_input_exit_code_and_one_line_message(bad_inputs, work, tmp_path, in
         (["--box", "1,2,3,4", "--start", "one"], "Invalid value for '--start'"),
     ],
 )
-def test_usage_errors_exit_2(clip, args, needle):
-    result = invoke(clip, *args)
-    assert result.exit_code == 2 and needle in result.stderr and "Traceback" not in result.output
+def test_usage_errors_exit_2_in_one_line(clip, args, needle, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([str(clip), *args])
+    out, err = capsys.readouterr()
+    assert info.value.code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("sptpt-annotate: error: ") and needle in err
+    assert "(see 'sptpt-annotate track --help')" in err
+
+
+@pytest.mark.parametrize("argv, code, first", [
+    (["evall", "a", "b"], 2, "sptpt-annotate: error: 'evall' is neither a command nor an existing video or folder: "
+                             "did you mean 'sptpt-annotate eval'?"),
+    (["batch", "--bogus"], 2, "sptpt-annotate: error: No such option: --bogus"),
+    ([], 2, "Usage: sptpt-annotate"),
+    (["--help"], 0, "Usage: sptpt-annotate"),
+])
+def test_mistyped_commands_and_help(argv, code, first, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    out, err = capsys.readouterr()
+    assert info.value.code == code and (out + err).startswith(first)
 
 
 @pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root writes into read-only folders")

@@ -390,6 +390,29 @@ def test_load_run_reads_back_what_annotate_wrote(run_dir):
     assert track.scoring[0] == "init" and set(track.scoring[1:]) <= {"bootstrap", "subspace"}
 
 
+@pytest.mark.parametrize("edit", [
+    lambda info: info.pop("input"),
+    lambda info: info.pop("range"),
+    lambda info: info.update(input="clip.mp4"),
+    lambda info: info["range"].update(step="two"),
+])
+def test_a_hand_edited_run_json_is_refused_in_one_line(out, edit):
+    info = json.loads((out / "run.json").read_text())
+    edit(info)
+    (out / "run.json").write_text(json.dumps(info))
+    with pytest.raises(ToolError) as caught:
+        load_run(out)
+    assert caught.value.exit_code == EXIT_VALUE and "cannot use its configuration" in str(caught.value)
+    assert "\n" not in str(caught.value)
+
+
+def test_a_video_given_as_the_run_folder_is_named_as_a_file(run_dir, tmp_path):
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"\x00" * 10)
+    with pytest.raises(ToolError, match="clip.mp4 is a file: give the output folder"):
+        load_run(video)
+
+
 def test_rewrite_without_changes_reproduces_the_exports(out):
     before = snapshot(out)
     (out.parent / "same.csv").write_text(csv_row(2, GT[2]))

@@ -144,6 +144,20 @@ class _PoolBackend:
         self._drop(cancel=cancel)
 
 
+def check_scheduler_address(address: str) -> None:
+    """Refuse an address Dask cannot parse before a Client exists: a half-built Client prints a traceback
+    from its destructor and holds the process for seconds."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            parse_host_port(location)
+    except ValueError as exc:
+        raise ToolError(f"--scheduler {address!r} is not a Dask scheduler address ({exc}): give e.g. "
+                        "tcp://10.0.0.5:8786, or leave out --scheduler to use local processes", EXIT_VALUE) from None
+
+
 class _DaskBackend:
     """An existing Dask distributed cluster."""
 
@@ -154,6 +168,7 @@ class _DaskBackend:
             from distributed import Client, Queue
         except ImportError:  # pragma: no cover - a declared dependency
             raise ToolError("--scheduler needs dask.distributed: pip install 'dask[distributed]'", EXIT_VALUE) from None
+        check_scheduler_address(address)
         try:
             self.client = Client(address, timeout="15s", set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:

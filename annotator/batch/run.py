@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence, TextIO
 
 from annotator.formats import DEFAULT_FORMATS
-from annotator.batch.executors import default_workers, execute_items, threads_per_worker, worker_context
+from annotator.batch.executors import (check_scheduler_address, default_workers, execute_items, threads_per_worker,
+                                       worker_context)
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
 from annotator.batch.plan import PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.progress import BatchProgress
@@ -169,6 +170,8 @@ def run_batch(
     if scheduler is not None and workers is not None:
         raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
                         "sends items to a Dask cluster; give one", EXIT_VALUE)
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
     n_workers = workers or default_workers()
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
     planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,

@@ -75,6 +75,9 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
         is not valid for this version.
     """
     out_dir = Path(out_dir)
+    if out_dir.is_file():
+        raise ToolError(f"{out_dir} is a file: give the output folder an sptpt-annotate run wrote (the --out of "
+                        "the run), not its video", EXIT_INPUT)
     if not out_dir.is_dir():
         raise ToolError(f"output folder {out_dir} does not exist: give the folder an sptpt-annotate run wrote",
                         EXIT_INPUT)
@@ -87,6 +90,10 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
                            failure_model=cfg.get("failure_model"))
         targets = {int(t["track_id"]): t for t in info["targets"]}
         formats = list(info.get("formats") or [])
+        # What re-tracking reads the frames back with (review.frames.open_run_source).
+        str(info["input"]["path"])
+        for key in ("start", "stop", "step"):
+            int(info["range"][key])
     except (KeyError, TypeError, ValueError) as exc:
         raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
                         "or edited - re-run the annotation", EXIT_VALUE) from None
