@@ -114,7 +114,13 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
                         "or a COCO JSON file", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
-    if text.lstrip().startswith("{"):
+    head = text.lstrip()[:200]
+    if head.startswith("<") or head.startswith("["):
+        kind = "a CVAT XML" if head.startswith("<") else "a Label Studio JSON"
+        raise ToolError(f"corrections file {path} looks like {kind} export: those are read back into the run they "
+                        f"were exported from, with 'sptpt-annotate retrack OUT --corrections {path}'; here give a "
+                        "CSV frame,x,y,w,h[,track_id] or a COCO file", EXIT_VALUE)
+    if head.startswith("{"):
         corrections = _read_coco(path, text)
         if not corrections:
             raise ToolError(f"corrections file {path} holds no corrected box: mark the annotations you fixed with "

@@ -178,3 +178,16 @@ def test_resolve_rejects_what_does_not_fit_the_run(correction, track_ids, fragme
 def test_resolve_rejects_a_frame_corrected_twice():
     with pytest.raises(ToolError, match=r"^f:5: frame 4 of track 1 is corrected twice \(also at f:2\)"):
         resolve([Correction(4, (1, 2, 3, 4), None, "f:2"), Correction(4, None, 1, "f:5")])
+
+
+@pytest.mark.parametrize("text, kind", [
+    ('<?xml version="1.0"?>\n<annotations><version>1.1</version></annotations>\n', "a CVAT XML export"),
+    ('[{"data": {"video": "v.mp4"}, "annotations": []}]', "a Label Studio JSON export"),
+])
+def test_a_review_tool_export_points_to_retrack(tmp_path, text, kind):
+    path = write(tmp_path, text, "export.txt")
+    with pytest.raises(ToolError) as info:
+        read_corrections(path)
+    message = str(info.value)
+    assert info.value.exit_code == EXIT_VALUE and "\n" not in message
+    assert f"looks like {kind}" in message and f"retrack OUT --corrections {path}" in message
