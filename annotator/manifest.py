@@ -641,7 +641,8 @@ def items_from_otb_root(root: str | os.PathLike) -> list[BatchItem]:
     try:
         sequences = discover_otb_sequences(root)
     except EvaluationError as exc:
-        raise InvalidManifestError([ManifestError(root, 0, "", str(exc))]) from None
+        message = str(exc).removeprefix(f"{root}: ")  # the error names the root itself; say it once
+        raise InvalidManifestError([ManifestError(root, 0, "", message)]) from None
     errors: list[ManifestError] = []
     items: list[dict[str, Any]] = []
     for name, gt_path in sequences.items():

@@ -436,6 +436,14 @@ def test_redoing_an_item_removes_only_what_its_earlier_run_wrote(tmp_path):
         "groundtruth_rect.txt", "notes.txt", "times/mine.txt"]
 
 
+def test_a_missing_otb_root_is_named_once(tmp_path, capsys):
+    root = tmp_path / "nope"
+    with pytest.raises(SystemExit) as info:
+        main(["batch", "--otb-root", str(root), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert info.value.code == 4 and err.count(str(root)) == 1 and "pass an OTB-layout root" in err
+
+
 def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
     fcntl = pytest.importorskip("fcntl")
     from annotator.errors import ToolError
