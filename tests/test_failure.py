@@ -26,7 +26,7 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import (Sample, backward_elimination, choose_C, choose_groups, choose_threshold, fit_model,
+from annotator.failure.fit import (FLAG_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups, fit_model,
                                    fit_pass_agreement, group_features, leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
@@ -357,15 +357,11 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     want = 1 / (1 + np.exp(-(slope * np.log(q / (1 - q)) + offset)))
     np.testing.assert_allclose(calibrated.p_fail(features), want, rtol=1e-9, atol=1e-12)
     assert "calibration" not in raw.info
-    # The threshold is chosen on the calibrated probabilities: with a recalibration that shifts them up a lot,
-    # the threshold moves up with them.
-    X = np.concatenate([s.features[s.use] for s in samples])
-    y = np.concatenate([s.failed[s.use] for s in samples])
-    assert calibrated.threshold == choose_threshold(calibrated.p_fail(X), y)
-    assert raw.threshold == choose_threshold(raw.p_fail(X), y)
+    # The threshold is a probability, the same whatever the fit: recalibration moves p_fail, not the threshold.
     monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
     shifted = fit_model(samples, C=0.01)
-    assert shifted.threshold == choose_threshold(shifted.p_fail(X), y) > raw.threshold
+    assert calibrated.threshold == raw.threshold == shifted.threshold == FLAG_THRESHOLD == 0.9
+    assert np.all(shifted.p_fail(features) > raw.p_fail(features))
     # One sequence has no held-out predictions to calibrate on: the model stays raw.
     assert "calibration" not in fit_model(samples[:1], C=0.01).info
 
