@@ -280,8 +280,11 @@ def previous_outputs(out_dir: Path) -> set[str]:
         names |= {str(name) for files in listed.values() for name in files}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         pass  # no earlier run, or a run.json this tool did not write
-    # Only plain relative names inside the folder: never follow a hand-edited run.json elsewhere.
-    return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts}
+    # Only plain relative names inside the folder: never follow a hand-edited run.json, or a symlinked
+    # subfolder, elsewhere.
+    root = out_dir.resolve()
+    return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts
+            and (out_dir / n).resolve().is_relative_to(root)}
 
 
 def json_default(value):

@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"sptpt-annotate: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
               file=sys.stderr)
         raise SystemExit(EXIT_INTERNAL)
-    raise SystemExit(code if isinstance(code, int) else EXIT_OK)
+    # A command ends by returning None or raising typer.Exit (its code comes back here): nothing else is a code.
+    raise SystemExit(code if isinstance(code, int) and not isinstance(code, bool) else EXIT_OK)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -114,7 +114,7 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
                         "or a COCO JSON file", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
-    head = text.lstrip()[:200]
+    head = text.lstrip()
     if head.startswith("<") or head.startswith("["):
         kind = "a CVAT XML" if head.startswith("<") else "a Label Studio JSON"
         raise ToolError(f"corrections file {path} looks like {kind} export: those are read back into the run they "
@@ -253,8 +253,8 @@ def _read_coco(path: Path, text: str) -> list[Correction]:
         where = f"{path}:{image_lines[k]}" if image_lines else f"{path}: images[{k}]"
         if not isinstance(image, dict) or "id" not in image:
             raise ToolError(f"{where}: an image needs an 'id'", EXIT_VALUE)
-        if not isinstance(image["id"], (int, str)):
-            raise ToolError(f"{where}: an image 'id' must be an integer or a string, got {image['id']!r}", EXIT_VALUE)
+        if not isinstance(image["id"], (int, float, str)) or isinstance(image["id"], bool):
+            raise ToolError(f"{where}: an image 'id' must be a number or a string, got {image['id']!r}", EXIT_VALUE)
         if "frame_index" in image:
             frames[image["id"]] = image["frame_index"]
     lines = _element_lines(text, "annotations", len(data["annotations"]))
@@ -266,7 +266,7 @@ def _read_coco(path: Path, text: str) -> list[Correction]:
         attributes = ann.get("attributes") or {}
         if not isinstance(attributes, dict) or attributes.get("keyframe") is not True:
             continue
-        if not isinstance(ann.get("image_id"), (int, str)) or ann["image_id"] not in frames:
+        if not isinstance(ann.get("image_id"), (int, float, str)) or ann["image_id"] not in frames:
             raise ToolError(f"{where}: annotation {ann.get('id')!r} refers to image {ann.get('image_id')!r}, which is "
                             "not among 'images' or has no 'frame_index' (the source frame index, as in the run's "
                             "annotations.json)", EXIT_VALUE)

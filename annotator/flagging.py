@@ -52,8 +52,8 @@ class FlagParams:
     """How failure probabilities become flags (all configurable from the CLI's config file)."""
 
     threshold: float | None = None
-    """Flag frames with ``p_fail`` above this; ``None`` takes the failure model's, chosen by leave-one-sequence-out
-    cross-validation on ../shared/otb (benchmarks/failure_model.py). [ours]"""
+    """Flag frames with ``p_fail`` above this; ``None`` takes the failure model's (0.9 in the shipped one, chosen by
+    the simulated reviewer's time: ``annotator.failure.fit.FLAG_THRESHOLD``). [ours]"""
     review_budget: float | None = None
     """Percent of each track's frames to flag, the most doubtful first, instead of the threshold. [ours]"""
     merge_gap: int = 5

@@ -12,8 +12,8 @@ Step 2, this script::
     python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --write
 
 reads every item's track store and ground truth, and reports, on held-out
-sequences only (each sequence scored by a model fitted on the 16 others, its
-threshold chosen on those 16 too): AUROC of p_fail for failure frames
+sequences only (each sequence scored by a model fitted on the 16 others;
+the flag threshold is ``FLAG_THRESHOLD`` in every fold): AUROC of p_fail for failure frames
 (IoU < 0.5), expected calibration error, and the flags' precision, recall,
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
@@ -129,7 +129,7 @@ def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each
 
 def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1
              ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, dict]]:
-    """(sample, held-out p_fail, signal groups, threshold chosen without it) for every sample, and each fold
+    """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold
     model's ``info`` (its C, groups left out, calibration) by held-out sequence. Folds run in ``workers``
     processes."""
     names = sorted({s.sequence for s in samples})

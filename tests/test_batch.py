@@ -404,7 +404,7 @@ def test_an_out_folder_that_is_the_input_root_is_refused_and_nothing_is_touched(
         main(["batch", "--otb-root", str(root), "--out", str(root), "--workers", "1", "--no-render", "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert info.value.code == 5
-    assert len(err) == 1 and "would write into its own input" in err[0] and "outside the input" in err[0]
+    assert len(err) == 1 and "would write into the input folder" in err[0] and "outside the input" in err[0]
     assert sorted(str(p.relative_to(root)) for p in root.rglob("*")) == before
 
 
@@ -426,14 +426,54 @@ def test_redoing_an_item_removes_only_what_its_earlier_run_wrote(tmp_path):
 
     folder = tmp_path / "Alpha"
     (folder / "times").mkdir(parents=True)
+    (folder / "yolo").mkdir()
     outputs = {"otb": ["Alpha.txt", "times/Alpha_time.txt"], "flags": ["flags.csv"], "yolo": ["yolo/frames.txt"]}
     (folder / "run.json").write_text(json.dumps({"outputs": outputs}))
     for name in ("Alpha.txt", "times/Alpha_time.txt", "flags.csv", "tracks.npz", ".flags.csv.123.tmp",
-                 "groundtruth_rect.txt", "notes.txt", "times/mine.txt"):
+                 "yolo/frames.txt", "groundtruth_rect.txt", "notes.txt", "times/mine.txt"):
         (folder / name).write_text("x")
     _clear_item_folder(folder)
     assert sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()) == [
         "groundtruth_rect.txt", "notes.txt", "times/mine.txt"]
+
+
+def test_a_killed_runs_otb_files_go_and_a_symlinked_subfolder_is_not_followed(tmp_path):
+    from annotator.batch.workers import _clear_item_folder
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "precious.txt").write_text("keep")
+    folder = tmp_path / "Alpha"
+    folder.mkdir()
+    (folder / "times").symlink_to(elsewhere, target_is_directory=True)
+    (folder / "run.json").write_text(json.dumps({"outputs": {"otb": ["times/precious.txt"]}}))
+    _clear_item_folder(folder)
+    assert (elsewhere / "precious.txt").read_text() == "keep"
+    (folder / "times").unlink()
+    (folder / "times").mkdir()
+    for name in ("Alpha.txt", "Alpha.2.txt", "times/Alpha_time.txt", "Beta.txt"):  # no run.json: killed before it
+        (folder / name).write_text("x")
+    _clear_item_folder(folder)
+    assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["Beta.txt"]
+
+
+def test_the_out_check_compares_every_item_folder_with_every_input_folder(tmp_path):
+    from annotator.batch.run import _refuse_unsafe_out_dir
+    from annotator.errors import ToolError
+    from annotator.manifest import BatchItem
+    from annotator.pipeline import Target
+
+    out = tmp_path / "out"
+    (out / "frames").mkdir(parents=True)  # another item's input image folder, where item 'frames' would write
+    (out / "clip").mkdir()
+    (out / "clip" / "clip.mp4").write_bytes(b"")  # a video inside its own item folder: harmless
+    target = (Target((1, 2, 3, 4), 1),)
+    items = [BatchItem("frames", out / "clip" / "clip.mp4", target), BatchItem("other", out / "frames", target)]
+    planned = plan_batch(items, out_dir=out, force=True)
+    with pytest.raises(ToolError, match="item 'frames' would write into the input folder"):
+        _refuse_unsafe_out_dir(out, planned)
+    _refuse_unsafe_out_dir(out, plan_batch([BatchItem("clip", out / "clip" / "clip.mp4", target)], out_dir=out,
+                                           force=True))
 
 
 def test_a_missing_otb_root_is_named_once(tmp_path, capsys):

@@ -72,17 +72,23 @@ def _prepare_out_dir(out_dir: Path) -> None:
 def _refuse_unsafe_out_dir(out_dir: Path, planned: Sequence[PlannedItem]) -> None:
     """Refuse an ``--out`` whose use would overwrite inputs or another run's results.
 
-    An item's folder ``OUT/<id>`` that is its own input folder, or holds it,
-    would get result files written among the input's (``--otb-root R --out
-    R`` makes ``R/Deer`` both). A single-video run folder (``run.json`` at
-    its top) would have its ``annotations.json`` and ``report.html``
-    replaced by the batch's index.
+    An item's folder ``OUT/<id>`` that is an input image folder, or holds
+    one, would get result files written among its frames and files
+    (``--otb-root R --out R`` makes ``R/Deer`` both), whichever item the
+    input belongs to. A video file inside an item folder is left alone (only
+    the tool's own names are written and cleared). A single-video run
+    folder (``run.json`` at its top) would have its ``annotations.json`` and
+    ``report.html`` replaced by the batch's index.
     """
+    folders = {Path(plan.job.folder).resolve(): plan.job.item_id for plan in planned}
     for plan in planned:
-        folder, source = Path(plan.job.folder).resolve(), Path(plan.job.input_path).resolve()
-        if folder == source or folder in source.parents:
-            raise ToolError(f"--out {out_dir}: item {plan.job.item_id!r} would write into its own input {source}: "
-                            "choose an --out folder outside the input folders", EXIT_OUTPUT)
+        source = Path(plan.job.input_path).resolve()
+        if not source.is_dir():
+            continue
+        for place in (source, *source.parents):
+            if place in folders:
+                raise ToolError(f"--out {out_dir}: item {folders[place]!r} would write into the input folder {source}: "
+                                "choose an --out folder outside the input folders", EXIT_OUTPUT)
     if (out_dir / "run.json").is_file():
         raise ToolError(f"--out {out_dir} holds a single-video run (run.json): the batch's index would replace its "
                         "files; choose another --out folder", EXIT_OUTPUT)
@@ -163,8 +169,8 @@ def run_batch(
     if start is not None and start < 0:
         raise ToolError(f"--start {start} is invalid: give a first frame of 0 or more (0-based)", EXIT_VALUE)
     if stop is not None and stop <= (start or 0):
-        raise ToolError(f"--stop {stop} is invalid: give a frame after --start ({start or 0}), or leave it out "
-                        "to run to the end", EXIT_VALUE)
+        raise ToolError(f"--stop {stop} is invalid: give a frame after the first one ({start or 0}), or leave it "
+                        "out to run to the end", EXIT_VALUE)
     if step is not None and step < 1:
         raise ToolError(f"--step {step} is invalid: give 1 or more", EXIT_VALUE)
     if scheduler is not None and workers is not None:

@@ -27,6 +27,7 @@ Lifetime of a pool worker
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import sys
 import threading
@@ -133,11 +134,15 @@ def _peak_rss_mb() -> float | None:
 def _clear_item_folder(folder: Path) -> None:
     """Remove a previous run's outputs: run.json first, so a half-redone folder never looks finished.
 
-    Only the files that run wrote (the fixed result names and those its
-    run.json lists) and this tool's temporaries go; anything else in the
-    folder is someone else's and stays.
+    Only the files that run wrote (the fixed result names, those its
+    run.json lists, the item's OTB files) and this tool's temporaries go;
+    anything else in the folder is someone else's and stays.
     """
     names = previous_outputs(folder)  # read before run.json goes
+    # The OTB files of this item, which an earlier run killed before its run.json listed them leaves behind.
+    item = glob.escape(folder.name)
+    for pattern in (f"{item}.txt", f"{item}.*.txt", f"times/{item}_time.txt", f"times/{item}.*_time.txt"):
+        names |= {path.relative_to(folder).as_posix() for path in folder.glob(pattern)}
     with contextlib.suppress(FileNotFoundError):
         (folder / "run.json").unlink()
     for name in sorted(names):

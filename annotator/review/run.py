@@ -91,9 +91,10 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
         targets = {int(t["track_id"]): t for t in info["targets"]}
         formats = list(info.get("formats") or [])
         # What re-tracking reads the frames back with (review.frames.open_run_source).
-        str(info["input"]["path"])
-        for key in ("start", "stop", "step"):
-            int(info["range"][key])
+        if not isinstance(info["input"]["path"], str):
+            raise TypeError("input.path must be a string")
+        if not all(type(info["range"][key]) is int for key in ("start", "stop", "step")):
+            raise TypeError("range start, stop and step must be integers")
     except (KeyError, TypeError, ValueError) as exc:
         raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
                         "or edited - re-run the annotation", EXIT_VALUE) from None
