@@ -79,6 +79,7 @@ __all__ = [
     "ManifestError",
     "RESERVED_IDS",
     "items_from_otb_root",
+    "output_stem",
     "read_manifest",
     "safe_item_id",
 ]
@@ -184,7 +185,7 @@ def safe_item_id(name: str) -> str:
     return text or "item"
 
 
-def _default_stem(path: Path) -> str:
+def output_stem(path: Path) -> str:
     """The name an output gets: a file's stem, a folder's name, ``Name`` for an OTB ``Name/img`` folder."""
     if path.suffix and not path.is_dir():
         return path.stem
@@ -214,7 +215,7 @@ def _assign_ids(items: list[dict[str, Any]], errors: list[ManifestError]) -> Non
     for item in items:
         if item.get("id") is not None:
             continue
-        base = safe_item_id(_default_stem(item["input_path"]))
+        base = safe_item_id(output_stem(item["input_path"]))
         candidate, n = base, 1
         while candidate.casefold() in taken:
             n += 1

@@ -432,7 +432,7 @@ def test_redoing_an_item_removes_only_what_its_earlier_run_wrote(tmp_path):
     for name in ("Alpha.txt", "times/Alpha_time.txt", "flags.csv", "tracks.npz", ".flags.csv.123.tmp",
                  "yolo/frames.txt", "groundtruth_rect.txt", "notes.txt", "times/mine.txt"):
         (folder / name).write_text("x")
-    _clear_item_folder(folder)
+    _clear_item_folder(folder, "Alpha")
     assert sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()) == [
         "groundtruth_rect.txt", "notes.txt", "times/mine.txt"]
 
@@ -443,17 +443,17 @@ def test_a_killed_runs_otb_files_go_and_a_symlinked_subfolder_is_not_followed(tm
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (elsewhere / "precious.txt").write_text("keep")
-    folder = tmp_path / "Alpha"
+    folder = tmp_path / "item7"  # an item id other than the video's name
     folder.mkdir()
     (folder / "times").symlink_to(elsewhere, target_is_directory=True)
     (folder / "run.json").write_text(json.dumps({"outputs": {"otb": ["times/precious.txt"]}}))
-    _clear_item_folder(folder)
+    _clear_item_folder(folder, "Alpha")
     assert (elsewhere / "precious.txt").read_text() == "keep"
     (folder / "times").unlink()
     (folder / "times").mkdir()
     for name in ("Alpha.txt", "Alpha.2.txt", "times/Alpha_time.txt", "Beta.txt"):  # no run.json: killed before it
         (folder / name).write_text("x")
-    _clear_item_folder(folder)
+    _clear_item_folder(folder, "Alpha")
     assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["Beta.txt"]
 
 

@@ -168,7 +168,6 @@ class _DaskBackend:
             from distributed import Client, Queue
         except ImportError:  # pragma: no cover - a declared dependency
             raise ToolError("--scheduler needs dask.distributed: pip install 'dask[distributed]'", EXIT_VALUE) from None
-        check_scheduler_address(address)
         try:
             self.client = Client(address, timeout="15s", set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:

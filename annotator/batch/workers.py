@@ -27,7 +27,6 @@ Lifetime of a pool worker
 from __future__ import annotations
 
 import contextlib
-import glob
 import os
 import sys
 import threading
@@ -39,6 +38,8 @@ from typing import Any, Callable
 
 from annotator.annotate import previous_outputs
 from annotator.batch.plan import ItemJob
+from annotator.exports.otb import otb_result_globs
+from annotator.manifest import output_stem
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
 from annotator.progress import Progress
 
@@ -131,17 +132,16 @@ def _peak_rss_mb() -> float | None:
     return peak / 1024.0 if sys.platform != "darwin" else peak / (1024.0 * 1024.0)
 
 
-def _clear_item_folder(folder: Path) -> None:
+def _clear_item_folder(folder: Path, video_name: str) -> None:
     """Remove a previous run's outputs: run.json first, so a half-redone folder never looks finished.
 
     Only the files that run wrote (the fixed result names, those its
-    run.json lists, the item's OTB files) and this tool's temporaries go;
-    anything else in the folder is someone else's and stays.
+    run.json lists, the OTB files of ``video_name``) and this tool's
+    temporaries go; anything else in the folder is someone else's and stays.
     """
     names = previous_outputs(folder)  # read before run.json goes
-    # The OTB files of this item, which an earlier run killed before its run.json listed them leaves behind.
-    item = glob.escape(folder.name)
-    for pattern in (f"{item}.txt", f"{item}.*.txt", f"times/{item}_time.txt", f"times/{item}.*_time.txt"):
+    # The OTB files, which an earlier run killed before its run.json listed them leaves behind.
+    for pattern in otb_result_globs(video_name):
         names |= {path.relative_to(folder).as_posix() for path in folder.glob(pattern)}
     with contextlib.suppress(FileNotFoundError):
         (folder / "run.json").unlink()
@@ -178,7 +178,7 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
         folder = Path(job.folder)
         try:
             if folder.is_dir():
-                _clear_item_folder(folder)
+                _clear_item_folder(folder, output_stem(Path(job.input_path)))
             result = annotate(job.input_path, job.targets, job.config, out_dir=folder, start=job.start,
                               stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False)
             outcome.frames = result.run.frames_processed

@@ -14,6 +14,7 @@ single track is written as ``<name>.txt`` whatever its id.
 
 from __future__ import annotations
 
+import glob
 import os
 from pathlib import Path
 from typing import Sequence
@@ -21,7 +22,7 @@ from typing import Sequence
 from annotator.otb import write_otb_boxes, write_otb_times
 from annotator.tracks import TrackResult
 
-__all__ = ["otb_sequence_names", "write_otb_results"]
+__all__ = ["otb_result_globs", "otb_sequence_names", "write_otb_results"]
 
 
 def otb_sequence_names(name: str, tracks: Sequence[TrackResult]) -> list[str]:
@@ -32,6 +33,12 @@ def otb_sequence_names(name: str, tracks: Sequence[TrackResult]) -> list[str]:
     if len(set(ids)) != len(ids):
         raise ValueError(f"track ids must be unique to name OTB files {name}.<id>.txt, got {ids}")
     return [f"{name}.{t.track_id}" for t in tracks]
+
+
+def otb_result_globs(name: str) -> tuple[str, ...]:
+    """Glob patterns, relative to the results folder, of every file :func:`write_otb_results` may write for ``name``."""
+    name = glob.escape(name)
+    return f"{name}.txt", f"{name}.*.txt", f"times/{name}_time.txt", f"times/{name}.*_time.txt"
 
 
 def write_otb_results(
