@@ -1,9 +1,10 @@
 """The main job: one video (or image folder) and first-frame boxes in, every output written.
 
 Shared by the ``sptpt-annotate VIDEO`` command and each item of a batch run.
-Validation happens before any tracking; outputs are written atomically; a
-decode error or an interruption part-way still writes everything computed
-up to it.
+Validation happens before any tracking. A run is written to a staging folder
+inside the output folder and moved into place once written, run.json last; a
+decode error or an interruption part-way still writes everything computed up
+to it, beside (not over) an earlier finished run in the same folder.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import hashlib
 import json
 import os
 import platform
+import shutil
 import tempfile
 import warnings
 from dataclasses import dataclass, field
@@ -36,7 +38,8 @@ from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
 
-__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs", "RESULT_FILES"]
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs",
+           "remove_staging_folders", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
@@ -45,6 +48,10 @@ COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for 
 # Files whose presence means a folder already holds a run's results.
 RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html", "cvat.xml",
                 "labelstudio.json")
+#: Where a run cut short (Ctrl-C, a decode error) goes when the output folder already holds a finished run.
+INCOMPLETE_DIR = "incomplete"
+#: The staging folder of a run being written (``.sptpt-run.XXXX.tmp``), inside the output folder.
+STAGING_PREFIX = ".sptpt-run."
 
 
 @dataclass
@@ -188,29 +195,88 @@ def annotate(
                             width=source.width, height=source.height)
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     _prepare_output_dir(out_dir, force=force)
-    render = "overlay" in formats
-    progress = Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE)
-    run = track_source(source, targets, config, overlay_path=out_dir / OVERLAY_NAME if render else None,
-                       progress=progress)
-    result = AnnotateResult(out_dir=out_dir, run=run)
-    if run.decode_error is not None:
-        err = run.decode_error
-        result.exit_code = EXIT_PARTIAL
-        result.message = (f"{source.path}: decoding stopped after frame {err.last_good_index} ({err.reason}); "
-                          f"results for the {plural(run.frames_processed, 'frame')} before it were written to {out_dir}")
-    elif run.interrupted:
-        result.exit_code = EXIT_INTERRUPTED
-        result.message = (f"interrupted after {plural(run.frames_processed, 'frame')} of {source.path}; "
-                          f"their results were written to {out_dir}")
-    _write_outputs(result, source, targets, config, formats, input_path)
+    # The run is written to a staging folder inside out_dir and moved into place when it is written completely,
+    # so that an earlier run there stays whole until then, and stays at all if this one is cut short (Ctrl-C).
+    staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, suffix=".tmp", dir=out_dir))
+    try:
+        render = "overlay" in formats
+        progress = Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE)
+        run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
+                           progress=progress)
+        result = AnnotateResult(out_dir=staging, run=run)
+        if (run.decode_error is not None or run.interrupted) and _holds_finished_run(out_dir):
+            destination = out_dir / INCOMPLETE_DIR
+            kept = f"; the earlier finished run in {out_dir} is kept"
+        else:
+            destination, kept = out_dir, ""
+        if run.decode_error is not None:
+            err = run.decode_error
+            result.exit_code = EXIT_PARTIAL
+            result.message = (f"{source.path}: decoding stopped after frame {err.last_good_index} ({err.reason}); "
+                              f"results for the {plural(run.frames_processed, 'frame')} before it were written to "
+                              f"{destination}{kept}")
+        elif run.interrupted:
+            result.exit_code = EXIT_INTERRUPTED
+            result.message = (f"interrupted after {plural(run.frames_processed, 'frame')} of {source.path}; "
+                              f"their results were written to {destination}{kept}")
+        _write_outputs(result, source, targets, config, formats, input_path)
+        if destination == out_dir and _holds_run(out_dir / INCOMPLETE_DIR):
+            # A partial run kept beside an earlier finished one is out of date once that one is replaced.
+            shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
+        _publish(result, destination)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     return result
+
+
+def _run_info(out_dir: Path) -> dict:
+    """``out_dir``'s run.json if this tool wrote one there, else ``{}``."""
+    try:
+        info = json.loads((out_dir / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return info if isinstance(info, dict) and info.get("tool") == "sptpt-annotate" else {}
+
+
+def _holds_run(out_dir: Path) -> bool:
+    return bool(_run_info(out_dir))
+
+
+def _holds_finished_run(out_dir: Path) -> bool:
+    """Whether ``out_dir``'s run.json says its run went through every frame."""
+    return _run_info(out_dir).get("complete") is True
+
+
+def _publish(result: AnnotateResult, out_dir: Path) -> None:
+    """Move a run written to ``result.out_dir`` (the staging folder) into ``out_dir``, run.json last.
+
+    The earlier run's run.json goes first, so that a crash part-way leaves a folder that says it holds no
+    finished run; files of the earlier run that this run did not rewrite are removed, since they would
+    disagree with the new run.json. ``result`` then names the files where they ended up.
+    """
+    staging = result.out_dir
+    out_dir.mkdir(exist_ok=True)
+    previous = previous_outputs(out_dir)
+    names = [str(p.relative_to(staging)) for paths in result.outputs.values() for p in paths]
+    with contextlib.suppress(FileNotFoundError):
+        (out_dir / "run.json").unlink()
+    for name in names:
+        if name != "run.json":
+            (out_dir / name).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / name, out_dir / name)
+    for name in sorted(previous - set(names)):
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+            (out_dir / name).unlink()
+    os.replace(staging / "run.json", out_dir / "run.json")
+    remove_staging_folders(out_dir, keep=staging)
+    result.out_dir = out_dir
+    result.outputs = {kind: [out_dir / p.relative_to(staging) for p in paths] for kind, paths in result.outputs.items()}
 
 
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
                    formats: Sequence[str], input_path: Path) -> None:
     run, out_dir = result.run, result.out_dir
     outputs = result.outputs
-    previous = previous_outputs(out_dir)
     if run.frames_processed == 0:
         why = f" ({run.decode_error.reason})" if run.decode_error is not None else ""
         raise ToolError(f"{source.path}: no frame could be decoded in the selected range{why}; nothing was written",
@@ -263,13 +329,16 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         )
         outputs["report"] = [out_dir / "report.html"]
     run_info["outputs"] = {k: [str(p.relative_to(out_dir)) for p in v] for k, v in outputs.items()}
-    # With --force, files of the earlier run that this run did not rewrite would disagree with the new run.json.
-    for name in sorted(previous - {p for v in run_info["outputs"].values() for p in v}):
-        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
-            (out_dir / name).unlink()
     # run.json last: its presence marks a finished run (batch resumption relies on it).
     write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=json_default) + "\n")
     outputs["provenance"] = [out_dir / "run.json"]
+
+
+def remove_staging_folders(out_dir: Path, *, keep: Path | None = None) -> None:
+    """Remove the staging folders that runs killed before they finished (``kill -9``, power) left in ``out_dir``."""
+    for folder in out_dir.glob(f"{STAGING_PREFIX}*.tmp"):
+        if folder.is_dir() and not folder.is_symlink() and folder != keep:
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 def previous_outputs(out_dir: Path) -> set[str]:

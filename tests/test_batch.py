@@ -429,12 +429,15 @@ def test_redoing_an_item_removes_only_what_its_earlier_run_wrote(tmp_path):
     (folder / "yolo").mkdir()
     outputs = {"otb": ["Alpha.txt", "times/Alpha_time.txt"], "flags": ["flags.csv"], "yolo": ["yolo/frames.txt"]}
     (folder / "run.json").write_text(json.dumps({"outputs": outputs}))
+    (folder / ".sptpt-run.x1y2.tmp" / "mot").mkdir(parents=True)  # the staging folder of a killed run
     for name in ("Alpha.txt", "times/Alpha_time.txt", "flags.csv", "tracks.npz", ".flags.csv.123.tmp",
-                 "yolo/frames.txt", "groundtruth_rect.txt", "notes.txt", "times/mine.txt"):
+                 "yolo/frames.txt", "groundtruth_rect.txt", "notes.txt", "times/mine.txt",
+                 ".sptpt-run.x1y2.tmp/flags.csv", ".sptpt-run.x1y2.tmp/mot/gt.txt"):
         (folder / name).write_text("x")
     _clear_item_folder(folder, "Alpha")
     assert sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()) == [
         "groundtruth_rect.txt", "notes.txt", "times/mine.txt"]
+    assert not (folder / ".sptpt-run.x1y2.tmp").exists()
 
 
 def test_a_killed_runs_otb_files_go_and_a_symlinked_subfolder_is_not_followed(tmp_path):

@@ -310,13 +310,10 @@ def test_debug_shows_the_traceback_and_keeps_the_exit_code(work):
     assert debug.returncode == 3 and "Traceback" in debug.stderr and "ToolError" in debug.stderr
 
 
-def test_ctrl_c_exits_130_and_leaves_no_half_written_file(config_file, work):
-    """SIGINT to the console script mid-run (once its progress shows tracking): exit 130, no temporary file,
-    and the frames tracked so far written completely."""
-    clip = write_clip(work / "long.mp4", 40)
-    out = work / "interrupted"
-    proc = subprocess.Popen([*console_script(), clip, "--box", BOX0, "--config", config_file, "--out", out],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+def interrupt_after_two_frames(*args) -> str:
+    """Run the console script and send it SIGINT once its progress shows tracking; its stderr after that."""
+    proc = subprocess.Popen([*console_script(), *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            stdin=subprocess.DEVNULL, text=True)
     try:
         for line in proc.stderr:
             done = re.match(r"frames (\d+)/", line)
@@ -329,6 +326,15 @@ def test_ctrl_c_exits_130_and_leaves_no_half_written_file(config_file, work):
         if proc.poll() is None:
             proc.kill()
     assert "Traceback" not in rest
+    return rest
+
+
+def test_ctrl_c_exits_130_and_leaves_no_half_written_file(config_file, work):
+    """SIGINT to the console script mid-run (once its progress shows tracking): exit 130, no temporary file,
+    and the frames tracked so far written completely."""
+    clip = write_clip(work / "long.mp4", 40)
+    out = work / "interrupted"
+    rest = interrupt_after_two_frames(clip, "--box", BOX0, "--config", config_file, "--out", out)
     assert "interrupted after" in rest
     no_temporaries(out)
     # Nothing computed is lost: the frames tracked before Ctrl-C are written, marked incomplete.
@@ -336,6 +342,25 @@ def test_ctrl_c_exits_130_and_leaves_no_half_written_file(config_file, work):
     assert run["interrupted"] is True and run["complete"] is False
     assert 2 <= run["frames_processed"] < 40
     check_complete_outputs(out, "long", list(range(run["frames_processed"])))
+    assert not (out / "incomplete").exists()
+
+
+def test_ctrl_c_during_force_keeps_the_earlier_finished_run(config_file, work):
+    """--force replaces a finished run only with a finished one: Ctrl-C leaves the earlier run byte for byte,
+    and the frames tracked so far go to incomplete/, a run folder of their own."""
+    clip = write_clip(work / "again.mp4", 40)
+    out = work / "forced"
+    first = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 6, "--quiet")
+    assert first.exit_code == 0, first.output
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    rest = interrupt_after_two_frames(clip, "--box", BOX0, "--config", config_file, "--out", out, "--force")
+    assert f"the earlier finished run in {out} is kept" in rest and str(out / "incomplete") in rest
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*")
+            if p.is_file() and "incomplete" not in p.parts} == before
+    no_temporaries(out)
+    partial = json.loads((out / "incomplete" / "run.json").read_text())
+    assert partial["interrupted"] is True and 2 <= partial["frames_processed"] < 40
+    check_complete_outputs(out / "incomplete", "again", list(range(partial["frames_processed"])))
 
 
 # --------------------------------------------------------------------------- options that choose outputs
@@ -401,6 +426,21 @@ def test_decode_error_part_way_exits_6_with_valid_results(config_file, work):
     check_complete_outputs(out, "cut", list(range(good)))
     info = json.loads((out / "run.json").read_text())
     assert info["complete"] is False and f"frame {good - 1}" in info["decode_error"]
+    # Forced over a finished run, a run cut short by a decode error goes beside it, not over it; the next finished
+    # run replaces both.
+    finished = invoke(full, "--box", BOX0, "--config", config_file, "--out", out, "--quiet", "--force",
+                      "--formats", "otb,flags")
+    assert finished.exit_code == 0, finished.output
+    kept = (out / "full.txt").read_bytes()
+    again = invoke(cut, "--box", BOX0, "--config", config_file, "--out", out, "--quiet", "--force")
+    assert again.exit_code == 6 and f"the earlier finished run in {out} is kept" in again.stderr
+    assert (out / "full.txt").read_bytes() == kept and json.loads((out / "run.json").read_text())["complete"]
+    check_complete_outputs(out / "incomplete", "cut", list(range(good)))
+    (out / ".sptpt-run.k9.tmp").mkdir()  # the staging folder of a run killed with kill -9
+    last = invoke(full, "--box", BOX0, "--config", config_file, "--out", out, "--quiet", "--force", "--stop", 5)
+    assert last.exit_code == 0, last.output
+    assert not (out / "incomplete").exists() and not (out / ".sptpt-run.k9.tmp").exists()
+    check_complete_outputs(out, "full", list(range(5)))
 
 
 # --------------------------------------------------------------------------- bad input

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from annotator.annotate import previous_outputs
+from annotator.annotate import previous_outputs, remove_staging_folders
 from annotator.batch.plan import ItemJob
 from annotator.exports.otb import otb_result_globs
 from annotator.manifest import output_stem
@@ -152,6 +152,7 @@ def _clear_item_folder(folder: Path, video_name: str) -> None:
         for path in folder.glob(pattern):
             with contextlib.suppress(FileNotFoundError, IsADirectoryError):
                 path.unlink()
+    remove_staging_folders(folder)
 
 
 def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemOutcome:
