@@ -67,6 +67,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import yaml
 
 from annotator.config import ConfigError, resolve_config
+from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.pipeline import Target
 from sptpt.params import TrackerParams
@@ -125,8 +126,10 @@ class ManifestError(ValueError):
 class InvalidManifestError(ValueError):
     """Every problem found in a manifest; ``errors`` holds one :class:`ManifestError` each, in line order."""
 
-    def __init__(self, errors: Sequence[ManifestError]) -> None:
+    def __init__(self, errors: Sequence[ManifestError], *, exit_code: int = EXIT_VALUE) -> None:
         self.errors = sorted(errors, key=lambda e: (e.path, e.line))
+        #: EXIT_INPUT when the manifest or dataset root cannot be read at all, EXIT_VALUE for what it says.
+        self.exit_code = exit_code
         super().__init__("\n".join(str(e) for e in self.errors))
 
 
@@ -598,11 +601,13 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
         text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InvalidManifestError([ManifestError(path, 0, "", "manifest file does not exist: give the path of a "
-                                                               "CSV, JSON Lines or YAML manifest")]) from None
+                                                               "CSV, JSON Lines or YAML manifest")],
+                                   exit_code=EXIT_INPUT) from None
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
         raise InvalidManifestError([ManifestError(path, 0, "", f"manifest cannot be read ({reason}): "
-                                                               "give a readable UTF-8 text file")]) from None
+                                                               "give a readable UTF-8 text file")],
+                                   exit_code=EXIT_INPUT) from None
     errors: list[ManifestError] = []
     raw_items: list[dict[str, Any]] = []
     for line, record, key_lines in _READERS[fmt](path, text, errors):
@@ -635,7 +640,7 @@ def items_from_otb_root(root: str | os.PathLike) -> list[BatchItem]:
         a usable box (naming the file and line).
     """
     from annotator.evaluation.dataset import discover_otb_sequences
-    from annotator.evaluation.metrics import EvaluationError
+    from annotator.evaluation.metrics import EvaluationError, MissingInputError
     from annotator.otb import OTBFormatError, read_otb_boxes
 
     root = Path(root)
@@ -643,7 +648,8 @@ def items_from_otb_root(root: str | os.PathLike) -> list[BatchItem]:
         sequences = discover_otb_sequences(root)
     except EvaluationError as exc:
         message = str(exc).removeprefix(f"{root}: ")  # the error names the root itself; say it once
-        raise InvalidManifestError([ManifestError(root, 0, "", message)]) from None
+        raise InvalidManifestError([ManifestError(root, 0, "", message)],
+                                   exit_code=EXIT_INPUT if isinstance(exc, MissingInputError) else EXIT_VALUE) from None
     errors: list[ManifestError] = []
     items: list[dict[str, Any]] = []
     for name, gt_path in sequences.items():

@@ -362,6 +362,17 @@ def test_manifest_errors_stop_the_batch_before_any_work(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_missing_manifest_exits_3_and_an_otb_root_without_sequences_4(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    for argv, code, needle in ((["batch", str(tmp_path / "none.csv")], 3, "manifest file does not exist"),
+                               (["batch", "--otb-root", str(tmp_path / "empty")], 4, "no sequence found")):
+        with pytest.raises(SystemExit) as info:
+            main([*argv, "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert info.value.code == code and err.count("\n") == 1 and needle in err, (argv, err)
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["batch", "--out", "x"], "give either a MANIFEST file or --otb-root"),
     (["batch", "m.csv", "--otb-root", "r", "--out", "x"], "give either a MANIFEST file or --otb-root"),
@@ -484,7 +495,7 @@ def test_a_missing_otb_root_is_named_once(tmp_path, capsys):
     with pytest.raises(SystemExit) as info:
         main(["batch", "--otb-root", str(root), "--out", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err
-    assert info.value.code == 4 and err.count(str(root)) == 1 and "pass an OTB-layout root" in err
+    assert info.value.code == 3 and err.count(str(root)) == 1 and "pass an OTB-layout root" in err
 
 
 def test_a_second_run_on_the_same_folder_is_refused(tmp_path):

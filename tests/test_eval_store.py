@@ -176,3 +176,15 @@ def test_eval_of_binary_files_and_an_out_that_is_a_file_are_one_line_errors(tmp_
     code, table, err = _run("eval", gt, gt, "--out", tmp_path / "taken")
     assert code == 5 and err.count("\n") == 1 and "--out" in err and "is a file" in err
     assert (tmp_path / "taken").read_text() == "mine"
+
+
+def test_eval_of_a_missing_path_exits_3_as_other_unreadable_input(tmp_path):
+    gt = tmp_path / "gt.txt"
+    write_otb_boxes(gt, _gt(5))
+    (tmp_path / "root" / "A").mkdir(parents=True)
+    write_otb_boxes(tmp_path / "root" / "A" / "groundtruth_rect.txt", _gt(5), origin=1)
+    for args, needle in (((tmp_path / "none.txt", gt), "no such result file"),
+                         ((gt, tmp_path / "none_gt.txt"), "none_gt.txt does not exist"),
+                         ((tmp_path / "no_results", tmp_path / "root"), "results folder does not exist")):
+        code, _, err = _run("eval", *args)
+        assert code == 3 and err.count("\n") == 1 and needle in err, (args, err)

@@ -9,7 +9,7 @@ import typer
 
 from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
-from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_OK, EXIT_USAGE, ToolError
 from annotator.wording import plural
 
 
@@ -55,7 +55,7 @@ def batch_command(
                 typer.echo(f"sptpt-annotate: error: {error}", err=True)
             if len(exc.errors) > 50:
                 typer.echo(f"sptpt-annotate: ... and {len(exc.errors) - 50} more problems", err=True)
-            raise typer.Exit(EXIT_VALUE)
+            raise typer.Exit(exc.exit_code)
         except ConfigError as exc:
             raise ToolError(str(exc), exc.exit_code) from None
     except ToolError as error:

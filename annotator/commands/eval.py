@@ -22,7 +22,8 @@ def eval_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
-    from annotator.evaluation import DatasetScore, EvaluationError, evaluate_result_file, evaluate_results_dir
+    from annotator.evaluation import (DatasetScore, EvaluationError, MissingInputError, evaluate_result_file,
+                                      evaluate_results_dir)
     from annotator.evaluation import results_markdown, write_report
     from annotator.evaluation.calibration import failure_markdown, failure_summary, plot_calibration
     from annotator.otb import OTBFormatError
@@ -48,6 +49,8 @@ def eval_command(
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
+        except MissingInputError as exc:
+            raise ToolError(str(exc), EXIT_INPUT) from None
         except (EvaluationError, OTBFormatError) as exc:
             raise ToolError(str(exc), EXIT_VALUE) from None
         for note in notes:

@@ -47,6 +47,7 @@ from annotator.evaluation.metrics import (
     DEFAULT_INVALID_PRED,
     DatasetScore,
     EvaluationError,
+    MissingInputError,
     InvalidPredRule,
     SequenceScore,
     evaluate_sequence,
@@ -119,7 +120,7 @@ def find_result_file(path: str | os.PathLike, *, name: str | None = None) -> Pat
     if path.is_file():
         return path
     if not path.exists():
-        raise EvaluationError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h per row")
+        raise MissingInputError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h per row")
     if (path / STORE_NAME).is_file():
         return path / STORE_NAME
     candidates = _output_folder_candidates(path, name)
@@ -178,7 +179,7 @@ def discover_otb_sequences(root: str | os.PathLike) -> dict[str, Path]:
     """
     root = Path(root)
     if not root.is_dir():
-        raise EvaluationError(f"{root}: not a folder; pass an OTB-layout root holding <Name>/groundtruth_rect.txt")
+        raise MissingInputError(f"{root}: not a folder; pass an OTB-layout root holding <Name>/groundtruth_rect.txt")
     sequences: dict[str, Path] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         files = _sequence_gt_files(folder)
@@ -261,7 +262,7 @@ def load_sequence_pair(
     pred_path, gt_path = Path(pred_path), Path(gt_path)
     for role, path in (("result", pred_path), ("ground-truth", gt_path)):
         if not path.is_file():
-            raise EvaluationError(f"sequence {name!r}: {role} file {path} does not exist")
+            raise MissingInputError(f"sequence {name!r}: {role} file {path} does not exist")
     gt = read_otb_boxes(gt_path, origin=gt_origin)
     if pred_path.suffix == ".npz":
         track = _store_track(pred_path, name)
@@ -333,7 +334,7 @@ def load_dataset_pairs(
     gt_root, results_dir = Path(gt_root), Path(results_dir)
     selected = _select(discover_otb_sequences(gt_root), sequences, gt_root)
     if not results_dir.is_dir():
-        raise EvaluationError(f"{results_dir}: results folder does not exist; pass the folder holding <Name>.txt files")
+        raise MissingInputError(f"{results_dir}: results folder does not exist; pass the folder holding <Name>.txt files")
     found: dict[str, Path] = {}
     missing: list[str] = []
     for name in selected:

@@ -116,6 +116,10 @@ class EvaluationError(ValueError):
     """Input the evaluator cannot score; the message names the file, sequence or length at fault."""
 
 
+class MissingInputError(EvaluationError):
+    """A result or ground-truth path that does not exist, or is not the kind of path asked for (exit 3)."""
+
+
 def _as_boxes(boxes: np.ndarray, name: str) -> np.ndarray:
     array = np.asarray(boxes, dtype=np.float64)
     if array.ndim != 2 or array.shape[1] != 4:
