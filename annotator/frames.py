@@ -59,6 +59,7 @@ import operator
 import os
 import re
 import subprocess
+import warnings
 from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -67,6 +68,7 @@ import cv2
 import imageio_ffmpeg
 import numpy as np
 
+from annotator.errors import InputWarning
 from annotator.tracks import VideoInfo
 
 __all__ = [
@@ -465,9 +467,31 @@ class ImageFolderSource(FrameSource):
                     last_good,
                     f"{file.name} decodes to {bgr.shape[1]}x{bgr.shape[0]}, expected {self.width}x{self.height}",
                 )
+            if file.suffix.lower() in JPEG_SUFFIXES and not _jpeg_has_end_marker(file):
+                # libjpeg says only "Premature end of JPEG file", without the file's name.
+                warnings.warn(f"{file}: JPEG file is cut short (no end marker); its missing part decodes as grey and "
+                              "the tracker sees it as the image - re-export the frame or remove it", InputWarning,
+                              stacklevel=2)
             # cvtColor returns a new C-contiguous array; nothing else holds it.
             yield index, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
             last_good = index
+
+
+JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe")
+
+
+def _jpeg_has_end_marker(file: Path) -> bool:
+    """Whether a JPEG file ends with its end-of-image marker (FF D9), padding after it allowed.
+
+    Compressed data never holds FF D9 (a data byte FF is written FF 00), so a file cut inside its data has
+    no such pair in its last bytes; 4 KiB leaves room for the padding or trailer some cameras write after it.
+    """
+    try:
+        with open(file, "rb") as handle:
+            handle.seek(max(0, os.fstat(handle.fileno()).st_size - 4096))
+            return b"\xff\xd9" in handle.read()
+    except OSError:
+        return True  # unreadable files are reported by the decoder
 
 
 # --------------------------------------------------------------------------- probing

@@ -229,6 +229,25 @@ def test_otb_sequence_folder_and_grayscale_images(tmp_path):
         assert source.info.frame_files == source.frame_files
 
 
+def test_a_cut_short_jpeg_is_named_in_a_warning_and_whole_ones_are_not(tmp_path):
+    import warnings
+
+    from annotator.errors import InputWarning
+
+    noise = np.random.default_rng(0).integers(0, 256, (3, HEIGHT, WIDTH, 3), dtype=np.uint8)  # data, not tables
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"{k:04d}.jpg"), noise[k])
+    (tmp_path / "0000.jpg").write_bytes((tmp_path / "0000.jpg").read_bytes() + b"\x00" * 100)  # padding is fine
+    whole = (tmp_path / "0001.jpg").read_bytes()
+    (tmp_path / "0001.jpg").write_bytes(whole[: len(whole) * 3 // 4])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        frames = list(open_frames(tmp_path))
+    assert [index for index, _ in frames] == [0, 1, 2]
+    messages = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    assert len(messages) == 1 and messages[0].startswith(f"{tmp_path / '0001.jpg'}: JPEG file is cut short")
+
+
 def test_folder_frame_files_are_relative_to_its_parent(folder, monkeypatch):
     source = open_frames(folder)
     assert source.frame_files == tuple(f"seq/{f.name}" for f in source.files)
