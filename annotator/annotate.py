@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import os
 import platform
 import shutil
+import signal
 import tempfile
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from annotator import __version__
-from annotator.atomic import write_text_atomic
+from annotator.atomic import atomic_path, write_text_atomic
 from annotator.config import RunConfig
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
@@ -195,9 +198,17 @@ def annotate(
                             width=source.width, height=source.height)
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     _prepare_output_dir(out_dir, force=force)
+    with _exclusive(out_dir):
+        return _run_into(out_dir, source, targets, config, formats, input_path, show_progress)
+
+
+def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
+              formats: Sequence[str], input_path: Path, show_progress: bool) -> AnnotateResult:
+    remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
     # The run is written to a staging folder inside out_dir and moved into place when it is written completely,
     # so that an earlier run there stays whole until then, and stays at all if this one is cut short (Ctrl-C).
     staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, suffix=".tmp", dir=out_dir))
+    keep_staging = False
     try:
         render = "overlay" in formats
         progress = Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE)
@@ -220,12 +231,20 @@ def annotate(
             result.message = (f"interrupted after {plural(run.frames_processed, 'frame')} of {source.path}; "
                               f"their results were written to {destination}{kept}")
         _write_outputs(result, source, targets, config, formats, input_path)
-        if destination == out_dir and _holds_run(out_dir / INCOMPLETE_DIR):
-            # A partial run kept beside an earlier finished one is out of date once that one is replaced.
-            shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
-        _publish(result, destination)
+        try:
+            with _ctrl_c_ignored():
+                if destination == out_dir and _holds_run(out_dir / INCOMPLETE_DIR):
+                    # A partial run kept beside an earlier finished one is out of date once that one is replaced.
+                    shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
+                _publish(result, destination)
+        except OSError as exc:
+            keep_staging = True
+            raise ToolError(f"{exc.filename or destination}: {exc.strerror or exc} while moving the results into "
+                            f"{destination}; this run's complete results are in {staging}: move them by hand "
+                            "or rerun with another --out", EXIT_OUTPUT) from None
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        if not keep_staging:
+            shutil.rmtree(staging, ignore_errors=True)
     return result
 
 
@@ -263,14 +282,64 @@ def _publish(result: AnnotateResult, out_dir: Path) -> None:
     for name in names:
         if name != "run.json":
             (out_dir / name).parent.mkdir(parents=True, exist_ok=True)
-            os.replace(staging / name, out_dir / name)
+            _move(staging / name, out_dir / name)
     for name in sorted(previous - set(names)):
         with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             (out_dir / name).unlink()
-    os.replace(staging / "run.json", out_dir / "run.json")
-    remove_staging_folders(out_dir, keep=staging)
+    _move(staging / "run.json", out_dir / "run.json")
     result.out_dir = out_dir
     result.outputs = {kind: [out_dir / p.relative_to(staging) for p in paths] for kind, paths in result.outputs.items()}
+    if result.run.overlay_path is not None:
+        result.run.overlay_path = out_dir / result.run.overlay_path.relative_to(staging)
+
+
+def _move(source: Path, target: Path) -> None:
+    """Rename ``source`` onto ``target``; across file systems (a symlinked subfolder), copy it atomically."""
+    try:
+        os.replace(source, target)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        with atomic_path(target) as tmp:
+            shutil.copyfile(source, tmp)
+        source.unlink()
+
+
+@contextlib.contextmanager
+def _exclusive(out_dir: Path):
+    """Hold a lock on the output folder for the run, so that a second run into it stops with an error.
+
+    The lock is on the folder itself (``flock`` of its descriptor), so no lock file is left among the
+    results; the kernel releases it when the process ends, however it ends.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: no lock
+        yield
+        return
+    fd = os.open(out_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise ToolError(f"output folder {out_dir} is in use by another sptpt-annotate run: wait for it to "
+                            "finish or choose another --out", EXIT_OUTPUT) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _ctrl_c_ignored():
+    """Ignore Ctrl-C while a run is moved into place (well under a second), so the folder is never half old."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
@@ -334,10 +403,13 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
     outputs["provenance"] = [out_dir / "run.json"]
 
 
-def remove_staging_folders(out_dir: Path, *, keep: Path | None = None) -> None:
-    """Remove the staging folders that runs killed before they finished (``kill -9``, power) left in ``out_dir``."""
+def remove_staging_folders(out_dir: Path) -> None:
+    """Remove the staging folders that runs killed before they finished (``kill -9``, power) left in ``out_dir``.
+
+    Only under the folder's lock (or the batch's, for an item folder): a live run's staging folder is in use.
+    """
     for folder in out_dir.glob(f"{STAGING_PREFIX}*.tmp"):
-        if folder.is_dir() and not folder.is_symlink() and folder != keep:
+        if folder.is_dir() and not folder.is_symlink():
             shutil.rmtree(folder, ignore_errors=True)
 
 

@@ -481,17 +481,32 @@ JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe")
 
 
 def _jpeg_has_end_marker(file: Path) -> bool:
-    """Whether a JPEG file ends with its end-of-image marker (FF D9), padding after it allowed.
+    """Whether a JPEG file holds the end-of-image marker (FF D9) of its image, data after it allowed.
 
     Compressed data never holds FF D9 (a data byte FF is written FF 00), so a file cut inside its data has
-    no such pair in its last bytes; 4 KiB leaves room for the padding or trailer some cameras write after it.
+    none after its first scan. The last 4 KiB decide almost always; a file with more after its image (a
+    phone's "motion photo" appends a video) is walked segment by segment to its first scan and searched
+    from there, so that an EXIF thumbnail's own end marker, before the scan, does not count.
     """
     try:
         with open(file, "rb") as handle:
             handle.seek(max(0, os.fstat(handle.fileno()).st_size - 4096))
-            return b"\xff\xd9" in handle.read()
+            if b"\xff\xd9" in handle.read():
+                return True
+            handle.seek(0)
+            data = handle.read()
     except OSError:
         return True  # unreadable files are reported by the decoder
+    at = 2  # after SOI
+    while at + 4 <= len(data) and data[at] == 0xFF:
+        marker = data[at + 1]
+        if marker == 0xFF:  # fill byte
+            at += 1
+            continue
+        if marker == 0xDA:  # start of scan: the compressed data follows its header
+            return data.find(b"\xff\xd9", at) >= 0
+        at += 2 + int.from_bytes(data[at + 2:at + 4], "big")
+    return True  # not a layout this check knows: leave it to the decoder
 
 
 # --------------------------------------------------------------------------- probing

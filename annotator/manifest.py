@@ -592,6 +592,10 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
         and the field; nothing is returned unless the whole manifest is valid.
     """
     path = Path(path)
+    if not path.exists():
+        raise InvalidManifestError([ManifestError(path, 0, "", "manifest file does not exist: give the path of a "
+                                                               "CSV, JSON Lines or YAML manifest")],
+                                   exit_code=EXIT_INPUT)
     fmt = MANIFEST_SUFFIXES.get(path.suffix.lower())
     if fmt is None:
         raise InvalidManifestError([ManifestError(path, 0, "", (
@@ -599,10 +603,6 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
             f"{', '.join(MANIFEST_SUFFIXES)} (CSV, JSON Lines or YAML)"))])
     try:
         text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InvalidManifestError([ManifestError(path, 0, "", "manifest file does not exist: give the path of a "
-                                                               "CSV, JSON Lines or YAML manifest")],
-                                   exit_code=EXIT_INPUT) from None
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
         raise InvalidManifestError([ManifestError(path, 0, "", f"manifest cannot be read ({reason}): "

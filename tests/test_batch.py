@@ -365,6 +365,7 @@ def test_manifest_errors_stop_the_batch_before_any_work(tmp_path, capsys):
 def test_a_missing_manifest_exits_3_and_an_otb_root_without_sequences_4(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     for argv, code, needle in ((["batch", str(tmp_path / "none.csv")], 3, "manifest file does not exist"),
+                               (["batch", str(tmp_path / "none")], 3, "manifest file does not exist"),
                                (["batch", "--otb-root", str(tmp_path / "empty")], 4, "no sequence found")):
         with pytest.raises(SystemExit) as info:
             main([*argv, "--out", str(tmp_path / "out")])

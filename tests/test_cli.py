@@ -363,6 +363,55 @@ def test_ctrl_c_during_force_keeps_the_earlier_finished_run(config_file, work):
     check_complete_outputs(out / "incomplete", "again", list(range(partial["frames_processed"])))
 
 
+def test_a_second_run_into_a_folder_in_use_stops_with_one_line(clip, config_file, work):
+    from annotator.annotate import _exclusive
+
+    out = work / "busy"
+    out.mkdir()
+    with _exclusive(out):  # as a run in another process holds it
+        busy = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3)
+    assert busy.exit_code == 5 and busy.stderr.count("\n") == 1
+    assert f"output folder {out} is in use by another sptpt-annotate run" in busy.stderr
+    assert list(out.iterdir()) == []
+    done = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--quiet")
+    assert done.exit_code == 0, done.output
+
+
+def test_results_reach_a_subfolder_on_another_file_system_and_a_failed_move_keeps_them(clip, config_file, work,
+                                                                                          monkeypatch):
+    import errno
+
+    import annotator.annotate as annotate_module
+
+    out = work / "moved"
+    replace = os.replace
+
+    def cross_device(source, target):  # as when mot/ is a symlink to another disk
+        if ".sptpt-run." in str(source) and ".sptpt-run." not in str(target) and "mot" in Path(target).parts:
+            raise OSError(errno.EXDEV, "Invalid cross-device link")
+        replace(source, target)
+
+    monkeypatch.setattr(os, "replace", cross_device)
+    moved = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--quiet",
+                   "--formats", "otb,mot")
+    assert moved.exit_code == 0, moved.output
+    assert (out / "mot" / "gt" / "gt.txt").is_file() and not list(out.glob(".sptpt-run.*"))
+    monkeypatch.setattr(os, "replace", replace)
+
+    def full_disk(source, target):
+        if Path(target).name == "tracks.npz":
+            raise OSError(errno.ENOSPC, "No space left on device", str(target))
+        replace(source, target)
+
+    monkeypatch.setattr(annotate_module, "_move", full_disk)
+    failed = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--force",
+                    "--formats", "otb", "--quiet")
+    assert failed.exit_code == 5 and failed.stderr.count("\n") == 1, failed.stderr
+    staging = re.search(r"results are in (\S+):", failed.stderr).group(1)
+    assert "No space left on device" in failed.stderr and Path(staging).parent == out
+    assert json.loads((Path(staging) / "run.json").read_text())["complete"] is True
+
+
 # --------------------------------------------------------------------------- options that choose outputs
 
 
@@ -432,8 +481,13 @@ def test_decode_error_part_way_exits_6_with_valid_results(config_file, work):
                       "--formats", "otb,flags")
     assert finished.exit_code == 0, finished.output
     kept = (out / "full.txt").read_bytes()
-    again = invoke(cut, "--box", BOX0, "--config", config_file, "--out", out, "--quiet", "--force")
+    fixes = work / "cut_fixes.csv"
+    fixes.write_text("frame,x,y,w,h\n1,30,25,24,20\n")
+    again = invoke(cut, "--box", BOX0, "--config", config_file, "--out", out, "--quiet", "--force",
+                   "--corrections", fixes)
     assert again.exit_code == 6 and f"the earlier finished run in {out} is kept" in again.stderr
+    # The corrections are applied only to a whole run; the message says how to apply them to this one.
+    assert f"'sptpt-annotate retrack {out / 'incomplete'} --corrections {fixes}'" in again.stderr
     assert (out / "full.txt").read_bytes() == kept and json.loads((out / "run.json").read_text())["complete"]
     check_complete_outputs(out / "incomplete", "cut", list(range(good)))
     (out / ".sptpt-run.k9.tmp").mkdir()  # the staging folder of a run killed with kill -9

@@ -234,18 +234,26 @@ def test_a_cut_short_jpeg_is_named_in_a_warning_and_whole_ones_are_not(tmp_path)
 
     from annotator.errors import InputWarning
 
-    noise = np.random.default_rng(0).integers(0, 256, (3, HEIGHT, WIDTH, 3), dtype=np.uint8)  # data, not tables
-    for k in range(3):
+    noise = np.random.default_rng(0).integers(0, 256, (5, HEIGHT, WIDTH, 3), dtype=np.uint8)  # data, not tables
+    for k in range(5):
         cv2.imwrite(str(tmp_path / f"{k:04d}.jpg"), noise[k])
-    (tmp_path / "0000.jpg").write_bytes((tmp_path / "0000.jpg").read_bytes() + b"\x00" * 100)  # padding is fine
-    whole = (tmp_path / "0001.jpg").read_bytes()
-    (tmp_path / "0001.jpg").write_bytes(whole[: len(whole) * 3 // 4])
+    frame = {k: tmp_path / f"{k:04d}.jpg" for k in range(5)}
+    frame[0].write_bytes(frame[0].read_bytes() + b"\x00" * 100)  # padding after the image is fine
+    trailer = np.random.default_rng(1).integers(0, 256, 10_000, dtype=np.uint8).tobytes().replace(b"\xff", b"")
+    frame[2].write_bytes(frame[2].read_bytes() + trailer)  # a "motion photo": a video after the image, fine
+    whole = frame[1].read_bytes()
+    frame[1].write_bytes(whole[: len(whole) * 3 // 4])
+    # Cut short, with an end marker before its scan (as an EXIF thumbnail has): still cut short.
+    thumbnail = b"\xff\xe1" + (2 + 6).to_bytes(2, "big") + b"ab\xff\xd9cd"
+    whole = frame[3].read_bytes()
+    frame[3].write_bytes(whole[:2] + thumbnail + whole[2: len(whole) * 3 // 4])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         frames = list(open_frames(tmp_path))
-    assert [index for index, _ in frames] == [0, 1, 2]
+    assert [index for index, _ in frames] == [0, 1, 2, 3, 4]
     messages = [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
-    assert len(messages) == 1 and messages[0].startswith(f"{tmp_path / '0001.jpg'}: JPEG file is cut short")
+    assert [m.split(": ")[0] for m in messages] == [str(frame[1]), str(frame[3])]
+    assert all(": JPEG file is cut short" in m for m in messages)
 
 
 def test_folder_frame_files_are_relative_to_its_parent(folder, monkeypatch):

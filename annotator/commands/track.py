@@ -97,7 +97,9 @@ def track_command(
     except ToolError as error:
         fail(error, debug)
     if result.exit_code != EXIT_OK:
-        typer.echo(f"sptpt-annotate: warning: {result.message}", err=True)
+        skipped = (f"; the corrections were not applied: apply them with 'sptpt-annotate retrack {result.out_dir} "
+                   f"--corrections {corrections}'") if corrections is not None else ""
+        typer.echo(f"sptpt-annotate: warning: {result.message}{skipped}", err=True)
         raise typer.Exit(result.exit_code)
     if not quiet:
         flagged = sum(int(t.flagged.sum()) for t in result.run.tracks)
