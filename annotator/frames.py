@@ -55,6 +55,8 @@ can be kept.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import operator
 import os
 import re
@@ -372,7 +374,8 @@ class VideoSource(FrameSource):
         last_good = -1
         try:
             try:
-                meta = next(reader)
+                with _rotation_note_silenced():
+                    meta = next(reader)
             except (OSError, RuntimeError) as err:
                 raise DecodeError(self.path, -1, f"ffmpeg could not restart: {_ffmpeg_reason(str(err))}") from err
             if tuple(meta["size"]) != (self.width, self.height):
@@ -575,11 +578,29 @@ def _unreadable_message(path: Path, reason: str, *, opened: bool) -> str:
     )
 
 
+@contextlib.contextmanager
+def _rotation_note_silenced() -> Iterator[None]:
+    """Hide imageio-ffmpeg's warning that the frame size differs from the stream's.
+
+    ffmpeg turns a phone video's rotation into upright frames (as players show them), so a portrait video
+    stored as 1920x1080 is read as 1080x1920; imageio-ffmpeg logs that difference as a warning, on every
+    open, although the frames are right.
+    """
+    logger = logging.getLogger("imageio_ffmpeg")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def _video_meta(path: Path) -> dict:
     """Size, nominal fps, duration and codec from ffmpeg's header, via imageio-ffmpeg's reader."""
     reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24", output_params=list(_DECODE_OPTIONS))
     try:
-        return next(reader)
+        with _rotation_note_silenced():
+            return next(reader)
     except (OSError, RuntimeError, StopIteration) as err:
         raise UnreadableSourceError(
             f"{path}: ffmpeg decodes it but its header cannot be parsed ({_ffmpeg_reason(str(err))}); "

@@ -219,6 +219,25 @@ def test_yolo_golden_and_layout(tmp_path):
         assert cls in ("0", "1") and all(0.0 <= float(v) <= 1.0 for v in values)
 
 
+def test_yolo_labels_of_an_image_folder_are_named_after_its_images(tmp_path):
+    import dataclasses
+
+    files = tuple(f"Seq/img/{k + 1}.jpg" for k in range(12))  # unpadded names, numbered from 1
+    folder = dataclasses.replace(VIDEO, frame_files=files)
+    written = write_yolo(tmp_path / "yolo", folder, make_tracks(), frames=FRAMES)
+    assert [p.name for p in written[2:]] == [f"{f + 1}.txt" for f in FRAMES]
+    assert (tmp_path / "yolo" / "frames.txt").read_text().splitlines() == [f"./images/{f + 1}.jpg" for f in FRAMES]
+    assert '"Seq/img" into images/' in (tmp_path / "yolo" / "data.yaml").read_text()
+    # The labels are the video's, frame for frame, under the image's name.
+    for f in FRAMES:
+        assert (tmp_path / "yolo" / "labels" / f"{f + 1}.txt").read_text() == \
+            (GOLDEN / "yolo" / "labels" / f"{f:06d}.txt").read_text()
+    # Two images with one stem cannot both have a label file: the index names, as for a video.
+    clash = dataclasses.replace(VIDEO, frame_files=("Seq/a.jpg", files[1], "Seq/a.png", *files[3:]))
+    written = write_yolo(tmp_path / "clash", clash, make_tracks(), frames=FRAMES)
+    assert [p.name for p in written[2:]] == [f"{f:06d}.txt" for f in FRAMES]
+
+
 # --------------------------------------------------------------------------- atomic writes
 
 

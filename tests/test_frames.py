@@ -362,3 +362,21 @@ def test_bad_ranges(video, kwargs, needle):
 def test_bad_range_on_folder(folder):
     with pytest.raises(FrameRangeError, match="0 <= start < 12"):
         open_frames(folder, start=12)
+
+
+def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, caplog):
+    """ffmpeg applies a video's display rotation, so frames come upright, as players show them; imageio-ffmpeg's
+    note that the read size differs from the stored one is noise on every portrait phone video."""
+    flat = tmp_path / "flat.mp4"
+    write_video(flat, 4)
+    rotated = tmp_path / "rotated.mp4"
+    made = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-display_rotation", "90", "-i", str(flat),
+                           "-c", "copy", str(rotated)], capture_output=True, text=True)
+    if made.returncode != 0:
+        pytest.skip(f"this ffmpeg cannot write a display rotation: {made.stderr.strip()[:100]}")
+    with caplog.at_level("WARNING"):
+        source = open_frames(rotated)
+        frames = list(source)
+    assert (source.width, source.height) == (HEIGHT, WIDTH) and len(frames) == 4
+    assert all(frame.shape == (WIDTH, HEIGHT, 3) for _, frame in frames)
+    assert not [r for r in caplog.records if r.name.startswith("imageio")], caplog.text

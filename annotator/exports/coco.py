@@ -11,8 +11,8 @@ choices it leaves open:
   for an OTB sequence), so a COCO viewer given that parent folder as image
   root finds the images. For a video it is ``<video name>/<frame_index:06d>.jpg``:
   this exporter writes no images, and that is the name
-  ``ffmpeg -i VIDEO -start_number 0 NAME/%06d.jpg`` gives each decoded frame
-  (add ``-fps_mode passthrough`` for variable frame rate).
+  ``ffmpeg -i VIDEO -fps_mode passthrough -start_number 0 NAME/%06d.jpg`` gives each decoded frame
+  (without passthrough, ffmpeg duplicates or drops frames of a variable frame rate video).
 * **Boxes** are 0-based ``xywh``, clipped to the image, rounded to 1/1000
   pixel. A frame whose object is ``outside`` gets no annotation; so does a
   box that is NaN or lies wholly outside the image after clipping (COCO has

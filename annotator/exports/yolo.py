@@ -1,10 +1,14 @@
 """YOLO detection labels (``yolo/labels/<frame>.txt``, ``yolo/data.yaml``, ``yolo/frames.txt``).
 
 * One label file per processed frame, named like the COCO exporter's image
-  ``file_name`` stem: the source frame index, 6 digits (``000042.txt``), which
-  is what ``ffmpeg -i VIDEO -start_number 0 yolo/images/%06d.jpg`` names
-  the decoded frames (add ``-fps_mode passthrough`` for variable frame rate).
-  YOLO trainers find ``labels/000042.txt`` for ``images/000042.jpg``.
+  ``file_name`` stem. For a video: the source frame index, 6 digits
+  (``000042.txt``), which is what ``ffmpeg -i VIDEO -fps_mode passthrough
+  -start_number 0 yolo/images/%06d.jpg`` names the decoded frames (without
+  passthrough, ffmpeg duplicates or drops frames of a variable frame rate
+  video). For an image folder: the image's own stem (``0001.txt`` for
+  ``0001.jpg``), so the labels pair with the user's images; if two images
+  share a stem, the index names. YOLO trainers find ``labels/000042.txt``
+  for ``images/000042.jpg``.
 * A row ``class cx cy w h`` per object present in the frame: class 0.. in
   order of first appearance of the labels over the tracks (``names``),
   centre and size normalised by the frame size, after clipping the box to
@@ -35,8 +39,21 @@ _DECIMALS = 6  # normalised units: 1e-6 of a 4K frame is far below a pixel
 
 
 def yolo_frame_stem(frame_index: int) -> str:
-    """File stem of a source frame: the COCO exporter's image name without folder and extension."""
+    """File stem of a video's frame: the COCO exporter's image name without folder and extension."""
     return f"{int(frame_index):06d}"
+
+
+def _image_names(video: VideoInfo, frames: Sequence[int]) -> dict[int, str] | None:
+    """For an image folder, each frame's own image name (``0001.jpg``), so labels pair with the user's images.
+
+    None for a video, or when two images share a stem (``0001.jpg`` and ``0001.png``): a label file
+    cannot tell them apart, and the index names are used instead.
+    """
+    if video.frame_files is None:
+        return None
+    names = {int(f): Path(video.frame_files[int(f)]).name for f in frames}
+    stems = [Path(name).stem for name in names.values()]
+    return names if len(set(stems)) == len(stems) else None
 
 
 def build_yolo_labels(video: VideoInfo, tracks: Sequence[TrackResult], *,
@@ -57,7 +74,9 @@ def build_yolo_labels(video: VideoInfo, tracks: Sequence[TrackResult], *,
             x, y, w, h = box
             values = ((x + w / 2) / video.width, (y + h / 2) / video.height, w / video.width, h / video.height)
             rows[int(frame)].append(f"{class_of[track.label]} " + " ".join(number(v, _DECIMALS) for v in values))
-    return {yolo_frame_stem(f): "".join(r + "\n" for r in lines) for f, lines in rows.items()}, names
+    images = _image_names(video, list(rows))
+    stem = (lambda f: Path(images[f]).stem) if images is not None else yolo_frame_stem
+    return {stem(f): "".join(r + "\n" for r in lines) for f, lines in rows.items()}, names
 
 
 def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[TrackResult], *,
@@ -70,6 +89,15 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
         ``data.yaml``, ``frames.txt``, then the label files in frame order.
     """
     labels, names = build_yolo_labels(video, tracks, frames=frames)
+    images = _image_names(video, check_frame_range(video, tracks, frames))
+    if images is not None:
+        image_files = list(images.values())
+        folder = json.dumps(str(Path(video.frame_files[0]).parent), ensure_ascii=False)
+        how = f"# Copy or link the images of {folder} into images/ (from this folder)\n"
+    else:
+        image_files = [f"{stem}.jpg" for stem in labels]
+        how = ("# Extract the frames with: ffmpeg -i VIDEO -fps_mode passthrough -start_number 0 images/%06d.jpg "
+               "(from this folder)\n")
     out_dir = Path(out_dir)
     (out_dir / "labels").mkdir(parents=True, exist_ok=True)
     written = [out_dir / "data.yaml", out_dir / "frames.txt"]
@@ -77,12 +105,12 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
         path = out_dir / "labels" / f"{stem}.txt"
         write_text_atomic(path, text)
         written.append(path)
-    write_text_atomic(written[1], "".join(f"./images/{stem}.jpg\n" for stem in labels))
+    write_text_atomic(written[1], "".join(f"./images/{name}\n" for name in image_files))
     # JSON strings are valid YAML scalars: quoting through json keeps any label name safe.
     names_yaml = "".join(f"  {n}: {json.dumps(name, ensure_ascii=False)}\n" for n, name in enumerate(names))
     data_yaml = (
         f"# YOLO dataset of {json.dumps(video.name, ensure_ascii=False)} written by sptpt-annotate.\n"
-        "# Extract the frames with: ffmpeg -i VIDEO -start_number 0 images/%06d.jpg (from this folder)\n"
+        + how +
         "train: frames.txt\n"
         "val: frames.txt\n"
         f"nc: {len(names)}\n"
