@@ -421,9 +421,9 @@ class ImageFolderSource(FrameSource):
     Files are ordered by :func:`natural_sort_key`; hidden files (``._0001.jpg``
     left by macOS) are skipped. Grayscale and palette images become 3-channel
     RGB, alpha is dropped, 16-bit images are scaled to 8 bits (OpenCV's
-    ``IMREAD_COLOR``). EXIF orientation is ignored: frames extracted from
-    video carry none, and honouring it would give rotated frames a size that
-    differs from their stored one.
+    ``IMREAD_COLOR``). An EXIF orientation tag (phone photos) is applied, so
+    frames, boxes and exports are upright, as image viewers, browsers, CVAT and
+    Label Studio show the same images; frame sizes are the upright ones.
 
     Attributes
     ----------
@@ -464,6 +464,7 @@ class ImageFolderSource(FrameSource):
             bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
             if bgr is None:
                 raise DecodeError(self.path, last_good, f"OpenCV cannot decode {file.name}")
+            bgr = upright(bgr, _exif_orientation(file))
             if bgr.shape[:2] != (self.height, self.width):
                 raise DecodeError(
                     self.path,
@@ -638,14 +639,16 @@ def _relative_frame_files(path: Path, folder: Path, files: Sequence[Path]) -> tu
 
 
 def _image_size(file: Path) -> tuple[int, int]:
-    """``(width, height)`` of an image, from its header where Pillow can read it, else by decoding."""
+    """Upright ``(width, height)`` of an image, from its header where Pillow can read it, else by decoding."""
     try:
         from PIL import Image  # imageio depends on Pillow; header-only reads keep open() fast
 
         with Image.open(file) as image:
-            return image.size
+            width, height = image.size
     except Exception:  # noqa: BLE001 - any Pillow failure falls back to OpenCV, which decides
         pass
+    else:
+        return (height, width) if _exif_orientation(file) in _SWAPS_SIDES else (width, height)
     bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if bgr is None:
         raise UnreadableSourceError(
@@ -653,6 +656,45 @@ def _image_size(file: Path) -> tuple[int, int]:
             f"{'/'.join(s.lstrip('.') for s in IMAGE_SUFFIXES)} file - re-export or remove it"
         )
     return bgr.shape[1], bgr.shape[0]
+
+
+#: EXIF orientations (tag 274) whose upright image is the stored one turned a quarter: width and height swap.
+_SWAPS_SIDES = (5, 6, 7, 8)
+
+
+def _orientation_tag(image) -> int:
+    """The EXIF orientation (1-8) of an open Pillow image; 1 (as stored) when absent or not valid."""
+    value = image.getexif().get(274, 1)
+    return value if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
+def _exif_orientation(file: Path) -> int:
+    try:
+        from PIL import Image
+
+        with Image.open(file) as image:
+            return _orientation_tag(image)
+    except Exception:  # noqa: BLE001 - Pillow cannot read it: OpenCV decoded it, as stored
+        return 1
+
+
+def upright(image: np.ndarray, orientation: int) -> np.ndarray:
+    """The stored image ``(H, W, ...)`` turned as its EXIF ``orientation`` says (Pillow's ``exif_transpose``)."""
+    if orientation == 2:
+        image = image[:, ::-1]
+    elif orientation == 3:
+        image = image[::-1, ::-1]
+    elif orientation == 4:
+        image = image[::-1]
+    elif orientation == 5:
+        image = image.swapaxes(0, 1)
+    elif orientation == 6:
+        image = image.swapaxes(0, 1)[:, ::-1]
+    elif orientation == 7:
+        image = image.swapaxes(0, 1)[::-1, ::-1]
+    elif orientation == 8:
+        image = image.swapaxes(0, 1)[::-1]
+    return np.ascontiguousarray(image)
 
 
 # --------------------------------------------------------------------------- entry point

@@ -380,3 +380,23 @@ def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, 
     assert (source.width, source.height) == (HEIGHT, WIDTH) and len(frames) == 4
     assert all(frame.shape == (WIDTH, HEIGHT, 3) for _, frame in frames)
     assert not [r for r in caplog.records if r.name.startswith("imageio")], caplog.text
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_exif_orientation_is_applied_as_viewers_apply_it(tmp_path, orientation):
+    """Phone photos: the frames are the upright images (Pillow's exif_transpose, as viewers, CVAT and Label Studio
+    show them), and the folder's frame size is the upright one."""
+    from PIL import Image, ImageOps
+
+    stored = np.random.default_rng(orientation).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+    for k in range(2):
+        image = Image.fromarray(stored)
+        exif = image.getexif()
+        exif[274] = orientation
+        image.save(tmp_path / f"{k}.png", exif=exif)  # PNG: lossless, so the pixels compare exactly
+    with Image.open(tmp_path / "0.png") as image:
+        expected = np.asarray(ImageOps.exif_transpose(image).convert("RGB"))
+    source = open_frames(tmp_path)
+    assert (source.height, source.width) == expected.shape[:2]
+    for _, frame in source:
+        assert np.array_equal(frame, expected)
