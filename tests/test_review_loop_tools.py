@@ -52,7 +52,7 @@ def out(run_dir, tmp_path):
 
 def test_every_review_format_is_written_and_listed(run_dir):
     for name in ("cvat.xml", "labelstudio.json", "mot/gt/gt.txt", "mot/gt/labels.txt", "yolo/data.yaml",
-                 "yolo/labels/000000.txt"):
+                 "yolo/labels/0000.txt"):  # an image folder: labels named after its images (0000.png)
         assert (run_dir / name).is_file(), name
     info = json.loads((run_dir / "run.json").read_text())
     assert {"cvat", "mot", "labelstudio", "yolo"} <= set(info["outputs"])
