@@ -36,7 +36,7 @@ from annotator.exports import write_exports
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
-from annotator.progress import Progress
+from annotator.progress import CountNote, Progress
 from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
@@ -186,12 +186,15 @@ def annotate(
         if not isinstance(target.label, str) or not target.label.strip():
             raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
                             "such as 'car'", EXIT_VALUE)
+    counting = CountNote(input_path.name, enabled=show_progress)
     try:
-        source = open_frames(input_path, start=start, stop=stop, step=step)
+        source = open_frames(input_path, start=start, stop=stop, step=step, counting=counting)
     except FrameRangeError as exc:
         raise ToolError(str(exc), EXIT_VALUE) from None
     except FrameSourceError as exc:
         raise ToolError(str(exc), EXIT_INPUT) from None
+    finally:
+        counting.close()
     _check_boxes(targets, source)
     if corrections is not None:
         resolve_corrections(corrections, frame_indices=source.indices, track_ids=[t.track_id for t in targets],

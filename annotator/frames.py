@@ -61,10 +61,11 @@ import operator
 import os
 import re
 import subprocess
+import tempfile
 import warnings
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import cv2
 import imageio_ffmpeg
@@ -345,8 +346,9 @@ class VideoSource(FrameSource):
 
     kind = "video"
 
-    def __init__(self, path: Path, *, start: int, stop: int | None, step: int, fps: float | None) -> None:
-        frame_count, damage = _count_video_frames(path)
+    def __init__(self, path: Path, *, start: int, stop: int | None, step: int, fps: float | None,
+                 counting: Callable[[int], None] | None = None) -> None:
+        frame_count, damage = _count_video_frames(path, counting)
         meta = _video_meta(path)
         width, height = (int(v) for v in meta["size"])
         nominal = float(meta.get("fps") or 0.0)
@@ -516,8 +518,8 @@ def _jpeg_has_end_marker(file: Path) -> bool:
 # --------------------------------------------------------------------------- probing
 
 
-def _count_video_frames(path: Path) -> tuple[int, str | None]:
-    """Decode the whole video into a null sink and count its frames.
+def _count_video_frames(path: Path, progress: Callable[[int], None] | None = None) -> tuple[int, str | None]:
+    """Decode the whole video into a null sink and count its frames; ``progress(frames so far)`` as ffmpeg reports.
 
     Returns
     -------
@@ -538,12 +540,24 @@ def _count_video_frames(path: Path) -> tuple[int, str | None]:
         *_DECODE_OPTIONS,
         "-f", "null", "-progress", "pipe:1", "-",
     ]  # fmt: skip
-    # stdout carries only ``-progress`` key=value lines; stderr only error lines.
-    done = subprocess.run(command, capture_output=True, text=True, errors="replace", stdin=subprocess.DEVNULL)
-    counts = re.findall(r"^frame=(\d+)\s*$", done.stdout, flags=re.MULTILINE)
-    frame_count = int(counts[-1]) if counts else 0
-    reason = _ffmpeg_reason(done.stderr, path)
-    if done.returncode == 0 and frame_count > 0:
+    # stdout carries only ``-progress`` key=value lines (a block about every 0.5 s), read as they come so that
+    # ``progress`` can show a long count; stderr, only error lines, goes to a file so it can never fill a pipe.
+    counts: list[int] = []
+    with tempfile.TemporaryFile(mode="w+", encoding="utf-8", errors="replace") as errors:
+        with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, stdin=subprocess.DEVNULL, text=True,
+                              errors="replace") as process:
+            for line in process.stdout:
+                found = re.match(r"frame=(\d+)\s*$", line)
+                if found:
+                    counts.append(int(found.group(1)))
+                    if progress is not None:
+                        progress(counts[-1])
+        returncode = process.returncode
+        errors.seek(0)
+        stderr = errors.read()
+    frame_count = counts[-1] if counts else 0
+    reason = _ffmpeg_reason(stderr, path)
+    if returncode == 0 and frame_count > 0:
         return frame_count, None
     if frame_count > 0:
         return frame_count, reason
@@ -707,6 +721,7 @@ def open_frames(
     stop: int | None = None,
     step: int = 1,
     fps: float | None = None,
+    counting: Callable[[int], None] | None = None,
 ) -> FrameSource:
     """Open a video file or image folder and select a range of its frames.
 
@@ -725,6 +740,10 @@ def open_frames(
     fps : float or None
         Frame rate to record; None uses the container's rate for videos and
         :data:`DEFAULT_FOLDER_FPS` (30) for image folders.
+    counting : callable, optional
+        For a video, ``counting(frames so far)`` about every half second of
+        the open-time pass that decodes it all to count its frames (a long
+        video takes minutes: worth showing).
 
     Returns
     -------
@@ -758,5 +777,6 @@ def open_frames(
             f"{path}: no such file or folder; expected a video file, a folder of images or an OTB sequence folder "
             f"- check the path"
         )
-    cls = ImageFolderSource if path.is_dir() else VideoSource
-    return cls(path, start=start, stop=stop, step=step, fps=fps)
+    if path.is_dir():
+        return ImageFolderSource(path, start=start, stop=stop, step=step, fps=fps)
+    return VideoSource(path, start=start, stop=stop, step=step, fps=fps, counting=counting)

@@ -7,7 +7,7 @@ import threading
 import time
 from typing import TextIO
 
-__all__ = ["Progress", "format_clock"]
+__all__ = ["CountNote", "Progress", "format_clock"]
 
 
 class Progress:
@@ -103,6 +103,43 @@ class Progress:
         if self._notice is not None:
             self._notice.cancel()
         if self.enabled and self._tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+class CountNote:
+    """``note(n)``: "counting the frames of VIDEO: n so far", once the count has taken ``after`` seconds.
+
+    The open-time pass that counts a video's frames decodes all of it, minutes for a long video, before the
+    first frame is tracked; without a word the tool would look stuck. On a terminal the line is redrawn in place
+    (and ended by :meth:`close`); in a log one line says what the wait is.
+    """
+
+    def __init__(self, name: str, *, enabled: bool = True, stream: TextIO | None = None, after: float = 2.0,
+                 interval: float = 0.5) -> None:
+        self.name, self.enabled, self.after, self.interval = name, enabled, after, interval
+        self.stream = sys.stderr if stream is None else stream
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._start = time.perf_counter()
+        self._last_draw: float | None = None
+
+    def __call__(self, frames: int) -> None:
+        now = time.perf_counter()
+        if not self.enabled or now - self._start < self.after:
+            return
+        text = f"counting the frames of {self.name} (once, for exact frame numbers): {frames} so far"
+        if self._tty:
+            if self._last_draw is None or now - self._last_draw >= self.interval:
+                self.stream.write("\r" + text + "\x1b[K")
+                self.stream.flush()
+                self._last_draw = now
+        elif self._last_draw is None:
+            self.stream.write(f"counting the frames of {self.name} (once, for exact frame numbers)...\n")
+            self.stream.flush()
+            self._last_draw = now
+
+    def close(self) -> None:
+        if self.enabled and self._tty and self._last_draw is not None:
             self.stream.write("\n")
             self.stream.flush()
 

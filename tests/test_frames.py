@@ -400,3 +400,14 @@ def test_exif_orientation_is_applied_as_viewers_apply_it(tmp_path, orientation):
     assert (source.height, source.width) == expected.shape[:2]
     for _, frame in source:
         assert np.array_equal(frame, expected)
+
+
+def test_the_count_of_a_video_reports_its_progress(video):
+    from annotator.frames import _count_video_frames
+
+    seen: list[int] = []
+    count, damage = _count_video_frames(Path(video), seen.append)
+    assert (count, damage) == (N_FRAMES, None)
+    assert seen and seen[-1] == N_FRAMES and seen == sorted(seen)
+    source = open_frames(video, counting=seen.append)
+    assert source.frame_count == N_FRAMES and seen[-1] == N_FRAMES

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 
+import pytest
+
 from annotator.progress import Progress
 
 
@@ -38,3 +40,41 @@ def test_no_note_when_the_first_frame_comes_in_time_or_progress_is_off():
     assert "compiling" not in stream.getvalue()
     quiet = Progress(10, stream=stream, enabled=False, slow_start="compiling kernels", slow_start_after=0.0)
     assert quiet._notice is None
+
+
+class _Stream(io.StringIO):
+    def __init__(self, tty: bool) -> None:
+        super().__init__()
+        self._tty = tty
+
+    def isatty(self) -> bool:
+        return self._tty
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_count_note_speaks_only_once_the_count_is_slow(tty, monkeypatch):
+    from annotator import progress as module
+
+    clock = [100.0]
+    monkeypatch.setattr(module.time, "perf_counter", lambda: clock[0])
+    stream = _Stream(tty)
+    note = module.CountNote("long.mp4", stream=stream, after=2.0, interval=0.5)
+    note(400)  # a quick count says nothing
+    clock[0] += 1.9
+    note(800)
+    assert stream.getvalue() == ""
+    for frames in (1200, 1300, 1700):
+        clock[0] += 0.3
+        note(frames)
+    note.close()
+    if tty:  # redrawn in place at most every interval, and ended with a newline
+        assert stream.getvalue() == ("\rcounting the frames of long.mp4 (once, for exact frame numbers): 1200 so far"
+                                     "\x1b[K\rcounting the frames of long.mp4 (once, for exact frame numbers): "
+                                     "1700 so far\x1b[K\n")
+    else:  # a log gets one line that says what the wait is
+        assert stream.getvalue() == "counting the frames of long.mp4 (once, for exact frame numbers)...\n"
+    quiet = _Stream(tty)
+    silent = module.CountNote("long.mp4", stream=quiet, enabled=False, after=0.0)
+    silent(10)
+    silent.close()
+    assert quiet.getvalue() == ""
