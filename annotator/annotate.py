@@ -320,13 +320,19 @@ def _exclusive(out_dir: Path):
     except ImportError:  # pragma: no cover - not POSIX: no lock
         yield
         return
-    fd = os.open(out_dir, os.O_RDONLY)
+    try:
+        fd = os.open(out_dir, os.O_RDONLY)
+    except OSError:  # a folder that can be written but not opened (no read permission): run without the lock
+        yield
+        return
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        except BlockingIOError:
             raise ToolError(f"output folder {out_dir} is in use by another sptpt-annotate run: wait for it to "
                             "finish or choose another --out", EXIT_OUTPUT) from None
+        except OSError:
+            pass  # a file system without locks (some network mounts): run without the lock
         yield
     finally:
         os.close(fd)
