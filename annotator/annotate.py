@@ -374,6 +374,9 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         "input": {
             "path": str(input_path.resolve()),
             "content_hash": content_hash(input_path),
+            # Image folders: frames are turned as their EXIF orientation says (since 0.2.0's later builds; a run
+            # without this key read them as stored, and retrack refuses it where an image has an orientation).
+            **({"exif_orientation": "applied"} if source.kind == "images" else {}),
             "frame_count": source.frame_count,
             "fps": source.fps,
             "width": source.width,

@@ -444,12 +444,17 @@ class ImageFolderSource(FrameSource):
                 f"{path}: folder holds no images; expected a video file, a folder of "
                 f"{'/'.join(s.lstrip('.') for s in IMAGE_SUFFIXES)} frames, or an OTB sequence folder with img/"
             )
-        width, height = _image_size(files[0])
+        width, height, first_orientation = _image_header(files[0])
+        self.oriented = int(first_orientation != 1)
         for file in files[1:]:
-            size = _image_size(file)
-            if size != (width, height):
+            *size, orientation = _image_header(file)
+            self.oriented += orientation != 1
+            if tuple(size) != (width, height):
+                turned = (f" (turned upright as its EXIF orientation {orientation} says)" if orientation != 1 else
+                          f" ({files[0].name} turned upright as its EXIF orientation {first_orientation} says)"
+                          if first_orientation != 1 else "")
                 raise FrameSizeMismatchError(
-                    f"{file}: image is {size[0]}x{size[1]}, expected {width}x{height} like {files[0].name}; "
+                    f"{file}: image is {size[0]}x{size[1]}{turned}, expected {width}x{height} like {files[0].name}; "
                     f"all frames of a sequence must have one size - resize or remove the odd ones"
                 )
         self.files = files
@@ -546,12 +551,16 @@ def _count_video_frames(path: Path, progress: Callable[[int], None] | None = Non
     with tempfile.TemporaryFile(mode="w+", encoding="utf-8", errors="replace") as errors:
         with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, stdin=subprocess.DEVNULL, text=True,
                               errors="replace") as process:
-            for line in process.stdout:
-                found = re.match(r"frame=(\d+)\s*$", line)
-                if found:
-                    counts.append(int(found.group(1)))
-                    if progress is not None:
-                        progress(counts[-1])
+            try:
+                for line in process.stdout:
+                    found = re.match(r"frame=(\d+)\s*$", line)
+                    if found:
+                        counts.append(int(found.group(1)))
+                        if progress is not None:
+                            progress(counts[-1])
+            except BaseException:
+                process.kill()  # Ctrl-C (or a failing callback): stop decoding now, as subprocess.run did
+                raise
         returncode = process.returncode
         errors.seek(0)
         stderr = errors.read()
@@ -652,8 +661,11 @@ def _relative_frame_files(path: Path, folder: Path, files: Sequence[Path]) -> tu
     return tuple(Path(os.path.relpath(os.path.abspath(f), base)).as_posix() for f in files)
 
 
-def _image_size(file: Path) -> tuple[int, int]:
-    """Upright ``(width, height)`` of an image, from its header where Pillow can read it, else by decoding."""
+def _image_header(file: Path) -> tuple[int, int, int]:
+    """Upright ``(width, height)`` of an image and the EXIF orientation this tool applies to it (1: none).
+
+    From the header where Pillow can read it, else by decoding.
+    """
     try:
         from PIL import Image  # imageio depends on Pillow; header-only reads keep open() fast
 
@@ -662,14 +674,15 @@ def _image_size(file: Path) -> tuple[int, int]:
     except Exception:  # noqa: BLE001 - any Pillow failure falls back to OpenCV, which decides
         pass
     else:
-        return (height, width) if _exif_orientation(file) in _SWAPS_SIDES else (width, height)
+        orientation = _exif_orientation(file)
+        return (height, width, orientation) if orientation in _SWAPS_SIDES else (width, height, orientation)
     bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if bgr is None:
         raise UnreadableSourceError(
             f"{file}: image cannot be decoded; expected a valid "
             f"{'/'.join(s.lstrip('.') for s in IMAGE_SUFFIXES)} file - re-export or remove it"
         )
-    return bgr.shape[1], bgr.shape[0]
+    return bgr.shape[1], bgr.shape[0], 1
 
 
 #: EXIF orientations (tag 274) whose upright image is the stored one turned a quarter: width and height swap.
@@ -683,6 +696,13 @@ def _orientation_tag(image) -> int:
 
 
 def _exif_orientation(file: Path) -> int:
+    """The EXIF orientation :func:`upright` applies to a file's decoded image; 1 for none.
+
+    TIFF: OpenCV's TIFF reader applies the orientation itself, ``IMREAD_IGNORE_ORIENTATION`` or not, so the
+    decoded image is already upright (orientations 2-4; it cannot decode 5-8 at all).
+    """
+    if file.suffix.lower() in (".tif", ".tiff"):
+        return 1
     try:
         from PIL import Image
 

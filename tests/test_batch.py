@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import json
 import os
 import signal
@@ -191,6 +192,16 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     assert is_item_finished(job, run)
     assert not is_item_finished(job, {**run, "complete": False})
     assert not is_item_finished(job, {**run, "input": {**run["input"], "content_hash": "sha256:0"}})
+    # An image folder tracked before EXIF orientations were applied is redone (its boxes may be sideways).
+    from annotator.annotate import content_hash
+
+    images = dataset / "as_images"
+    images.mkdir(exist_ok=True)
+    (images / "0001.jpg").write_bytes(b"not decoded here")
+    folder_job = dataclasses.replace(job, input_path=str(images))
+    recorded = {**run["input"], "path": str(images.resolve()), "content_hash": content_hash(images)}
+    assert not is_item_finished(folder_job, {**run, "input": recorded})
+    assert is_item_finished(folder_job, {**run, "input": {**recorded, "exif_orientation": "applied"}})
 
 
 def in_progress(out: Path) -> tuple[list[Path], list[Path]]:

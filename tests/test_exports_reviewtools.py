@@ -227,7 +227,7 @@ def test_yolo_labels_of_an_image_folder_are_named_after_its_images(tmp_path):
     written = write_yolo(tmp_path / "yolo", folder, make_tracks(), frames=FRAMES)
     assert [p.name for p in written[2:]] == [f"{f + 1}.txt" for f in FRAMES]
     assert (tmp_path / "yolo" / "frames.txt").read_text().splitlines() == [f"./images/{f + 1}.jpg" for f in FRAMES]
-    assert '"Seq/img" into images/' in (tmp_path / "yolo" / "data.yaml").read_text()
+    assert '("Seq/img", as named in frames.txt) into images/' in (tmp_path / "yolo" / "data.yaml").read_text()
     # The labels are the video's, frame for frame, under the image's name.
     for f in FRAMES:
         assert (tmp_path / "yolo" / "labels" / f"{f + 1}.txt").read_text() == \
@@ -236,6 +236,7 @@ def test_yolo_labels_of_an_image_folder_are_named_after_its_images(tmp_path):
     clash = dataclasses.replace(VIDEO, frame_files=("Seq/a.jpg", files[1], "Seq/a.png", *files[3:]))
     written = write_yolo(tmp_path / "clash", clash, make_tracks(), frames=FRAMES)
     assert [p.name for p in written[2:]] == [f"{f:06d}.txt" for f in FRAMES]
+    assert "named by frame index" in (tmp_path / "clash" / "data.yaml").read_text()
 
 
 # --------------------------------------------------------------------------- atomic writes

@@ -411,3 +411,54 @@ def test_the_count_of_a_video_reports_its_progress(video):
     assert seen and seen[-1] == N_FRAMES and seen == sorted(seen)
     source = open_frames(video, counting=seen.append)
     assert source.frame_count == N_FRAMES and seen[-1] == N_FRAMES
+
+
+@pytest.mark.parametrize("orientation", range(1, 5))
+def test_tiff_frames_are_turned_once(tmp_path, orientation):
+    """OpenCV's TIFF reader applies the orientation itself (2-4; it cannot decode 5-8): not turned again."""
+    from PIL import Image, ImageOps
+
+    stored = np.random.default_rng(orientation).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+    image = Image.fromarray(stored)
+    exif = image.getexif()
+    exif[274] = orientation
+    image.save(tmp_path / "0.tif", exif=exif)
+    with Image.open(tmp_path / "0.tif") as saved:
+        expected = np.asarray(ImageOps.exif_transpose(saved).convert("RGB"))
+    [(_, frame)] = list(open_frames(tmp_path))
+    assert np.array_equal(frame, expected)
+
+
+def test_mixed_orientations_name_the_exif_orientation(tmp_path):
+    from PIL import Image
+
+    from annotator.frames import FrameSizeMismatchError
+
+    stored = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
+    for k, orientation in enumerate((1, 6)):
+        image = Image.fromarray(stored)
+        exif = image.getexif()
+        exif[274] = orientation
+        image.save(tmp_path / f"{k}.png", exif=exif)
+    with pytest.raises(FrameSizeMismatchError, match="turned upright as its EXIF orientation 6 says"):
+        open_frames(tmp_path)
+
+
+def test_ctrl_c_during_the_count_stops_ffmpeg(video, monkeypatch):
+    from annotator.frames import _count_video_frames
+
+    killed = []
+
+    class Recording(subprocess.Popen):
+        def kill(self):
+            killed.append(self.args[0])
+            super().kill()
+
+    monkeypatch.setattr(subprocess, "Popen", Recording)
+
+    def interrupted(frames):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _count_video_frames(Path(video), interrupted)
+    assert killed == [imageio_ffmpeg.get_ffmpeg_exe()]

@@ -679,3 +679,32 @@ def test_report_shows_the_absolute_input_path_before_and_after_a_retrack(tmp_pat
     fix.write_text("frame,x,y,w,h\n" + csv_row(5, truth[5]))
     assert apply_corrections(Path("out"), fix, show_progress=False).changed
     assert header in (tmp_path / "out" / "report.html").read_text()
+
+
+def test_a_run_that_read_photos_sideways_is_refused_and_a_current_one_is_not(out, tmp_path):
+    """Runs made before EXIF orientations were applied hold boxes in the images as stored: re-tracking them on
+    upright frames would give wrong boxes without a word."""
+    from PIL import Image
+
+    info = json.loads((out / "run.json").read_text())
+    assert info["input"]["exif_orientation"] == "applied"
+    folder = tmp_path / "seq"  # a copy: the module's runs share the original
+    shutil.copytree(info["input"]["path"], folder)
+    info["input"]["path"] = str(folder)
+    for image_path in sorted(folder.glob("*.png"))[:3]:  # orientation 3 (upside down): same size, so it opens
+        image = Image.open(image_path)
+        exif = image.getexif()
+        exif[274] = 3
+        image.save(image_path, exif=exif)
+    (tmp_path / "fix.csv").write_text(csv_row(8, GT[8]))
+    del info["input"]["exif_orientation"]
+    info["input"].pop("content_hash", None)  # the images were rewritten above; the hash is not what is checked
+    (out / "run.json").write_text(json.dumps(info))
+    before = snapshot(out)
+    old = _retrack_cli(out, "--corrections", tmp_path / "fix.csv", "--quiet")
+    assert old.exit_code == EXIT_INPUT and old.output.count("\n") == 1, old.output
+    assert "3 of its images carry an EXIF orientation" in old.output and "re-run the annotation" in old.output
+    assert snapshot(out) == before
+    info["input"]["exif_orientation"] = "applied"
+    (out / "run.json").write_text(json.dumps(info))
+    assert _retrack_cli(out, "--corrections", tmp_path / "fix.csv", "--quiet").exit_code == 0

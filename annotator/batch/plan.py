@@ -128,6 +128,8 @@ def is_item_finished(job: ItemJob, run: Mapping[str, Any] | None) -> bool:
             and normalised_json(run["targets"]) == normalised_json(_expected_targets(job.targets))
             and normalised_json(run["config"]) == normalised_json(job.config.to_dict())
             and list(run["formats"]) == list(job.formats)
+            # An image folder tracked before EXIF orientations were applied may hold boxes in sideways frames.
+            and (not Path(job.input_path).is_dir() or recorded_input.get("exif_orientation") == "applied")
         )
     except (KeyError, TypeError, ValueError):
         return False

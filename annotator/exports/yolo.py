@@ -92,12 +92,14 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
     images = _image_names(video, check_frame_range(video, tracks, frames))
     if images is not None:
         image_files = list(images.values())
-        folder = json.dumps(str(Path(video.frame_files[0]).parent), ensure_ascii=False)
-        how = f"# Copy or link the images of {folder} into images/ (from this folder)\n"
+        folder = json.dumps(Path(video.frame_files[0]).parent.as_posix(), ensure_ascii=False)
+        how = f"# Copy or link the sequence's images ({folder}, as named in frames.txt) into images/ here\n"
     else:
         image_files = [f"{stem}.jpg" for stem in labels]
-        how = ("# Extract the frames with: ffmpeg -i VIDEO -fps_mode passthrough -start_number 0 images/%06d.jpg "
-               "(from this folder)\n")
+        how = ("# Copy the sequence's images into images/ here, named by frame index (000000.jpg, ...): two of them "
+               "share a name stem\n" if video.frame_files is not None else
+               "# Extract the frames with: ffmpeg -i VIDEO -fps_mode passthrough -start_number 0 images/%06d.jpg "
+               "(from this folder; ffmpeg before 5.1: -vsync passthrough)\n")
     out_dir = Path(out_dir)
     (out_dir / "labels").mkdir(parents=True, exist_ok=True)
     written = [out_dir / "data.yaml", out_dir / "frames.txt"]

@@ -89,6 +89,11 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
         raise ToolError(f"{path} is now {source.width}x{source.height} with {source.frame_count} frames, the run had "
                         f"{run.video.width}x{run.video.height} with {run.video.frame_count}: the input changed - "
                         "re-run the annotation", EXIT_INPUT)
+    oriented = getattr(source, "oriented", 0)
+    if oriented and source_info.get("exif_orientation") != "applied":
+        raise ToolError(f"{path}: {oriented} of its images carry an EXIF orientation, which this version applies "
+                        f"(frames upright, as viewers show them) and the version that made the run in {run.out_dir} "
+                        "ignored, so the run's boxes are in the images as stored: re-run the annotation", EXIT_INPUT)
     if not np.array_equal(source.indices[: len(run.frame_indices)], run.frame_indices):
         raise ToolError(f"{path}: the frames of the recorded range do not match the run's track store: re-run the "
                         "annotation", EXIT_INPUT)
