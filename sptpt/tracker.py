@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from typing import Callable, ContextManager, Sequence
+from typing import Callable, ContextManager
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
@@ -113,7 +113,7 @@ class Tracker:
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
             self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
 
-    def init(self, frame: np.ndarray, box_xywh, *, examples: Sequence[tuple[np.ndarray, object]] = ()) -> FrameResult:
+    def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
 
         Parameters
@@ -123,25 +123,14 @@ class Tracker:
         box_xywh : sequence of 4 numbers
             0-based ``x, y, w, h`` of the object; must have positive size and
             overlap the frame.
-        examples : sequence of (image, box_xywh), optional
-            The same object elsewhere (an annotation tool's human boxes on
-            other frames; an image may be a crop around its box, the box then
-            given in the crop's coordinates). The dictionary also learns
-            their superpixels, and their code tensors join the first batch of
-            the positive model (at most ``update_every - 2`` of them, in the
-            order given), so the tracker knows more than one look of the
-            object. Without examples, bit for bit the tracker as before (the
-            ``paper`` preset: the spec's).
 
         Returns
         -------
         FrameResult
             The given box, with confidence 1 and ``scoring='init'``.
         """
-        images = [(_as_rgb(image), box) for image, box in examples]
-        examples = [(rgb, _validate_box(box, rgb.shape[:2])) for rgb, box in images]
         with _single_threaded_blas():
-            results = [run.init(frame, box_xywh, examples) for run in self._runs]
+            results = [run.init(frame, box_xywh) for run in self._runs]
         return _reported(results, 0)
 
     def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
@@ -184,25 +173,22 @@ class _Run:
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
         self._frame_shape: tuple[int, int] | None = None
 
-    def init(self, frame: np.ndarray, box_xywh, examples: Sequence[tuple[np.ndarray, np.ndarray]] = ()) -> FrameResult:
+    def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         rgb = _as_rgb(frame)
         box = _validate_box(box_xywh, rgb.shape[:2])
         p = self.params
         self._frame_shape = rgb.shape[:2]
         self._state = state_from_box_xywh(box, p.template_size)
-        features = self._shifted_features(rgb, self._state)
-        extra = [self._shifted_features(image, state_from_box_xywh(b, p.template_size)) for image, b in examples]
+        shifted = np.repeat(self._state[None], len(_INIT_SHIFTS), axis=0)
+        shifted[:, :2] += _INIT_SHIFTS
+        features, _ = self._features(rgb, shifted)
         self._dictionary = learn_dictionary(
-            np.concatenate([f.reshape(-1, f.shape[-1]) for f in (features, *extra)]), p.n_atoms, rng=self._rng,
-            n_init=p.kmeans_restarts,
+            features.reshape(-1, features.shape[-1]), p.n_atoms, rng=self._rng, n_init=p.kmeans_restarts
         )
         unshifted = int(np.flatnonzero((_INIT_SHIFTS == 0).all(axis=1))[0])
         self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
         self._first_mass = float(self._first_codes.sum())
-        # Room for at least one tracked frame in the first positive batch, which is fitted when it holds
-        # update_every tensors.
-        self._buffer: list[np.ndarray] = [self._first_codes] + [
-            self._code(f[unshifted : unshifted + 1])[0] for f in extra[: p.update_every - 2]]
+        self._buffer: list[np.ndarray] = [self._first_codes]
         self._positive: TensorSubspace | None = None
         self._negative: TensorSubspace | None = None
         self._frame_number = 1
@@ -305,12 +291,6 @@ class _Run:
         )
 
     # ------------------------------------------------------------------ stages
-    def _shifted_features(self, rgb: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """Superpixel features of the nine one-pixel shifts of ``state`` (the dictionary's training data)."""
-        shifted = np.repeat(state[None], len(_INIT_SHIFTS), axis=0)
-        shifted[:, :2] += _INIT_SHIFTS
-        return self._features(rgb, shifted)[0]
-
     def _draw(self, state: np.ndarray, n: int, sigma: np.ndarray) -> np.ndarray:
         p = self.params
         states = draw_candidates(state, n, sigma, self._rng, min_scale=1.0 / p.template_size)

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from annotator.synthetic import make_clip
-from sptpt.affine import state_from_box_xywh
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
@@ -147,61 +144,3 @@ def test_repeated_states_are_computed_once_with_identical_results(clip):
     features, want_labels = run._features(frames[1], repeated)
     assert np.array_equal(codes, run._code(features))
     assert np.array_equal(labels, want_labels)
-
-
-# --------------------------------------------------------------------------- examples: other looks of the object
-
-
-def _small(preset: str = "paper"):
-    return dataclasses.replace(get_preset(preset), n_particles=60, n_negatives=20)
-
-
-def test_examples_join_the_dictionary_and_the_first_positive_batch(clip):
-    plain = Tracker(_small(), seed=3)
-    plain.init(clip.frames[0], clip.boxes_xywh[0])
-    taught = Tracker(_small(), seed=3)
-    examples = [(clip.frames[k], clip.boxes_xywh[k]) for k in (8, 4, 12, 2)]
-    taught.init(clip.frames[0], clip.boxes_xywh[0], examples=examples)
-    run, before = taught._runs[0], plain._runs[0]
-    assert not np.array_equal(run._dictionary, before._dictionary)
-    # The first tensor is the anchor's; then the examples in the order given, leaving room for a tracked frame.
-    assert len(before._buffer) == 1 and len(run._buffer) == 1 + (run.params.update_every - 2)
-    for (frame, box), tensor in zip(examples, run._buffer[1:]):
-        features = run._shifted_features(frame, state_from_box_xywh(np.asarray(box), run.params.template_size))
-        np.testing.assert_array_equal(tensor, run._code(features[4:5])[0])  # shift (0, 0) is the middle of nine
-    # Same seed, same examples: the same boxes.
-    again = Tracker(_small(), seed=3)
-    again.init(clip.frames[0], clip.boxes_xywh[0], examples=examples)
-    for frame in clip.frames[1:8]:
-        a, b = taught.update(frame), again.update(frame)
-        np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
-
-
-def test_no_examples_is_the_tracker_as_before(clip):
-    one = Tracker(_small("robust"), seed=5)
-    other = Tracker(_small("robust"), seed=5)
-    one.init(clip.frames[0], clip.boxes_xywh[0])
-    other.init(clip.frames[0], clip.boxes_xywh[0], examples=())
-    for frame in clip.frames[1:8]:
-        np.testing.assert_array_equal(one.update(frame).box_xywh, other.update(frame).box_xywh)
-
-
-def test_an_example_may_be_a_crop_around_its_box(clip):
-    """A crop with the box in its coordinates teaches what the whole frame does (up to the rounding of the
-    sampling positions)."""
-    k, margin = 8, 6
-    x, y, w, h = clip.boxes_xywh[k]
-    x0, y0 = int(x) - margin, int(y) - margin
-    crop = clip.frames[k][y0 : int(np.ceil(y + h)) + margin, x0 : int(np.ceil(x + w)) + margin]
-    whole, cropped = Tracker(_small(), seed=2), Tracker(_small(), seed=2)
-    whole.init(clip.frames[0], clip.boxes_xywh[0], examples=[(clip.frames[k], clip.boxes_xywh[k])])
-    cropped.init(clip.frames[0], clip.boxes_xywh[0], examples=[(crop, (x - x0, y - y0, w, h))])
-    np.testing.assert_allclose(cropped._runs[0]._dictionary, whole._runs[0]._dictionary, atol=1e-6)
-
-
-def test_a_bad_example_is_rejected_with_its_box(clip):
-    tracker = Tracker(_small(), seed=0)
-    with pytest.raises(ValueError, match="lies outside the 20x10 frame"):
-        tracker.init(clip.frames[0], clip.boxes_xywh[0], examples=[(clip.frames[1][:10, :20], (30, 2, 5, 5))])
-    with pytest.raises(TypeError, match="uint8"):
-        tracker.init(clip.frames[0], clip.boxes_xywh[0], examples=[(clip.frames[1].astype(float), (3, 2, 5, 5))])

@@ -21,23 +21,10 @@ from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
 
-__all__ = ["APPEARANCE_ANCHORS", "DEFAULT_MAX_BUFFER_FRAMES", "ArrayFrames", "FrameProvider", "anchor_crop",
-           "nearest_anchors", "pass_seed"]
+__all__ = ["DEFAULT_MAX_BUFFER_FRAMES", "ArrayFrames", "FrameProvider", "pass_seed"]
 
 #: Frames a backward pass may hold in memory before it falls back to re-reading in chunks.
 DEFAULT_MAX_BUFFER_FRAMES = 512
-#: Human boxes of the track behind a pass (before a forward pass's anchor, after a backward one's), nearest
-#: first, whose appearance the pass learns at its start besides its own anchor's (``Tracker.init(examples=...)``):
-#: after a correction the tracker knows more than one look of the object. Behind, so that a new correction leaves
-#: the passes from the other anchors as they were (their boxes, which a reviewer has seen, do not move); learning
-#: the nearest boxes on both sides tracked better but moved those boxes and cost the simulated reviewer more
-#: (benchmarks/RESULTS.md, "Simulated reviewer" and the variants after it).
-APPEARANCE_ANCHORS = 3
-#: Margin (px, and share of the box's size) kept around a human box in the crop a pass learns it from: the
-#: dictionary's one-pixel shifts and bilinear sampling stay inside it.
-_CROP_MARGIN_PX, _CROP_MARGIN_SHARE = 4, 0.1
-
-Example = tuple[np.ndarray, Box]
 
 
 class FrameProvider(Protocol):
@@ -66,31 +53,6 @@ class ArrayFrames:
     def frames(self, lo: int, hi: int) -> Iterator[tuple[int, np.ndarray]]:
         for position in range(lo, hi):
             yield position, self._frames[position]
-
-def anchor_crop(frame: np.ndarray, box: Box) -> Example | None:
-    """The part of ``frame`` around a human ``box`` that the tracker learns it from, with the box in its coordinates.
-
-    A crop, not the frame, so that a pass holds a few small images whatever the video's size. None when the box
-    does not overlap the frame.
-    """
-    x, y, w, h = box
-    height, width = frame.shape[:2]
-    margin_x = _CROP_MARGIN_PX + _CROP_MARGIN_SHARE * w
-    margin_y = _CROP_MARGIN_PX + _CROP_MARGIN_SHARE * h
-    x0, y0 = max(0, int(np.floor(x - margin_x))), max(0, int(np.floor(y - margin_y)))
-    x1, y1 = min(width, int(np.ceil(x + w + margin_x))), min(height, int(np.ceil(y + h + margin_y)))
-    if x1 - x0 < 2 or y1 - y0 < 2 or x >= width or y >= height or x + w <= 0 or y + h <= 0:
-        return None
-    return np.ascontiguousarray(frame[y0:y1, x0:x1]), (x - x0, y - y0, w, h)
-
-
-def nearest_anchors(anchors: dict[int, Box | None], position: int, direction: int,
-                    k: int = APPEARANCE_ANCHORS) -> list[int]:
-    """The ``k`` anchor positions with a box behind a pass from ``position`` (before it for ``direction`` 0,
-    forward; after it for 1, backward), nearest first."""
-    behind = [p for p, box in anchors.items() if box is not None and (p < position if direction == 0 else p > position)]
-    return sorted(behind, key=lambda p: abs(p - position))[:k]
-
 
 def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, first: bool = False) -> np.random.Generator:
     """Generator of one pass: from the run seed, track id, anchor source frame and direction (0 fwd, 1 back).
@@ -123,12 +85,9 @@ class _SegmentRun:
     """Runs the passes of one segment while frames stream by (or takes them from a pass cache)."""
 
     def __init__(self, segment: Segment, box_start: Box | None, box_stop: Box | None, frame_indices: np.ndarray,
-                 params: TrackerParams, seed: int, max_buffer: int, cache: dict | None,
-                 examples: tuple[dict[int, Example], dict[int, Example]] = ({}, {})) -> None:
+                 params: TrackerParams, seed: int, max_buffer: int, cache: dict | None) -> None:
         self.segment = segment
         self.box_start, self.box_stop = box_start, box_stop
-        # Per direction, the other human boxes the pass learns at its start ({position: (crop, box)}).
-        self.examples = examples
         self.frame_indices = frame_indices
         self.params, self.seed = params, seed
         self.cache = cache
@@ -150,9 +109,7 @@ class _SegmentRun:
     def _key(self, direction: int) -> tuple:
         s = self.segment
         position, box = (s.start, self.box_start) if direction == 0 else (s.stop, self.box_stop)
-        # A pass depends on its anchor and on the other human boxes it learns at its start.
-        learned = tuple((p, tuple(float(v) for v in example[1])) for p, example in self.examples[direction].items())
-        return (s.track_id, position, direction, tuple(float(v) for v in box), learned)
+        return (s.track_id, position, direction, tuple(float(v) for v in box))
 
     def _from_cache(self, n: int) -> None:
         # A pass is deterministic (its seed depends only on the anchor), so a longer run of it
@@ -204,7 +161,7 @@ class _SegmentRun:
         if position == s.start and self.fwd_todo:
             self._tracker = self._tracker_for(position, 0)
             tic = time.perf_counter()
-            result = self._tracker.init(frame, self.box_start, examples=list(self.examples[0].values()))
+            result = self._tracker.init(frame, self.box_start)
             self.start_row = (result.log_likelihood, time.perf_counter() - tic)
             self._meter = SignalMeter()
             self._meter.first(frame, self.box_start)
@@ -244,7 +201,7 @@ class _SegmentRun:
     def _backward(self, anchor_frame: np.ndarray, frames, first_position: int, *,
                   remember: bool = True) -> tuple[Tracker, SignalMeter]:
         tracker = self._tracker_for(self.segment.stop, 1)
-        tracker.init(anchor_frame, self.box_stop, examples=list(self.examples[1].values()))
+        tracker.init(anchor_frame, self.box_stop)
         meter = SignalMeter()
         meter.first(anchor_frame, self.box_stop)
         self.calls += 1

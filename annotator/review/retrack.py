@@ -62,8 +62,7 @@ import numpy as np
 from annotator.config import RunConfig
 from annotator.failure import SIGNALS
 from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PASS_IOU, PassResult, merge_passes, reflag
-from annotator.review.passes import (DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun,
-                                     anchor_crop, nearest_anchors)
+from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
 from annotator.review.segments import (
     AnchorChange,
     Box,
@@ -168,8 +167,6 @@ def retrack_tracks(
 
     runs: list[_SegmentRun] = []
     plans: dict[int, tuple[dict, list[Segment]]] = {}
-    pending: list[tuple[Segment, dict, tuple[list[int], list[int]]]] = []
-    wanted: set[tuple[int, Box]] = set()  # (anchor position, box) of the human boxes the passes learn
     anchor_changes: list[AnchorChange] = []
     for tid in track_ids:
         given = {int(p): (v if isinstance(v, tuple) and len(v) == 2 and not _is_number(v[0]) else (v, ""))
@@ -201,25 +198,9 @@ def retrack_tracks(
         segments = plan_segments(tid, current, changed, n)
         plans[tid] = (current, segments)
         for seg in segments:
-            learned = (nearest_anchors(current, seg.start, 0) if seg.forward else [],
-                       nearest_anchors(current, seg.stop, 1) if seg.backward else [])
-            wanted.update((p, current[p]) for side in learned for p in side)
-            pending.append((seg, current, learned))
-
-    # The other human boxes each pass learns at its start, read before the sweep (a forward pass may learn from a
-    # later anchor than its own).
-    crops: dict[tuple[int, Box], tuple | None] = {}
-    for position in sorted({p for p, _ in wanted}):
-        for _, frame in frames.frames(position, position + 1):
-            for p, box in wanted:
-                if p == position:
-                    crops[(p, box)] = anchor_crop(frame, box)
-    for seg, current, learned in pending:
-        box_stop = current.get(seg.stop) if seg.stop < n else None
-        examples = tuple({p: crops[(p, current[p])] for p in side if crops[(p, current[p])] is not None}
-                         for side in learned)
-        runs.append(_SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
-                                max_buffer_frames, pass_cache, examples))
+            box_stop = current.get(seg.stop) if seg.stop < n else None
+            runs.append(_SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
+                                    max_buffer_frames, pass_cache))
 
     # One ordered sweep over the frames any pass needs.
     spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
