@@ -91,7 +91,8 @@ def default_output_dir(input_path: Path) -> Path:
     return input_path.resolve().parent / f"{stem}_sptpt"
 
 
-def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
+def _check_output_dir(out_dir: Path, *, force: bool) -> None:
+    """The output folder's refusals that need nothing from the input: a file, earlier results, a run in it."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ToolError(f"output folder {out_dir} is a file: give --out a folder path", EXIT_OUTPUT)
     if out_dir.is_dir() and not force:
@@ -99,6 +100,13 @@ def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
         if existing:
             raise ToolError(f"output folder {out_dir} already holds results ({', '.join(existing)}): "
                             "pass --force to overwrite them or choose another --out", EXIT_OUTPUT)
+    if out_dir.is_dir():
+        with _exclusive(out_dir):
+            pass
+
+
+def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
+    _check_output_dir(out_dir, force=force)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out_dir):
@@ -186,6 +194,11 @@ def annotate(
         if not isinstance(target.label, str) or not target.label.strip():
             raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
                             "such as 'car'", EXIT_VALUE)
+    out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
+    if input_path.exists():  # (a missing input is open_frames' error to give, first)
+        # Before opening the input: opening a video counts its frames, minutes for a long one, and a refusal
+        # after that wait would waste it.
+        _check_output_dir(out_dir, force=force)
     counting = CountNote(input_path.name, enabled=show_progress)
     try:
         source = open_frames(input_path, start=start, stop=stop, step=step, counting=counting)
@@ -199,7 +212,6 @@ def annotate(
     if corrections is not None:
         resolve_corrections(corrections, frame_indices=source.indices, track_ids=[t.track_id for t in targets],
                             width=source.width, height=source.height)
-    out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     _prepare_output_dir(out_dir, force=force)
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress)

@@ -651,3 +651,21 @@ def test_help_names_the_box_layout_and_the_default_preset():
     text = CliRunner().invoke(app, ["track", "--help"], terminal_width=200).stdout
     assert "--box X,Y,W,H" in text and "list[str]" not in text
     assert "[default: robust" in text
+
+
+def test_a_folder_that_holds_results_is_refused_before_the_video_is_counted(clip, config_file, work, monkeypatch):
+    """Opening a video decodes it all to count its frames (minutes for a long one): a refusal comes first."""
+    import annotator.frames
+
+    out = work / "refused_early"
+    done = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--quiet")
+    assert done.exit_code == 0, done.output
+
+    def counted(*args, **kwargs):
+        raise AssertionError("the video was counted before the refusal")
+
+    monkeypatch.setattr(annotator.frames, "_count_video_frames", counted)
+    again = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3)
+    assert again.exit_code == 5 and "already holds results" in again.stderr, again.output
+    missing = invoke(work / "missing.mp4", "--box", BOX0, "--out", out)  # a missing input is still named first
+    assert missing.exit_code == 3 and "no such file" in missing.stderr
