@@ -445,10 +445,10 @@ class ImageFolderSource(FrameSource):
                 f"{'/'.join(s.lstrip('.') for s in IMAGE_SUFFIXES)} frames, or an OTB sequence folder with img/"
             )
         width, height, first_orientation = _image_header(files[0])
-        self.oriented = int(first_orientation != 1)
+        orientations = [first_orientation]
         for file in files[1:]:
             *size, orientation = _image_header(file)
-            self.oriented += orientation != 1
+            orientations.append(orientation)
             if tuple(size) != (width, height):
                 turned = (f" (turned upright as its EXIF orientation {orientation} says)" if orientation != 1 else
                           f" ({files[0].name} turned upright as its EXIF orientation {first_orientation} says)"
@@ -458,11 +458,18 @@ class ImageFolderSource(FrameSource):
                     f"all frames of a sequence must have one size - resize or remove the odd ones"
                 )
         self.files = files
+        #: The EXIF orientation applied to each file's decoded image (1: none), read with its size at open.
+        self.orientations = tuple(orientations)
         self.frame_files = _relative_frame_files(path, folder, files)
         if fps is None:
             fps = DEFAULT_FOLDER_FPS
         selection = _check_range(path, len(files), start, stop, step, None)
         super().__init__(path, name, width, height, fps, len(files), selection)
+
+    @property
+    def oriented(self) -> int:
+        """How many of the images carry an EXIF orientation the frames are turned by."""
+        return sum(o != 1 for o in self.orientations)
 
     def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
         last_good = -1
@@ -471,7 +478,7 @@ class ImageFolderSource(FrameSource):
             bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
             if bgr is None:
                 raise DecodeError(self.path, last_good, f"OpenCV cannot decode {file.name}")
-            bgr = upright(bgr, _exif_orientation(file))
+            bgr = upright(bgr, self.orientations[index])
             if bgr.shape[:2] != (self.height, self.width):
                 raise DecodeError(
                     self.path,
@@ -671,10 +678,10 @@ def _image_header(file: Path) -> tuple[int, int, int]:
 
         with Image.open(file) as image:
             width, height = image.size
+            orientation = _applied_orientation(file, image)
     except Exception:  # noqa: BLE001 - any Pillow failure falls back to OpenCV, which decides
         pass
     else:
-        orientation = _exif_orientation(file)
         return (height, width, orientation) if orientation in _SWAPS_SIDES else (width, height, orientation)
     bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     if bgr is None:
@@ -689,14 +696,9 @@ def _image_header(file: Path) -> tuple[int, int, int]:
 _SWAPS_SIDES = (5, 6, 7, 8)
 
 
-def _orientation_tag(image) -> int:
-    """The EXIF orientation (1-8) of an open Pillow image; 1 (as stored) when absent or not valid."""
-    value = image.getexif().get(274, 1)
-    return value if isinstance(value, int) and 1 <= value <= 8 else 1
-
-
-def _exif_orientation(file: Path) -> int:
-    """The EXIF orientation :func:`upright` applies to a file's decoded image; 1 for none.
+def _applied_orientation(file: Path, image) -> int:
+    """The EXIF orientation (1-8) :func:`upright` applies to ``file``'s decoded image, from its open Pillow
+    ``image``; 1 (as stored) when absent, not valid or unreadable.
 
     TIFF: OpenCV's TIFF reader applies the orientation itself, ``IMREAD_IGNORE_ORIENTATION`` or not, so the
     decoded image is already upright (orientations 2-4; it cannot decode 5-8 at all).
@@ -704,12 +706,10 @@ def _exif_orientation(file: Path) -> int:
     if file.suffix.lower() in (".tif", ".tiff"):
         return 1
     try:
-        from PIL import Image
-
-        with Image.open(file) as image:
-            return _orientation_tag(image)
-    except Exception:  # noqa: BLE001 - Pillow cannot read it: OpenCV decoded it, as stored
+        value = image.getexif().get(274, 1)
+    except Exception:  # noqa: BLE001 - a header Pillow reads but whose EXIF it cannot (a cut-short PNG)
         return 1
+    return value if isinstance(value, int) and 1 <= value <= 8 else 1
 
 
 def upright(image: np.ndarray, orientation: int) -> np.ndarray:
