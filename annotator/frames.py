@@ -11,7 +11,9 @@ Frame indices are 0-based positions in decode order:
   ``-fps_mode passthrough``: every decoded frame is delivered once, none is
   duplicated or dropped to fit a constant rate. Without it ffmpeg's raw pipe
   output resamples variable-frame-rate video to the nominal rate, and frame
-  ``k`` is no longer the ``k``-th frame of the file.
+  ``k`` is no longer the ``k``-th frame of the file. A ``start``/``step``
+  selection is applied by ffmpeg's ``select`` filter on the decoded frame
+  number, so skipped frames are decoded but not converted or piped.
 * **Image folder.** Position in natural sort order of the file names
   (``frame2`` before ``frame10``); the numbers inside the names are not used,
   so an OTB sequence whose ``img/`` starts at ``0001.jpg`` has source index 0
@@ -372,7 +374,10 @@ class VideoSource(FrameSource):
         wanted = self._selection
         shape = (self.height, self.width, 3)
         frame_bytes = self.height * self.width * 3
-        reader = imageio_ffmpeg.read_frames(str(self.path), pix_fmt="rgb24", output_params=list(_DECODE_OPTIONS))
+        reader = imageio_ffmpeg.read_frames(
+            str(self.path), pix_fmt="rgb24", output_params=[*_DECODE_OPTIONS, *_selection_filter(wanted)]
+        )
+        delivered = 0  # frames received; the k-th is source frame wanted[k]
         last_good = -1
         try:
             try:
@@ -384,8 +389,7 @@ class VideoSource(FrameSource):
                 raise DecodeError(
                     self.path, -1, f"frame size changed from {self.width}x{self.height} to {meta['size']} since open"
                 )
-            index = -1
-            while index + 1 < wanted.stop:
+            while delivered < len(wanted):
                 try:
                     buffer = next(reader)
                 except StopIteration:
@@ -393,21 +397,23 @@ class VideoSource(FrameSource):
                 except RuntimeError as err:  # imageio-ffmpeg: a partial frame, i.e. ffmpeg died mid-frame
                     stderr = str(err).split("=== stderr ===")[-1]
                     raise DecodeError(self.path, last_good, _ffmpeg_reason(stderr, self.path)) from err
-                index += 1
+                index = wanted[delivered]
                 if len(buffer) != frame_bytes:  # pragma: no cover - imageio-ffmpeg guarantees full frames
                     reason = f"frame {index} has {len(buffer)} bytes, expected {frame_bytes}"
                     raise DecodeError(self.path, last_good, reason)
+                delivered += 1
                 last_good = index
-                if index >= wanted.start and (index - wanted.start) % wanted.step == 0:
-                    # A copy: frombuffer over ``bytes`` is read-only, and callers draw on frames.
-                    yield index, np.frombuffer(buffer, dtype=np.uint8).reshape(shape).copy()
+                # A copy: frombuffer over ``bytes`` is read-only, and callers draw on frames.
+                yield index, np.frombuffer(buffer, dtype=np.uint8).reshape(shape).copy()
         finally:
             reader.close()  # stops ffmpeg when the caller breaks out early
-        if last_good + 1 < wanted.stop:
+        if delivered < len(wanted):
             raise DecodeError(
                 self.path,
                 last_good,
-                f"ffmpeg delivered {last_good + 1} frames, the open-time count was {self.frame_count}",
+                f"ffmpeg delivered {delivered} of the {len(wanted)} selected frames "
+                f"(frames {wanted.start}..{wanted[-1]}, every {wanted.step}); the open-time count was "
+                f"{self.frame_count}",
             )
         if self.damage is not None and wanted.stop == self.frame_count:
             lost = ""
@@ -624,6 +630,24 @@ def _rotation_note_silenced() -> Iterator[None]:
         yield
     finally:
         logger.setLevel(level)
+
+
+def _selection_filter(wanted: range) -> list[str]:
+    """ffmpeg options that deliver only the frames of ``wanted`` (empty for every frame from the first).
+
+    Frames before ``start``, and between steps, are still decoded (a video cannot be cut at an arbitrary
+    frame without decoding from the keyframe before it, and seeking by time is not frame-exact on variable
+    frame rates), but no longer converted to RGB and piped to Python: about half the cost of skipping them.
+    ``n`` counts the decoded frames, as the open-time count does; ``-fps_mode passthrough`` keeps ffmpeg from
+    filling the gaps the filter leaves with duplicates.
+    """
+    if wanted.start == 0 and wanted.step == 1:
+        return []
+    last = wanted[-1]
+    keep = f"between(n\\,{wanted.start}\\,{last})"
+    if wanted.step > 1:
+        keep += f"*not(mod(n-{wanted.start}\\,{wanted.step}))"
+    return ["-vf", f"select={keep}"]
 
 
 def _video_meta(path: Path) -> dict:

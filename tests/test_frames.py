@@ -138,6 +138,29 @@ def test_video_range_selection(video, start, stop, step, expected):
     assert got == [(k, k) for k in expected]
 
 
+@pytest.mark.parametrize("start, stop, step", [(5, 12, 1), (3, None, 7), (11, 30, 4)])
+def test_a_selection_delivers_the_frames_of_a_full_decode_bit_for_bit(video, start, stop, step):
+    """ffmpeg skips the frames outside a selection itself; the frames it delivers are those a full decode gives."""
+    full = dict(open_frames(video))
+    selected = list(open_frames(video, start=start, stop=stop, step=step))
+    assert [index for index, _ in selected] == list(range(start, stop or N_FRAMES, step))
+    for index, frame in selected:
+        np.testing.assert_array_equal(frame, full[index])
+
+
+def test_a_selection_of_a_variable_frame_rate_video_counts_frames_not_time(video, tmp_path):
+    """Frame k of a selection is the k-th decoded frame even where the timestamps jump."""
+    vfr = tmp_path / "vfr.mp4"
+    subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video),
+         "-vf", "setpts='N/(25*TB)+if(gte(N,10),1.0/TB,0)+if(gte(N,20),2.5/TB,0)'", "-fps_mode", "passthrough",
+         "-c:v", "libx264", "-g", "10", str(vfr)],
+        check=True,
+    )  # fmt: skip
+    got = [(index, read_index(frame)) for index, frame in open_frames(vfr, start=8, stop=26, step=3)]
+    assert got == [(k, k) for k in range(8, 26, 3)]
+
+
 def test_breaking_out_early_then_iterating_again(video):
     source = open_frames(video)
     for index, _ in source:
@@ -173,6 +196,15 @@ def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_p
     # A range that ends before the damage decodes cleanly.
     head = open_frames(cut, stop=5)
     assert [index for index, _ in head] == [0, 1, 2, 3, 4]
+    # A selection that reaches the damage stops at its last good selected frame.
+    tail = open_frames(cut, start=2, step=3)
+    delivered = []
+    with pytest.raises(DecodeError) as caught:
+        for index, frame in tail:
+            assert read_index(frame) == index
+            delivered.append(index)
+    assert delivered == list(range(2, source.frame_count, 3))
+    assert caught.value.last_good_index == delivered[-1]
 
 
 def test_truncated_plain_mp4_is_unreadable_at_open(tmp_path):
@@ -377,8 +409,12 @@ def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, 
     with caplog.at_level("WARNING"):
         source = open_frames(rotated)
         frames = list(source)
+        later = list(open_frames(rotated, start=1, step=2))  # the selection filter runs after the rotation
     assert (source.width, source.height) == (HEIGHT, WIDTH) and len(frames) == 4
     assert all(frame.shape == (WIDTH, HEIGHT, 3) for _, frame in frames)
+    assert [index for index, _ in later] == [1, 3]
+    for index, frame in later:
+        np.testing.assert_array_equal(frame, frames[index][1])
     assert not [r for r in caplog.records if r.name.startswith("imageio")], caplog.text
 
 
