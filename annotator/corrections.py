@@ -46,6 +46,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.text import read_text
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]
 
@@ -103,14 +104,14 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path)
     except FileNotFoundError:
         raise ToolError(f"corrections file {path} does not exist: give a CSV frame,x,y,w,h[,track_id] "
                         "or a COCO annotations.json", EXIT_INPUT) from None
     except IsADirectoryError:
         raise ToolError(f"corrections file {path} is a folder: give the CSV or COCO file inside it", EXIT_INPUT) from None
     except UnicodeDecodeError:
-        raise ToolError(f"corrections file {path} is not UTF-8 text: expected a CSV frame,x,y,w,h[,track_id] "
+        raise ToolError(f"corrections file {path} is not text (UTF-8 or UTF-16): expected a CSV frame,x,y,w,h[,track_id] "
                         "or a COCO JSON file", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None

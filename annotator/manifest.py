@@ -70,6 +70,7 @@ from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.pipeline import Target
+from annotator.text import read_text
 from sptpt.params import TrackerParams
 
 __all__ = [
@@ -602,11 +603,11 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
             f"manifest extension {path.suffix or '(none)'!r} is not known: name it "
             f"{', '.join(MANIFEST_SUFFIXES)} (CSV, JSON Lines or YAML)"))])
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path)
     except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
+        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 or UTF-16 text"
         raise InvalidManifestError([ManifestError(path, 0, "", f"manifest cannot be read ({reason}): "
-                                                               "give a readable UTF-8 text file")],
+                                                               "give a readable UTF-8 or UTF-16 text file")],
                                    exit_code=EXIT_INPUT) from None
     errors: list[ManifestError] = []
     raw_items: list[dict[str, Any]] = []

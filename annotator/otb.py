@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.atomic import atomic_open
+from annotator.text import read_text
 
 __all__ = ["OTBFormatError", "read_otb_boxes", "write_otb_boxes", "write_otb_times"]
 
@@ -54,8 +55,7 @@ def read_otb_boxes(path: str | os.PathLike, *, origin: int = 1) -> np.ndarray:
     path = Path(path)
     rows: list[list[float]] = []
     try:
-        with open(path, encoding="utf-8-sig") as handle:
-            lines = handle.read().splitlines()
+        lines = read_text(path).splitlines()
     except UnicodeDecodeError:
         raise OTBFormatError(f"{path} is not a text file: expected one 'x,y,w,h' row per frame "
                              "(an OTB box file); check the path") from None

@@ -67,6 +67,20 @@ def test_csv_malformed_rows_name_file_and_line(tmp_path, text, line, fragment):
     assert "\n" not in message
 
 
+def test_csv_saved_as_utf16_by_windows_tools(tmp_path):
+    path = tmp_path / "fixes.csv"
+    path.write_bytes("frame,x,y,w,h\r\n12,10.5,20,30,40\r\n".encode("utf-16"))
+    assert read_corrections(path) == [Correction(12, (10.5, 20.0, 30.0, 40.0), None, f"{path}:2")]
+
+
+def test_binary_file_is_a_one_line_error(tmp_path):
+    path = tmp_path / "fixes.csv"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
+    with pytest.raises(ToolError) as info:
+        read_corrections(path)
+    assert "is not text (UTF-8 or UTF-16)" in str(info.value) and "\n" not in str(info.value)
+
+
 def test_missing_file_is_an_input_error(tmp_path):
     with pytest.raises(ToolError) as info:
         read_corrections(tmp_path / "nope.csv")

@@ -345,6 +345,18 @@ def test_reads_otb_separators_with_one_based_origin(tmp_path, separator):
     assert score.auc == PERFECT_AUC and score.n_frames == 3
 
 
+@pytest.mark.parametrize("encoding", ["utf-8", "utf-8-sig", "utf-16", "utf-16-be", "utf-32"])
+def test_reads_box_files_in_the_encodings_windows_writes(tmp_path, encoding):
+    """PowerShell 5's ``>`` and Notepad's "Unicode" write UTF-16 with a byte-order mark."""
+    path = tmp_path / "result.txt"
+    text = "1,2,10,20\r\n3.5,4,7,8\r\n"
+    data = text.encode(encoding)
+    if encoding == "utf-16-be":
+        data = b"\xfe\xff" + data  # Python's utf-16-be writes no mark; BOM-less UTF-16 is not recognised
+    path.write_bytes(data)
+    np.testing.assert_array_equal(read_otb_boxes(path), [[0, 1, 10, 20], [2.5, 3, 7, 8]])
+
+
 def test_otb_round_trip_and_mixed_separator_files_score_the_same(tmp_path):
     rng = np.random.default_rng(7)
     gt = np.round(random_boxes(rng, 40))

@@ -85,6 +85,17 @@ def test_three_formats_give_the_same_items(tmp_path, name):
     assert a2.targets[0].box_xywh == (1.5, 2.5, 3.0, 4.0)
 
 
+@pytest.mark.parametrize("name", sorted(SAME_ITEMS))
+def test_a_manifest_saved_as_utf16_reads_the_same(tmp_path, name):
+    utf8 = read_manifest(write(tmp_path, name, SAME_ITEMS[name]))
+    other = tmp_path / "utf16"
+    other.mkdir()
+    (other / name).write_bytes(SAME_ITEMS[name].replace("\n", "\r\n").encode("utf-16"))
+    utf16 = read_manifest(other / name)
+    strip = lambda items: [(i.id, i.line, i.targets, i.start, i.stop, i.params) for i in items]  # noqa: E731
+    assert strip(utf16) == strip(utf8)
+
+
 def test_minimal_items_are_the_same_in_every_format(tmp_path):
     csv_items = read_manifest(write(tmp_path, "x.csv", "video,box\na.mp4,\"10,20,30,40\"\n"))
     jsonl_items = read_manifest(write(tmp_path, "x.jsonl", '{"video": "a.mp4", "box": "10,20,30,40"}\n'))

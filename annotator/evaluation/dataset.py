@@ -54,6 +54,7 @@ from annotator.evaluation.metrics import (
 )
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
+from annotator.text import read_text
 from annotator.tracks import TrackResult
 
 __all__ = [
@@ -142,7 +143,7 @@ def _sequence_gt_files(folder: Path) -> list[Path]:
     files = sorted(f for f in folder.glob("groundtruth*.txt") if f.is_file())
     kept = []
     for f in files:
-        if f.read_text(encoding="utf-8-sig").strip():
+        if read_text(f).strip():
             kept.append(f)
         else:
             warnings.warn(f"{f}: empty ground-truth file skipped (as got10k does)", stacklevel=3)

@@ -48,6 +48,7 @@ from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports._review import check_frame_range, clip_xywh, visible
 from annotator.exports.labelstudio import labelstudio_region_id
+from annotator.text import read_text
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["SAME_BOX_PX", "read_cvat_corrections", "read_labelstudio_corrections"]
@@ -61,13 +62,13 @@ Box = tuple[float, float, float, float]
 
 def _read_text(path: Path, what: str) -> str:
     try:
-        return path.read_text(encoding="utf-8-sig")
+        return read_text(path)
     except FileNotFoundError:
         raise ToolError(f"{what} file {path} does not exist", EXIT_INPUT) from None
     except IsADirectoryError:
         raise ToolError(f"{what} file {path} is a folder: give the exported file inside it", EXIT_INPUT) from None
     except UnicodeDecodeError:
-        raise ToolError(f"{what} file {path} is not UTF-8 text: expected the {what} export", EXIT_VALUE) from None
+        raise ToolError(f"{what} file {path} is not text (UTF-8 or UTF-16): expected the {what} export", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"{what} file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
 
@@ -410,7 +411,7 @@ def read_run_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: S
 
     path = Path(path)
     try:
-        head = path.read_text(encoding="utf-8-sig")[:4096] if path.is_file() else ""
+        head = read_text(path)[:4096] if path.is_file() else ""
     except (OSError, UnicodeDecodeError):
         head = ""
     start = head.lstrip()
