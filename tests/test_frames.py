@@ -66,6 +66,16 @@ def write_video(path, n: int = N_FRAMES, *, faststart: bool = False, fps: float 
     writer.close()
 
 
+def with_timestamps(video, out, setpts: str):
+    """``video`` re-encoded with every frame kept and its timestamps set by the ``setpts`` expression."""
+    subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video), "-vf", f"setpts='{setpts}'",
+         "-fps_mode", "passthrough", "-c:v", "libx264", "-g", "10", str(out)],
+        check=True,
+    )  # fmt: skip
+    return out
+
+
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     path = tmp_path_factory.mktemp("video") / "clip.mp4"
@@ -107,13 +117,7 @@ def test_video_frame_k_is_decoded_frame_k(video):
 
 def test_variable_frame_rate_video_is_not_resampled(video, tmp_path):
     """A timestamp jump must not make ffmpeg insert duplicates: frame k stays frame k."""
-    vfr = tmp_path / "vfr.mp4"
-    subprocess.run(
-        [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video),
-         "-vf", "setpts='N/(25*TB)+if(gte(N,10),1.0/TB,0)'", "-fps_mode", "passthrough",
-         "-c:v", "libx264", "-g", "10", str(vfr)],
-        check=True,
-    )  # fmt: skip
+    vfr = with_timestamps(video, tmp_path / "vfr.mp4", "N/(25*TB)+if(gte(N,10),1.0/TB,0)")
     source = open_frames(vfr)
     assert source.frame_count == N_FRAMES
     assert [read_index(frame) for _, frame in source] == list(range(N_FRAMES))
@@ -150,13 +154,7 @@ def test_a_selection_delivers_the_frames_of_a_full_decode_bit_for_bit(video, sta
 
 def test_a_selection_of_a_variable_frame_rate_video_counts_frames_not_time(video, tmp_path):
     """Frame k of a selection is the k-th decoded frame even where the timestamps jump."""
-    vfr = tmp_path / "vfr.mp4"
-    subprocess.run(
-        [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video),
-         "-vf", "setpts='N/(25*TB)+if(gte(N,10),1.0/TB,0)+if(gte(N,20),2.5/TB,0)'", "-fps_mode", "passthrough",
-         "-c:v", "libx264", "-g", "10", str(vfr)],
-        check=True,
-    )  # fmt: skip
+    vfr = with_timestamps(video, tmp_path / "vfr.mp4", "N/(25*TB)+if(gte(N,10),1.0/TB,0)+if(gte(N,20),2.5/TB,0)")
     got = [(index, read_index(frame)) for index, frame in open_frames(vfr, start=8, stop=26, step=3)]
     assert got == [(k, k) for k in range(8, 26, 3)]
 
