@@ -321,8 +321,22 @@ class FrameSource(ABC):
     def __len__(self) -> int:
         return len(self._selection)
 
+    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
+        return self._frames(self._selection)
+
+    def frames_from(self, position: int) -> Iterator[tuple[int, np.ndarray]]:
+        """The selected frames from the ``position``-th on (``0 <= position <= len(self)``), as iteration yields them.
+
+        Cheaper than iterating from the start and dropping frames: an image folder reads only the images
+        wanted, a video has ffmpeg skip the frames before (decoded, not converted or piped).
+        """
+        if not 0 <= position <= len(self._selection):
+            raise IndexError(f"position {position} is outside the {len(self._selection)} selected frames")
+        return self._frames(self._selection[position:])
+
     @abstractmethod
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]: ...
+    def _frames(self, wanted: range) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(source_index, frame)`` for every index of ``wanted``, a tail of the selection."""
 
     def __repr__(self) -> str:
         return (
@@ -370,8 +384,9 @@ class VideoSource(FrameSource):
         selection = _check_range(path, frame_count, start, stop, step, damage)
         super().__init__(path, path.stem, width, height, fps, frame_count, selection)
 
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
-        wanted = self._selection
+    def _frames(self, wanted: range) -> Iterator[tuple[int, np.ndarray]]:
+        if len(wanted) == 0:
+            return
         shape = (self.height, self.width, 3)
         frame_bytes = self.height * self.width * 3
         reader = imageio_ffmpeg.read_frames(
@@ -415,7 +430,7 @@ class VideoSource(FrameSource):
                 f"(frames {wanted.start}..{wanted[-1]}, every {wanted.step}); the open-time count was "
                 f"{self.frame_count}",
             )
-        if self.damage is not None and wanted.stop == self.frame_count:
+        if self.damage is not None and self.stop == self.frame_count:
             lost = ""
             if self.declared_frame_count is not None and self.declared_frame_count > self.frame_count:
                 missing = self.declared_frame_count - self.frame_count
@@ -477,9 +492,9 @@ class ImageFolderSource(FrameSource):
         """How many of the images carry an EXIF orientation the frames are turned by."""
         return sum(o != 1 for o in self.orientations)
 
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
+    def _frames(self, wanted: range) -> Iterator[tuple[int, np.ndarray]]:
         last_good = -1
-        for index in self._selection:
+        for index in wanted:
             file = self.files[index]
             bgr = cv2.imread(str(file), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
             if bgr is None:

@@ -152,6 +152,21 @@ def test_a_selection_delivers_the_frames_of_a_full_decode_bit_for_bit(video, sta
         np.testing.assert_array_equal(frame, full[index])
 
 
+@pytest.mark.parametrize("kind", ["video", "folder"])
+@pytest.mark.parametrize("start, stop, step", [(0, None, 1), (3, 11, 2)])
+def test_frames_from_a_position_are_the_tail_of_the_iteration(video, folder, kind, start, stop, step):
+    source = open_frames(video if kind == "video" else folder, start=start, stop=stop, step=step)
+    everything = list(source)
+    for position in (0, 1, len(source) - 1, len(source)):
+        tail = list(source.frames_from(position))
+        assert [index for index, _ in tail] == [index for index, _ in everything[position:]]
+        for (_, got), (_, expected) in zip(tail, everything[position:]):
+            np.testing.assert_array_equal(got, expected)
+    for position in (-1, len(source) + 1):
+        with pytest.raises(IndexError, match="outside the"):
+            source.frames_from(position)
+
+
 def test_a_selection_of_a_variable_frame_rate_video_counts_frames_not_time(video, tmp_path):
     """Frame k of a selection is the k-th decoded frame even where the timestamps jump."""
     vfr = with_timestamps(video, tmp_path / "vfr.mp4", "N/(25*TB)+if(gte(N,10),1.0/TB,0)+if(gte(N,20),2.5/TB,0)")
@@ -203,6 +218,12 @@ def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_p
             delivered.append(index)
     assert delivered == list(range(2, source.frame_count, 3))
     assert caught.value.last_good_index == delivered[-1]
+    # So does a tail of it.
+    got = []
+    with pytest.raises(DecodeError) as caught:
+        for index, _ in tail.frames_from(2):
+            got.append(index)
+    assert got == delivered[2:] and caught.value.last_good_index == delivered[-1]
 
 
 def test_truncated_plain_mp4_is_unreadable_at_open(tmp_path):

@@ -24,8 +24,10 @@ class SourceFrames:
 
     Reading forward continues the live decoder (a video is decoded once for
     all the segments of a re-track); reading backwards, or far ahead in an
-    image folder, re-opens the source at the first frame wanted (for a video,
-    ffmpeg decodes again from the start of the file).
+    image folder, starts the source again at the first frame wanted
+    (:meth:`~annotator.frames.FrameSource.frames_from`: for a video, ffmpeg
+    decodes again from the start of the file but hands over only the frames
+    from there on).
     """
 
     def __init__(self, source: FrameSource, frame_indices: np.ndarray) -> None:
@@ -36,12 +38,7 @@ class SourceFrames:
 
     def _open(self, lo: int) -> None:
         self.close()
-        if getattr(self.source, "kind", "") == "images":
-            sub = open_frames(self.source.path, start=int(self.frame_indices[lo]), stop=self.source.stop,
-                              step=self.source.step, fps=self.source.fps)
-            self._live, self._next = iter(sub), lo
-        else:
-            self._live, self._next = iter(self.source), 0
+        self._live, self._next = self.source.frames_from(lo), lo
 
     def close(self) -> None:
         if self._live is not None and hasattr(self._live, "close"):
