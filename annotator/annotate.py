@@ -390,6 +390,9 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
             # without this key read them as stored, and retrack refuses it where an image has an orientation).
             **({"exif_orientation": "applied"} if source.kind == "images" else {}),
             "frame_count": source.frame_count,
+            # Videos: ffmpeg's message where decoding stopped early (None: decoded to its end). With the count, it
+            # lets `retrack` skip the counting decode once the content hash says the file is the same.
+            **({"damage": source.damage} if source.kind == "video" else {}),
             "fps": source.fps,
             "width": source.width,
             "height": source.height,

@@ -585,8 +585,8 @@ def test_retrack_command(out):
     assert json.loads((out / "run.json").read_text())["review"]["retracks"][0]["merge"] == "blend"
 
 
-def test_video_input(tmp_path):
-    """A video source: one decoding sweep for the passes, a second for the overlay; frames checked by index."""
+def _video_run(tmp_path):
+    """A 12-frame clip as an H.264 video, annotated into ``tmp_path / "out"``."""
     import imageio_ffmpeg
 
     clip = make_clip(12, size=(96, 72), object_size=(24, 20))
@@ -599,6 +599,12 @@ def test_video_input(tmp_path):
     writer.close()
     annotate(video, [Target(tuple(clip.boxes_xywh[0]), 1, "ball")], CONFIG, out_dir=tmp_path / "out",
              show_progress=False)
+    return clip, video
+
+
+def test_video_input(tmp_path):
+    """A video source: one decoding sweep for the passes, a second for the overlay; frames checked by index."""
+    clip, _ = _video_run(tmp_path)
     (tmp_path / "fix.csv").write_text(csv_row(4, clip.boxes_xywh[4], 1) + csv_row(9, clip.boxes_xywh[9], 1))
     result = apply_corrections(tmp_path / "out", tmp_path / "fix.csv", show_progress=False)
     assert [c.frame for c in result.retrack.anchors] == [4, 9]
@@ -606,6 +612,35 @@ def test_video_input(tmp_path):
     coco = json.loads((tmp_path / "out" / "annotations.json").read_text())
     assert coco["categories"][0]["name"] == "ball"
     assert [a["attributes"]["keyframe"] for a in coco["annotations"]].count(True) == 3
+
+
+def test_a_verified_video_is_not_decoded_again_to_count_its_frames(tmp_path, monkeypatch):
+    """The content hash says the bytes are the run's, so the recorded count stands; without that, ffmpeg counts."""
+    import annotator.frames
+
+    clip, video = _video_run(tmp_path)
+    out = tmp_path / "out"
+    info = json.loads((out / "run.json").read_text())
+    assert info["input"]["damage"] is None and info["input"]["frame_count"] == 12
+    counted = []
+    real_count = annotator.frames._count_video_frames
+    monkeypatch.setattr(annotator.frames, "_count_video_frames", lambda *a, **k: counted.append(1) or real_count(*a, **k))
+    (tmp_path / "fix.csv").write_text(csv_row(4, clip.boxes_xywh[4], 1))
+    apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
+    assert counted == []
+    apply_corrections(out, tmp_path / "fix.csv", show_progress=False, verify_input=False)
+    assert counted == [1]
+    # A run made before run.json recorded the damage: counted.
+    info = json.loads((out / "run.json").read_text())
+    del info["input"]["damage"]
+    (out / "run.json").write_text(json.dumps(info))
+    apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
+    assert counted == [1, 1]
+    # Other bytes: refused by the hash, before any decoding.
+    video.write_bytes(video.read_bytes() + b"\0")
+    with pytest.raises(ToolError, match="changed since the run"):
+        apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
+    assert counted == [1, 1]
 
 
 # --------------------------------------------------------------------------- retrack on a moved input, interrupted (#14)

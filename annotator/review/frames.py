@@ -76,8 +76,16 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     source_info, rng = run.info["input"], run.info["range"]
     moved = input_path is not None
     path = Path(input_path) if moved else Path(source_info["path"])
+    verify = bool((verify_input or moved) and source_info.get("content_hash"))
+    # A video file's hash is checked before opening it, so that the count can be taken from the run (a missing or
+    # unreadable path is left to open_frames to explain); an image folder's count costs nothing.
+    same_bytes = verify and path.is_file() and _check_content_hash(path, source_info["content_hash"], run,
+                                                                   moved=moved, unreadable=False)
+    # The same bytes decode to the same frames: a video need not be decoded once more just to count them.
+    known = (int(source_info["frame_count"]), source_info["damage"]) if same_bytes and "damage" in source_info else None
     try:
-        source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]))
+        source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]),
+                             known_count=known)
     except FrameSourceError as exc:
         where = "given with --input" if moved else (f"the input recorded in {run.out_dir / RUN_JSON}; if it moved, "
                                                      "give its new path with --input PATH")
@@ -94,14 +102,28 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     if not np.array_equal(source.indices[: len(run.frame_indices)], run.frame_indices):
         raise ToolError(f"{path}: the frames of the recorded range do not match the run's track store: re-run the "
                         "annotation", EXIT_INPUT)
-    if (verify_input or moved) and source_info.get("content_hash"):
-        from annotator.annotate import content_hash
-
-        if content_hash(path) != source_info["content_hash"]:
-            if moved:
-                raise ToolError(f"--input {path} is not the input of this run (its content hash differs from the one "
-                                f"recorded in {run.out_dir / RUN_JSON}): give the file or folder the run was made on",
-                                EXIT_INPUT)
-            raise ToolError(f"{path} changed since the run (its content hash differs from run.json): corrections "
-                            "refer to the frames the run saw - re-run the annotation on the new input", EXIT_INPUT)
+    if verify and not same_bytes:
+        _check_content_hash(path, source_info["content_hash"], run, moved=moved)  # opened, so let a read error out
     return source
+
+
+def _check_content_hash(path: Path, recorded: str, run: LoadedRun, *, moved: bool, unreadable: bool | None = None
+                        ) -> bool:
+    """True if ``path`` holds the bytes the run was made on, a one-line error if not; ``unreadable`` if it cannot be
+    read (None: the read error is raised)."""
+    from annotator.annotate import content_hash
+
+    try:
+        digest = content_hash(path)
+    except OSError:
+        if unreadable is None:
+            raise
+        return unreadable
+    if digest != recorded:
+        if moved:
+            raise ToolError(f"--input {path} is not the input of this run (its content hash differs from the one "
+                            f"recorded in {run.out_dir / RUN_JSON}): give the file or folder the run was made on",
+                            EXIT_INPUT)
+        raise ToolError(f"{path} changed since the run (its content hash differs from run.json): corrections "
+                        "refer to the frames the run saw - re-run the annotation on the new input", EXIT_INPUT)
+    return True
