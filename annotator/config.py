@@ -26,6 +26,7 @@ import yaml
 
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
+from annotator.text import TEXT_ENCODINGS, read_text
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
 
 __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "resolve_config"]
@@ -74,13 +75,13 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     """Read a YAML config file into a mapping, with errors naming the file."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path)
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist: give the path of a YAML file", EXIT_INPUT) from None
     except OSError as exc:
         raise ConfigError(f"config file {path} cannot be read: {exc.strerror}", EXIT_INPUT) from None
     except UnicodeDecodeError:
-        raise ConfigError(f"config file {path} is not a text file: give a YAML file with preset, seed, tracker "
+        raise ConfigError(f"config file {path} is not text ({TEXT_ENCODINGS}): give a YAML file with preset, seed, tracker "
                           "and flags keys") from None
     try:
         data = yaml.safe_load(text)

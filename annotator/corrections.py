@@ -46,7 +46,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
-from annotator.text import read_text
+from annotator.text import TEXT_ENCODINGS, read_text
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]
 
@@ -111,7 +111,7 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
     except IsADirectoryError:
         raise ToolError(f"corrections file {path} is a folder: give the CSV or COCO file inside it", EXIT_INPUT) from None
     except UnicodeDecodeError:
-        raise ToolError(f"corrections file {path} is not text (UTF-8 or UTF-16): expected a CSV frame,x,y,w,h[,track_id] "
+        raise ToolError(f"corrections file {path} is not text ({TEXT_ENCODINGS}): expected a CSV frame,x,y,w,h[,track_id] "
                         "or a COCO JSON file", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None

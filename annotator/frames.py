@@ -394,10 +394,12 @@ class VideoSource(FrameSource):
             return
         shape = (self.height, self.width, 3)
         frame_bytes = self.height * self.width * 3
+        selecting, head = _selection_filter(wanted)
         reader = imageio_ffmpeg.read_frames(
-            str(self.path), pix_fmt="rgb24", output_params=[*_DECODE_OPTIONS, *_selection_filter(wanted)]
+            str(self.path), pix_fmt="rgb24", input_params=_SELECTION_INPUT_OPTIONS if selecting else [],
+            output_params=[*_DECODE_OPTIONS, *selecting],
         )
-        delivered = 0  # frames received; the k-th is source frame wanted[k]
+        delivered = 0  # frames received after ``head`` (the k-th is source frame wanted[k])
         last_good = -1
         try:
             try:
@@ -417,6 +419,9 @@ class VideoSource(FrameSource):
                 except RuntimeError as err:  # imageio-ffmpeg: a partial frame, i.e. ffmpeg died mid-frame
                     stderr = str(err).split("=== stderr ===")[-1]
                     raise DecodeError(self.path, last_good, _ffmpeg_reason(stderr, self.path)) from err
+                if head:
+                    head -= 1
+                    continue
                 index = wanted[delivered]
                 if len(buffer) != frame_bytes:  # pragma: no cover - imageio-ffmpeg guarantees full frames
                     reason = f"frame {index} has {len(buffer)} bytes, expected {frame_bytes}"
@@ -436,6 +441,7 @@ class VideoSource(FrameSource):
                 f"{self.frame_count}",
             )
         if self.damage is not None and self.stop == self.frame_count:
+            last_good = self.frame_count - 1  # decoded up to there, selected or not
             lost = ""
             if self.declared_frame_count is not None and self.declared_frame_count > self.frame_count:
                 missing = self.declared_frame_count - self.frame_count
@@ -652,22 +658,32 @@ def _rotation_note_silenced() -> Iterator[None]:
         logger.setLevel(level)
 
 
-def _selection_filter(wanted: range) -> list[str]:
-    """ffmpeg options that deliver only the frames of ``wanted`` (empty for every frame from the first).
+#: Input options with a selection filter: ffmpeg rebuilds its filters when the frames' size or colour range changes
+#: part-way (joined camera clips), which would restart the filter's frame number ``n`` from 0.
+_SELECTION_INPUT_OPTIONS = ["-reinit_filter", "0"]
 
-    Frames before ``start``, and between steps, are still decoded (a video cannot be cut at an arbitrary
-    frame without decoding from the keyframe before it, and seeking by time is not frame-exact on variable
-    frame rates), but no longer converted to RGB and piped to Python: about half the cost of skipping them.
-    ``n`` counts the decoded frames, as the open-time count does; ``-fps_mode passthrough`` keeps ffmpeg from
-    filling the gaps the filter leaves with duplicates.
+
+def _selection_filter(wanted: range) -> tuple[list[str], int]:
+    """ffmpeg options that deliver only the frames of ``wanted``, and how many frames before them to drop.
+
+    No options for every frame from the first. Frames before ``start``, and between steps, are still decoded (a
+    video cannot be cut at an arbitrary frame without decoding from the keyframe before it, and seeking by time is
+    not frame-exact on variable frame rates), but no longer converted to RGB and piped to Python: about half the
+    cost of skipping them. ``n`` counts the decoded frames, as the open-time count does; ``-fps_mode passthrough``
+    keeps ffmpeg from filling the gaps the filter leaves with duplicates. Frame 0 always goes through (and is
+    dropped by the reader): ffmpeg writes its output header, which imageio-ffmpeg waits for only 10 s, when the
+    first frame arrives. ``-frames:v`` ends ffmpeg at the last selected frame, which the filter would otherwise
+    hold back until the end of the file.
     """
     if wanted.start == 0 and wanted.step == 1:
-        return []
-    last = wanted[-1]
-    keep = f"between(n\\,{wanted.start}\\,{last})"
+        return [], 0
+    keep = f"between(n\\,{wanted.start}\\,{wanted[-1]})"
     if wanted.step > 1:
         keep += f"*not(mod(n-{wanted.start}\\,{wanted.step}))"
-    return ["-vf", f"select={keep}"]
+    head = 1 if wanted.start > 0 else 0
+    if head:
+        keep = f"eq(n\\,0)+{keep}"
+    return ["-vf", f"select={keep}", "-frames:v", str(len(wanted) + head)], head
 
 
 def _video_meta(path: Path) -> dict:

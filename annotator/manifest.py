@@ -70,7 +70,7 @@ from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.pipeline import Target
-from annotator.text import read_text
+from annotator.text import TEXT_ENCODINGS, read_text
 from sptpt.params import TrackerParams
 
 __all__ = [
@@ -605,9 +605,9 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
     try:
         text = read_text(path)
     except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 or UTF-16 text"
+        reason = exc.strerror if isinstance(exc, OSError) else f"not text ({TEXT_ENCODINGS})"
         raise InvalidManifestError([ManifestError(path, 0, "", f"manifest cannot be read ({reason}): "
-                                                               "give a readable UTF-8 or UTF-16 text file")],
+                                                               "give a readable text file")],
                                    exit_code=EXIT_INPUT) from None
     errors: list[ManifestError] = []
     raw_items: list[dict[str, Any]] = []

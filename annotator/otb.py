@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.atomic import atomic_open
-from annotator.text import read_text
+from annotator.text import TEXT_ENCODINGS, read_text
 
 __all__ = ["OTBFormatError", "read_otb_boxes", "write_otb_boxes", "write_otb_times"]
 
@@ -57,7 +57,7 @@ def read_otb_boxes(path: str | os.PathLike, *, origin: int = 1) -> np.ndarray:
     try:
         lines = read_text(path).splitlines()
     except UnicodeDecodeError:
-        raise OTBFormatError(f"{path} is not a text file: expected one 'x,y,w,h' row per frame "
+        raise OTBFormatError(f"{path} is not text ({TEXT_ENCODINGS}): expected one 'x,y,w,h' row per frame "
                              "(an OTB box file); check the path") from None
     # A trailing empty line is a file ending, not a frame.
     while lines and not lines[-1].strip():

@@ -6,7 +6,10 @@ import codecs
 import os
 from pathlib import Path
 
-__all__ = ["decode_text", "read_text"]
+__all__ = ["TEXT_ENCODINGS", "decode_text", "read_text"]
+
+#: What :func:`decode_text` reads, as error messages say it.
+TEXT_ENCODINGS = "UTF-8, or UTF-16 with a byte-order mark"
 
 _MARKS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"),
           (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
@@ -19,13 +22,11 @@ def decode_text(data: bytes) -> str:
     saves, so a file made there is not UTF-8; the mark says which it is (UTF-32's mark starts with UTF-16's,
     so it is tried first). Raises :class:`UnicodeDecodeError` for anything else, UTF-16 without a mark included.
     """
-    for mark, encoding in _MARKS:
-        if data.startswith(mark):
-            return data.decode(encoding)
-    text = data.decode("utf-8-sig")
+    encoding = next((name for mark, name in _MARKS if data.startswith(mark)), "utf-8-sig")
+    text = data.decode(encoding)
     nul = text.find("\x00")
-    if nul >= 0:  # valid UTF-8, but no text file holds NUL: UTF-16 without its mark, or a binary file
-        raise UnicodeDecodeError("utf-8", data, nul, nul + 1, "NUL character in text")
+    if nul >= 0:  # decodes, but no text file holds NUL: UTF-16 without its mark, or a binary file
+        raise UnicodeDecodeError(encoding, data, nul, nul + 1, "NUL character in text")
     return text
 
 

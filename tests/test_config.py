@@ -145,8 +145,15 @@ def test_run_config_is_frozen():
         config.seed = 3  # type: ignore[misc]
 
 
+def test_a_config_saved_as_utf16_reads_as_utf8(tmp_path):
+    text = "preset: fast\nseed: 7\nflags:\n  threshold: 0.4\n"
+    (tmp_path / "a.yaml").write_text(text, encoding="utf-8")
+    (tmp_path / "b.yaml").write_bytes(text.replace("\n", "\r\n").encode("utf-16"))
+    assert load_config_file(tmp_path / "b.yaml") == load_config_file(tmp_path / "a.yaml") != {}
+
+
 def test_a_binary_file_is_not_a_config(tmp_path):
     path = tmp_path / "clip.mp4"
     path.write_bytes(b"\x00\xff\xfe\x9c" * 50)
-    with pytest.raises(ConfigError, match=r"clip.mp4 is not a text file: give a YAML file"):
+    with pytest.raises(ConfigError, match=r"clip.mp4 is not text \(UTF-8, or UTF-16 with a byte-order mark\): give a YAML file"):
         load_config_file(path)

@@ -78,7 +78,7 @@ def test_binary_file_is_a_one_line_error(tmp_path):
     path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
     with pytest.raises(ToolError) as info:
         read_corrections(path)
-    assert "is not text (UTF-8 or UTF-16)" in str(info.value) and "\n" not in str(info.value)
+    assert "is not text (UTF-8, or UTF-16 with a byte-order mark)" in str(info.value) and "\n" not in str(info.value)
 
 
 def test_missing_file_is_an_input_error(tmp_path):

@@ -171,11 +171,23 @@ def test_eval_of_binary_files_and_an_out_that_is_a_file_are_one_line_errors(tmp_
     for results, truth in ((gt, binary), (binary, gt)):
         code, _, err = _run("eval", results, truth)
         assert code == 4 and err.count("\n") == 1, err
-        assert f"{binary} is not a text file" in err and "x,y,w,h" in err
+        assert f"{binary} is not text (UTF-8, or UTF-16 with a byte-order mark)" in err and "x,y,w,h" in err
     (tmp_path / "taken").write_text("mine")
     code, table, err = _run("eval", gt, gt, "--out", tmp_path / "taken")
     assert code == 5 and err.count("\n") == 1 and "--out" in err and "is a file" in err
     assert (tmp_path / "taken").read_text() == "mine"
+
+
+def test_eval_of_a_dataset_whose_ground_truth_holds_nul_is_a_one_line_error(tmp_path):
+    gt_file = tmp_path / "root" / "A" / "groundtruth_rect.txt"
+    gt_file.parent.mkdir(parents=True)
+    write_otb_boxes(gt_file, _gt(5), origin=1)
+    (tmp_path / "res").mkdir()
+    write_otb_boxes(tmp_path / "res" / "A.txt", _gt(5))
+    gt_file.write_bytes(gt_file.read_bytes() + b"\0\0\0\0")
+    code, _, err = _run("eval", tmp_path / "res", tmp_path / "root")
+    assert code == 4 and err.count("\n") == 1, err
+    assert f"{gt_file} is not text" in err
 
 
 def test_eval_of_a_missing_path_exits_3_as_other_unreadable_input(tmp_path):

@@ -167,6 +167,55 @@ def test_frames_from_a_position_are_the_tail_of_the_iteration(video, folder, kin
             source.frames_from(position)
 
 
+def test_a_selection_of_joined_clips_of_two_sizes_is_the_full_decode(tmp_path):
+    """ffmpeg rebuilds its filters where the frame size changes part-way (joined camera clips); the selection
+    filter's frame number must not start again there."""
+    ffmpeg = imageio_ffmpeg.get_ffmpeg_exe()
+    parts = []
+    for part, (width, height) in enumerate([(WIDTH, HEIGHT), (2 * WIDTH, 2 * HEIGHT)]):
+        path = tmp_path / f"part{part}.ts"
+        writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=FPS, codec="libx264", macro_block_size=1,
+                                             ffmpeg_log_level="error", output_params=["-g", "5", "-f", "mpegts"])
+        writer.send(None)
+        for k in range(10 * part, 10 * part + 10):
+            writer.send(index_frame(k, width, height))
+        writer.close()
+        parts.append(path)
+    listing = tmp_path / "parts.txt"
+    listing.write_text("".join(f"file '{p.name}'\n" for p in parts))
+    joined = tmp_path / "joined.ts"
+    subprocess.run([ffmpeg, "-v", "error", "-f", "concat", "-safe", "0", "-i", str(listing), "-c", "copy", str(joined)],
+                   check=True)
+    full = dict(open_frames(joined))
+    assert len(full) == 20
+    for selection in (dict(start=0, step=3), dict(start=5, stop=15), dict(start=12), dict(start=1, step=4)):
+        got = list(open_frames(joined, **selection))
+        expected = list(range(selection.get("start", 0), selection.get("stop", 20), selection.get("step", 1)))
+        assert [index for index, _ in got] == expected, selection
+        for index, frame in got:
+            np.testing.assert_array_equal(frame, full[index])
+
+
+def test_a_selection_has_ffmpeg_write_at_once_and_stop_at_its_last_frame(video, monkeypatch):
+    """imageio-ffmpeg waits only 10 s for ffmpeg's output header, written with the first frame out, so frame 0
+    always goes out (and is dropped); and the filter holds back its last frames until the end of the file unless
+    ffmpeg stops after them. Both are too slow to show on a test clip: the options are checked."""
+    calls = []
+    real = imageio_ffmpeg.read_frames
+
+    def spy(path, **kwargs):
+        calls.append(kwargs)
+        return real(path, **kwargs)
+
+    monkeypatch.setattr(imageio_ffmpeg, "read_frames", spy)
+    got = [index for index, _ in open_frames(video, start=20, stop=26, step=2)]
+    assert got == [20, 22, 24]
+    options = calls[-1]["output_params"]
+    assert options[options.index("-frames:v") + 1] == "4"  # frame 0 and the three selected
+    assert options[options.index("-vf") + 1].startswith("select=eq(n\\,0)+")
+    assert calls[-1]["input_params"] == ["-reinit_filter", "0"]
+
+
 def test_a_selection_of_a_variable_frame_rate_video_counts_frames_not_time(video, tmp_path):
     """Frame k of a selection is the k-th decoded frame even where the timestamps jump."""
     vfr = with_timestamps(video, tmp_path / "vfr.mp4", "N/(25*TB)+if(gte(N,10),1.0/TB,0)+if(gte(N,20),2.5/TB,0)")
@@ -217,13 +266,15 @@ def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_p
             assert read_index(frame) == index
             delivered.append(index)
     assert delivered == list(range(2, source.frame_count, 3))
-    assert caught.value.last_good_index == delivered[-1]
+    # The last frame ffmpeg decoded, selected or not: what the message says decoding stopped after.
+    assert caught.value.last_good_index == source.frame_count - 1
+    assert f"after frame {source.frame_count - 1}" in str(caught.value)
     # So does a tail of it.
     got = []
     with pytest.raises(DecodeError) as caught:
         for index, _ in tail.frames_from(2):
             got.append(index)
-    assert got == delivered[2:] and caught.value.last_good_index == delivered[-1]
+    assert got == delivered[2:] and caught.value.last_good_index == source.frame_count - 1
 
 
 def test_truncated_plain_mp4_is_unreadable_at_open(tmp_path):

@@ -52,9 +52,9 @@ from annotator.evaluation.metrics import (
     SequenceScore,
     evaluate_sequence,
 )
-from annotator.otb import read_otb_boxes
+from annotator.otb import OTBFormatError, read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
-from annotator.text import read_text
+from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult
 
 __all__ = [
@@ -143,7 +143,12 @@ def _sequence_gt_files(folder: Path) -> list[Path]:
     files = sorted(f for f in folder.glob("groundtruth*.txt") if f.is_file())
     kept = []
     for f in files:
-        if read_text(f).strip():
+        try:
+            text = read_text(f)
+        except UnicodeDecodeError:
+            raise OTBFormatError(f"{f} is not text ({TEXT_ENCODINGS}): expected one 'x,y,w,h' row per frame "
+                                 "(OTB ground truth)") from None
+        if text.strip():
             kept.append(f)
         else:
             warnings.warn(f"{f}: empty ground-truth file skipped (as got10k does)", stacklevel=3)

@@ -48,7 +48,7 @@ from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports._review import check_frame_range, clip_xywh, visible
 from annotator.exports.labelstudio import labelstudio_region_id
-from annotator.text import read_text
+from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["SAME_BOX_PX", "read_cvat_corrections", "read_labelstudio_corrections"]
@@ -68,7 +68,7 @@ def _read_text(path: Path, what: str) -> str:
     except IsADirectoryError:
         raise ToolError(f"{what} file {path} is a folder: give the exported file inside it", EXIT_INPUT) from None
     except UnicodeDecodeError:
-        raise ToolError(f"{what} file {path} is not text (UTF-8 or UTF-16): expected the {what} export", EXIT_VALUE) from None
+        raise ToolError(f"{what} file {path} is not text ({TEXT_ENCODINGS}): expected the {what} export", EXIT_VALUE) from None
     except OSError as exc:
         raise ToolError(f"{what} file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
 
