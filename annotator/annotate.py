@@ -414,6 +414,15 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         "interrupted": run.interrupted,
         "formats": list(formats),
     }
+    # Each track as the forward pass from its first frame, for the first re-track to reuse (run.json's config as
+    # it will read back, so that the re-track's fingerprint is the same). Imported here: the review package
+    # imports this module.
+    from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
+
+    first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
+    written_config = json.loads(json.dumps(run_info["config"], default=json_default))
+    outputs["passes"] = [write_pass_cache(out_dir / PASSES_NAME, first_passes, pass_fingerprint(
+        written_config, run_info["input"]["content_hash"], run_info["range"]))]
     if "report" in formats:
         render_report(
             out_dir / "report.html", video=run.video, tracks=run.tracks, thumbnails=run.thumbnails,

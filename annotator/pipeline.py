@@ -116,6 +116,9 @@ class TrackingRun:
     interrupted: bool = False
     thumbnails: list[SpanThumbnail] = field(default_factory=list)
     overlay_path: Path | None = None
+    #: The tracker's own confidence per row, by track id (the tracks' ``confidence`` is ``1 - p_fail``): with the
+    #: tracks, the forward pass from the first frame that a re-track would otherwise run again.
+    tracker_confidence: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 class _NothingTracked(Exception):
@@ -199,6 +202,7 @@ def track_source(
     render = overlay_path is not None
     trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
     recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
+    tracker_confidence: dict[int, list[float]] = {t.track_id: [] for t in targets}
     model = load_model(config.failure_model)
     budget = config.flags.review_budget is not None
     # In budget mode the online flags are only a way to get p_fail frame by frame; flags are made at the end.
@@ -259,6 +263,7 @@ def track_source(
                                        scoring=result.scoring, accepted=result.accepted,
                                        particles_xywh=result.particles_xywh, particle_scores=result.particle_scores,
                                        run_boxes_xywh=result.run_boxes_xywh)
+        tracker_confidence[tid].append(result.confidence)
         recorders[tid].append(
             frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
             accepted=result.accepted, seconds=seconds, keyframe=first, scoring=result.scoring,
@@ -339,6 +344,7 @@ def track_source(
         interrupted=interrupted,
         thumbnails=thumbnails.thumbnails,
         overlay_path=overlay_path if render else None,
+        tracker_confidence={tid: np.asarray(values, dtype=np.float64) for tid, values in tracker_confidence.items()},
     )
 
 

@@ -420,7 +420,7 @@ def test_formats_subset_writes_only_those_files(clip, config_file, work):
     result = invoke(clip, "--box", BOX0, "--config", config_file, "--stop", 4, "--formats", "otb,flags", "--out", out)
     assert result.exit_code == 0, result.output
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
-        "clip.txt", "flags.csv", "run.json", "times", "times/clip_time.txt", "tracks.npz",
+        "clip.txt", "flags.csv", "passes.npz", "run.json", "times", "times/clip_time.txt", "tracks.npz",
     ]  # fmt: skip
     check_complete_outputs(out, "clip", [0, 1, 2, 3])
     assert json.loads((out / "run.json").read_text())["formats"] == ["otb", "flags"]
@@ -455,8 +455,8 @@ def test_existing_results_are_refused_unless_force(clip, config_file, work):
                    "--force", "--formats", "otb", "-q")
     assert again.exit_code == 0, again.output
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
-        "clip.1.txt", "clip.2.txt", "run.json", "times", "times/clip.1_time.txt", "times/clip.2_time.txt",
-        "tracks.npz",
+        "clip.1.txt", "clip.2.txt", "passes.npz", "run.json", "times", "times/clip.1_time.txt",
+        "times/clip.2_time.txt", "tracks.npz",
     ]  # fmt: skip
 
 

@@ -245,7 +245,7 @@ def test_run_json_records_provenance(run, clip):
     assert info["input"] == {
         "path": str(clip.resolve()),
         "content_hash": "sha256:" + hashlib.sha256(clip.read_bytes()).hexdigest(),
-        "frame_count": 30, "fps": FPS, "width": WIDTH, "height": HEIGHT,
+        "frame_count": 30, "damage": None, "fps": FPS, "width": WIDTH, "height": HEIGHT,
     }  # fmt: skip
     assert info["range"] == {"start": START, "stop": STOP, "step": STEP}
     assert info["frames_processed"] == len(INDICES) and info["complete"] is True and info["decode_error"] is None
@@ -309,7 +309,8 @@ def test_decode_error_keeps_every_frame_before_it(scripted, truncated, tmp_path,
         assert [read_index(frame) for _, frame in overlay] == list(range(good))
         assert "Decoding stopped early" in (out / "report.html").read_text()
     else:
-        assert sorted(p.name for p in out.iterdir()) == ["cut.txt", "flags.csv", "run.json", "times", "tracks.npz"]
+        assert sorted(p.name for p in out.iterdir()) == [
+            "cut.txt", "flags.csv", "passes.npz", "run.json", "times", "tracks.npz"]
 
 
 def test_a_range_that_ends_before_the_damage_is_complete(scripted, truncated, tmp_path):
@@ -364,7 +365,8 @@ def test_force_removes_only_the_earlier_runs_own_files(scripted, clip, tmp_path)
     result = annotate(clip, TARGETS[:1], CONFIG, out_dir=out, stop=3, formats=("otb",), force=True,
                       show_progress=False)
     assert result.exit_code == EXIT_OK
-    assert sorted(p.name for p in out.iterdir()) == ["notes.md", "run.json", "times", "tracks.npz", "walk.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "notes.md", "passes.npz", "run.json", "times", "tracks.npz", "walk.txt"]
     assert len(read_otb_boxes(out / "walk.txt")) == 3 and (tmp_path / "victim.txt").read_text() == "not ours"
 
 

@@ -381,6 +381,37 @@ def csv_row(frame: int, box=None, track="") -> str:
     return f"{frame},{values}{',' + str(track) if track != '' else ''}\n"
 
 
+def test_kept_passes_give_the_boxes_of_passes_run_again_and_spare_their_tracking(out, tmp_path):
+    """The run keeps its passes (passes.npz): a re-track reuses those its anchors still start, box for box."""
+    from annotator.review.pass_cache import PASSES_NAME
+    from annotator.store import STORE_NAME, read_store
+
+    again = tmp_path / "again"
+    shutil.copytree(out, again)
+    tracked: dict[str, list[int]] = {}
+    for folder in (out, again):
+        for k, frame in enumerate((12, 20)):  # positions 5 and 9 of the 13 processed frames
+            assert (folder / PASSES_NAME).is_file()  # written by the main command, then by every re-track
+            if folder == again:
+                (folder / PASSES_NAME).unlink()  # as before the passes were kept: every pass runs again
+            fix = tmp_path / f"fix{k}.csv"
+            fix.write_text(csv_row(frame, GT[frame]))
+            result = apply_corrections(folder, fix, show_progress=False)
+            tracked.setdefault(folder.name, []).append(result.retrack.frames_tracked)
+    # Tracker calls (an init and the frames after it) of the passes run. Round 1, a correction at position 5:
+    # forward from 0 over 1..4, backward from 5 over 4..1, forward from 5 over 6..12; the first is the main
+    # command's track, kept. Round 2, at position 9: forward from 5 over 6..8 (kept from round 1), backward
+    # from 9, forward from 9 over 10..12.
+    assert tracked["again"] == [5 + 5 + 8, 4 + 4 + 4] and tracked["out"] == [5 + 8, 4 + 4]
+    kept, rerun = read_store(out / STORE_NAME).tracks[0], read_store(again / STORE_NAME).tracks[0]
+    for field in ("boxes_xywh", "confidence", "log_likelihood", "accepted", "flagged", "keyframe", "outside"):
+        np.testing.assert_array_equal(getattr(kept, field), getattr(rerun, field), err_msg=field)
+    assert kept.reasons == rerun.reasons and kept.scoring == rerun.scoring
+    assert kept.signals.keys() == rerun.signals.keys()
+    for name in kept.signals:
+        np.testing.assert_array_equal(kept.signals[name], rerun.signals[name], err_msg=name)
+
+
 def test_load_run_reads_back_what_annotate_wrote(run_dir):
     run = load_run(run_dir)
     track = run.tracks[0]

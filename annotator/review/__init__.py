@@ -8,6 +8,7 @@ Where things are:
 * :mod:`~annotator.review.frames`: frames decoded again from the recorded input.
 * :mod:`~annotator.review.segments`: anchors and the segments between them.
 * :mod:`~annotator.review.passes`: the forward and backward tracker passes.
+* :mod:`~annotator.review.pass_cache`: the passes a run folder keeps for its next re-track (``passes.npz``).
 * :mod:`~annotator.review.merge`: how two passes combine, and the flags after a re-track.
 * :mod:`~annotator.review.retrack`: ``retrack_tracks``, re-tracking in memory (no files).
 """

@@ -71,6 +71,8 @@ from annotator.progress import Progress
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, open_run_source
 from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
+from annotator.review.pass_cache import (PASSES_NAME, keep_anchored, pass_fingerprint, read_pass_cache,
+                                         write_pass_cache)
 from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import RUN_JSON, LoadedRun, load_run
 from annotator.store import STORE_NAME, RunStore, write_store
@@ -186,12 +188,14 @@ def apply_corrections(
         bar[0].advance(done - bar[0].done)
 
     result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
+    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
+    passes = read_pass_cache(out_dir / PASSES_NAME, _fingerprint(run))
     try:
         try:
             max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
             retrack = retrack_tracks(provider, run.frame_indices, resolved, run.config, previous=run.previous(),
                                      width=run.video.width, height=run.video.height, merge=merge, progress=progress,
-                                     max_buffer_frames=max_buffer)
+                                     max_buffer_frames=max_buffer, pass_cache=passes)
         except DecodeError as exc:
             raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
         finally:
@@ -201,7 +205,8 @@ def apply_corrections(
         result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
         if not retrack.changed and not rewrite_unchanged:
             return result
-        result.written = _write_all(run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress)
+        result.written = _write_all(run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress,
+                                    passes=passes)
     finally:
         provider.close()
     return result
@@ -256,8 +261,12 @@ def _report_review(review: dict[str, Any], tracks: Sequence[TrackResult], fps: f
     return {"anchors": anchors, "last": last, "count": len(review.get("retracks", []))}
 
 
+def _fingerprint(run: LoadedRun) -> str:
+    return pass_fingerprint(run.info.get("config", {}), run.info["input"].get("content_hash"), run.info["range"])
+
+
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
-               merge: str, show_progress: bool) -> list[Path]:
+               merge: str, show_progress: bool, passes: dict) -> list[Path]:
     out_dir = run.out_dir
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
@@ -270,7 +279,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
     try:
         try:
             written = _write_outputs(tmp, run, retrack, provider, corrections_path, merge=merge,
-                                     show_progress=show_progress)
+                                     show_progress=show_progress, passes=passes)
         except DecodeError as exc:
             raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
         except OSError as exc:
@@ -294,8 +303,8 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
 
 
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,
-                   *, merge: str, show_progress: bool) -> list[Path]:
-    """Write every output of the run's formats into ``tmp``; return their paths relative to it."""
+                   *, merge: str, show_progress: bool, passes: dict) -> list[Path]:
+    """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
     from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
     from annotator.report import render_report, track_summary
@@ -303,6 +312,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     formats, tracks, video = run.formats, retrack.tracks, run.video
     store = RunStore(video=video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
     written: dict[str, list[Path]] = {"store": [write_store(tmp / STORE_NAME, store).relative_to(tmp)]}
+    written["passes"] = [write_pass_cache(tmp / PASSES_NAME, keep_anchored(passes, tracks),
+                                          _fingerprint(run)).relative_to(tmp)]
     written.update({name: [p.relative_to(tmp) for p in paths]
                     for name, paths in write_exports(tmp, store, formats).items()})
     thumbnails: list[SpanThumbnail] = []

@@ -9,7 +9,6 @@ its anchor and a re-track is reproducible. Frames come from a
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Iterator, Protocol, Sequence
 
 import numpy as np
@@ -17,6 +16,7 @@ import numpy as np
 from annotator.failure import SIGNALS, SignalMeter
 from annotator.pipeline import seed_for_track
 from annotator.review.merge import PassResult
+from annotator.review.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
@@ -67,15 +67,6 @@ def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, fi
 # --------------------------------------------------------------------------- the passes
 
 
-@dataclass
-class _CachedPass:
-    """A pass as it was run: rows in pass order (backward passes: nearest the anchor first)."""
-
-    rows: PassResult
-    init_log_likelihood: float
-    init_seconds: float
-
-
 def _take(result: PassResult, index) -> PassResult:
     return PassResult(*(np.asarray(getattr(result, f))[index].copy() for f in
                         ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
@@ -106,10 +97,10 @@ class _SegmentRun:
         self._tracker: Tracker | None = None
         self._meter: SignalMeter | None = None
 
-    def _key(self, direction: int) -> tuple:
+    def _key(self, direction: int) -> PassKey:
         s = self.segment
         position, box = (s.start, self.box_start) if direction == 0 else (s.stop, self.box_stop)
-        return (s.track_id, position, direction, tuple(float(v) for v in box))
+        return pass_key(s.track_id, position, direction, box)
 
     def _from_cache(self, n: int) -> None:
         # A pass is deterministic (its seed depends only on the anchor), so a longer run of it
@@ -133,7 +124,7 @@ class _SegmentRun:
         known = self.cache.get(key)
         if known is None or len(known.rows.confidence) < len(rows.confidence):
             ordered = rows if direction == 0 else _take(rows, slice(None, None, -1))
-            self.cache[key] = _CachedPass(ordered, *init)
+            self.cache[key] = CachedPass(ordered, *init)
 
     @property
     def planned(self) -> int:

@@ -30,9 +30,9 @@ anchor ``C`` splits ``A .. B``, the forward pass from the unchanged ``A`` over
 ``A .. C`` gives the rows it gave before, and the backward pass from ``C``
 meets it there (and the forward pass from ``C`` meets the one from ``B``).
 Re-running the unchanged side costs time but changes nothing;
-``pass_cache`` skips it when a caller keeps the passes (the simulated
-reviewer does; the command line does not, as the folder stores merged rows
-only).
+``pass_cache`` skips it when a caller keeps the passes: the command line
+keeps them in the run folder (:mod:`annotator.review.pass_cache`), the
+simulated reviewer in memory.
 
 Frames: passes read frames through a :class:`FrameProvider`, one ordered
 sweep over the union of the segments' frames. Forward passes stream. A

@@ -1,0 +1,151 @@
+"""The tracker passes a run keeps for its next re-track (``passes.npz``).
+
+A pass depends only on its anchor (:mod:`annotator.review.retrack`): when a
+correction ``C`` splits the segment ``A .. B``, the forward pass from ``A``
+and the backward pass from ``B`` give, up to ``C``, the rows they gave
+before. The track store holds merged rows only, so without the passes
+themselves every re-track ran those two again: about half of its tracking.
+The run folder therefore keeps each pass that starts at a current anchor,
+keyed as :class:`~annotator.review.passes.SegmentRun` looks them up (track,
+anchor position, direction, anchor box): the main command writes the forward
+pass from the first frame, each re-track the passes it ran or kept.
+
+The file is a cache: one that is missing, damaged, or made for another input,
+tracker configuration or tool version is ignored (the passes are run again),
+never an error. Its arrays are plain numbers and fixed-width text (no pickles).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from annotator import __version__
+from annotator.atomic import atomic_path
+from annotator.failure import SIGNALS
+from annotator.review.merge import PassResult
+from annotator.tracks import TrackResult
+
+__all__ = ["PASSES_NAME", "CachedPass", "PassKey", "first_pass", "keep_anchored", "pass_fingerprint", "pass_key",
+           "read_pass_cache", "write_pass_cache"]
+
+#: File name of the kept passes in a run folder.
+PASSES_NAME = "passes.npz"
+
+#: (track_id, anchor position, direction 0 forward / 1 backward, anchor box x, y, w, h)
+PassKey = tuple
+
+
+@dataclass
+class CachedPass:
+    """A pass as it was run: rows in pass order (backward passes: nearest the anchor first)."""
+
+    rows: PassResult
+    init_log_likelihood: float
+    init_seconds: float
+
+
+def pass_key(track_id: int, position: int, direction: int, box: Iterable[float]) -> PassKey:
+    """The key of the pass of ``track_id`` from its anchor at ``position`` (0 forward, 1 backward) with ``box``."""
+    return (int(track_id), int(position), int(direction), tuple(float(v) for v in box))
+
+
+def keep_anchored(cache: Mapping[PassKey, CachedPass], tracks: Iterable[TrackResult]) -> dict[PassKey, CachedPass]:
+    """The passes that start at an anchor of ``tracks`` as it is now: a replaced box's passes can never be used."""
+    anchors = {(t.track_id, int(p), tuple(float(v) for v in t.boxes_xywh[p]))
+               for t in tracks for p in np.flatnonzero(t.keyframe & ~t.outside)}
+    return {k: v for k, v in cache.items() if (k[0], k[1], k[3]) in anchors}
+
+
+def pass_fingerprint(config: Mapping[str, Any], content_hash: str | None, frame_range: Mapping[str, int]) -> str:
+    """What the passes of a run depend on besides their anchors: tracker configuration and seed, the input's
+    bytes and range, the failure signals measured, and the tool's version."""
+    what = {"config": config, "input": content_hash, "range": dict(frame_range), "signals": list(SIGNALS),
+            "tool_version": __version__}
+    return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def first_pass(track: TrackResult, tracker_confidence: np.ndarray) -> tuple[PassKey, CachedPass]:
+    """The main command's track as the forward pass from its first frame, which a re-track would run again.
+
+    ``tracker_confidence`` is the tracker's own confidence per row (the track's ``confidence`` is ``1 - p_fail``).
+    """
+    rows = PassResult(
+        boxes_xywh=np.array(track.boxes_xywh[1:], dtype=np.float64),
+        confidence=np.array(tracker_confidence[1:], dtype=np.float64),
+        log_likelihood=np.array(track.log_likelihood[1:], dtype=np.float64),
+        accepted=np.array(track.accepted[1:], dtype=bool),
+        scoring=np.array(track.scoring[1:], dtype=object),
+        seconds=np.array(track.seconds[1:], dtype=np.float64),
+        signals=np.column_stack([np.asarray(track.signals[name], dtype=np.float64)[1:] for name in SIGNALS])
+        if len(track) > 1 else np.zeros((0, len(SIGNALS))),
+    )
+    key = pass_key(track.track_id, 0, 0, track.boxes_xywh[0])
+    return key, CachedPass(rows, float(track.log_likelihood[0]), float(track.seconds[0]))
+
+
+def write_pass_cache(path: str | os.PathLike, cache: Mapping[PassKey, CachedPass], fingerprint: str) -> Path:
+    """Write ``cache`` to ``path`` atomically."""
+    path = Path(path)
+    keys = list(cache)
+    passes = [cache[k] for k in keys]
+    rows = [p.rows for p in passes]
+
+    def stacked(field: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+        parts = [np.asarray(getattr(r, field), dtype=dtype).reshape(-1, *shape) for r in rows]
+        return np.concatenate(parts) if parts else np.zeros((0, *shape), dtype=dtype)
+
+    scoring = [str(s) for r in rows for s in r.scoring]
+    arrays = {
+        "header": np.asarray(json.dumps({"fingerprint": fingerprint, "signals": list(SIGNALS)})),
+        "key": np.array([[k[0], k[1], k[2], *k[3]] for k in keys], dtype=np.float64).reshape(-1, 7),
+        "init": np.array([[p.init_log_likelihood, p.init_seconds] for p in passes], dtype=np.float64).reshape(-1, 2),
+        "length": np.array([len(r.confidence) for r in rows], dtype=np.int64),
+        "box_xywh": stacked("boxes_xywh", (4,), np.float64),
+        "confidence": stacked("confidence", (), np.float64),
+        "log_likelihood": stacked("log_likelihood", (), np.float64),
+        "accepted": stacked("accepted", (), bool),
+        "scoring": np.asarray(scoring, dtype=f"<U{max([1, *map(len, scoring)])}"),
+        "seconds": stacked("seconds", (), np.float64),
+        "signals": stacked("signals", (len(SIGNALS),), np.float64),
+    }
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as handle:
+            np.savez_compressed(handle, **arrays)
+    return path
+
+
+def read_pass_cache(path: str | os.PathLike, fingerprint: str) -> dict[PassKey, CachedPass]:
+    """The passes kept in ``path`` if it was written for ``fingerprint``; else (missing, damaged, foreign) none."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+            if header.get("fingerprint") != fingerprint or header.get("signals") != list(SIGNALS):
+                return {}
+            arrays = {name: data[name] for name in ("key", "init", "length", "box_xywh", "confidence",
+                                                     "log_likelihood", "accepted", "scoring", "seconds", "signals")}
+    except Exception:  # noqa: BLE001 - any unreadable cache is only a cache miss: the passes run again
+        return {}
+    lengths = arrays["length"]
+    total = int(lengths.sum()) if len(lengths) else 0
+    if not (len(arrays["key"]) == len(arrays["init"]) == len(lengths)
+            and all(len(arrays[n]) == total for n in ("box_xywh", "confidence", "log_likelihood", "accepted",
+                                                      "scoring", "seconds", "signals"))):
+        return {}
+    cache: dict[PassKey, CachedPass] = {}
+    offset = 0
+    for key, init, n in zip(arrays["key"], arrays["init"], lengths):
+        part = slice(offset, offset + int(n))
+        offset += int(n)
+        rows = PassResult(arrays["box_xywh"][part].copy(), arrays["confidence"][part].copy(),
+                          arrays["log_likelihood"][part].copy(), arrays["accepted"][part].copy(),
+                          arrays["scoring"][part].astype(object), arrays["seconds"][part].copy(),
+                          arrays["signals"][part].copy())
+        cache[pass_key(key[0], key[1], key[2], key[3:])] = CachedPass(rows, float(init[0]), float(init[1]))
+    return cache
