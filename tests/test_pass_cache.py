@@ -11,7 +11,8 @@ from annotator.review.pass_cache import (CachedPass, keep_anchored, pass_fingerp
                                          write_pass_cache)
 from annotator.tracks import TrackResult
 
-FINGERPRINT = pass_fingerprint({"preset": "robust", "seed": 0}, "sha256:abc", {"start": 0, "stop": 9, "step": 1})
+FINGERPRINT_ARGS = ({"preset": "robust", "seed": 0}, "sha256:abc", {"start": 0, "stop": 9, "step": 1})
+FINGERPRINT = pass_fingerprint(*FINGERPRINT_ARGS)
 
 
 def _pass(n: int, seed: int) -> CachedPass:
@@ -74,6 +75,53 @@ def test_only_passes_from_current_anchors_are_kept():
              pass_key(1, 2, 0, boxes[2]): _pass(2, 3),  # from a frame that is no anchor: gone
              pass_key(2, 0, 0, boxes[0]): _pass(2, 4)}  # another track: gone
     assert list(keep_anchored(cache, [track])) == [pass_key(1, 0, 0, boxes[0]), pass_key(1, 3, 1, boxes[3])]
+
+
+def test_kept_passes_are_cut_to_their_segments():
+    """Anchors at 0, 4 (a box) and 7 (an absence) of 10 rows: a pass needs no row past the next anchor."""
+    n = 10
+    keyframe = np.isin(np.arange(n), [0, 4, 7])
+    outside = np.arange(n) == 7
+    boxes = np.tile([10.0, 10, 5, 5], (n, 1))
+    track = TrackResult(track_id=1, label="object", frame_indices=np.arange(n), boxes_xywh=boxes,
+                        confidence=np.ones(n), log_likelihood=np.zeros(n), accepted=np.ones(n, bool),
+                        flagged=outside.copy(), reasons=tuple("outside" if o else "" for o in outside),
+                        keyframe=keyframe, outside=outside, seconds=np.zeros(n))
+    long = _pass(9, 0)
+    cache = {pass_key(1, 0, 0, boxes[0]): long, pass_key(1, 4, 1, boxes[4]): _pass(2, 1),
+             pass_key(1, 4, 0, boxes[4]): _pass(5, 2)}
+    kept = keep_anchored(cache, [track])
+    assert {k[:3]: len(v.rows.confidence) for k, v in kept.items()} == {(1, 0, 0): 3, (1, 4, 1): 2, (1, 4, 0): 2}
+    np.testing.assert_array_equal(kept[pass_key(1, 0, 0, boxes[0])].rows.boxes_xywh, long.rows.boxes_xywh[:3])
+    assert list(kept[pass_key(1, 0, 0, boxes[0])].rows.scoring) == list(long.rows.scoring[:3])
+
+
+def test_the_fingerprint_follows_the_code(monkeypatch):
+    """A change of the tracker's sources, or of a library under it, gives other rows: the kept passes go."""
+    from pathlib import Path
+
+    import annotator.review.pass_cache as pass_cache
+
+    base = pass_fingerprint(*FINGERPRINT_ARGS)
+    real = Path.read_bytes
+
+    def edited(path):
+        data = real(path)
+        return data + b"# edited" if path.name == "tracker.py" and path.parent.name == "sptpt" else data
+
+    pass_cache.code_identity.cache_clear()
+    try:
+        monkeypatch.setattr(Path, "read_bytes", edited)
+        assert pass_fingerprint(*FINGERPRINT_ARGS) != base
+        monkeypatch.undo()
+        pass_cache.code_identity.cache_clear()
+        assert pass_fingerprint(*FINGERPRINT_ARGS) == base
+        monkeypatch.setattr(np, "__version__", "0.0.1")
+        pass_cache.code_identity.cache_clear()
+        assert pass_fingerprint(*FINGERPRINT_ARGS) != base
+    finally:
+        monkeypatch.undo()
+        pass_cache.code_identity.cache_clear()
 
 
 @pytest.mark.parametrize("n", [1, 2])

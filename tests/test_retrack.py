@@ -412,6 +412,27 @@ def test_kept_passes_give_the_boxes_of_passes_run_again_and_spare_their_tracking
         np.testing.assert_array_equal(kept.signals[name], rerun.signals[name], err_msg=name)
 
 
+def test_passes_are_kept_only_for_an_input_that_was_checked(out, tmp_path):
+    """--no-verify may re-track changed bytes: their passes must not be stored under the recorded hash, nor
+    the recorded hash's passes used on them. Right after the main command (track --corrections) the input counts
+    as checked."""
+    from annotator.review.pass_cache import PASSES_NAME
+
+    (tmp_path / "fix.csv").write_text(csv_row(12, GT[12]))
+    before = (out / PASSES_NAME).read_bytes()
+    unchecked = apply_corrections(out, tmp_path / "fix.csv", show_progress=False, verify_input=False)
+    assert unchecked.retrack.frames_tracked == 5 + 5 + 8  # every pass ran
+    assert (out / PASSES_NAME).read_bytes() == before and PASSES_NAME not in [p.name for p in unchecked.written]
+    (tmp_path / "fix2.csv").write_text(csv_row(20, GT[20]))
+    checked = apply_corrections(out, tmp_path / "fix2.csv", show_progress=False, verify_input=False,
+                                input_checked=True)
+    assert checked.retrack.frames_tracked == 4 + 4 + 4  # forward from 12 not kept: that round wrote no passes
+    (tmp_path / "fix3.csv").write_text(csv_row(24, GT[24]))
+    again = apply_corrections(out, tmp_path / "fix3.csv", show_progress=False, verify_input=False,
+                              input_checked=True)
+    assert again.retrack.frames_tracked == 2 + 2  # forward from 20 kept: backward from 24, forward from 24
+
+
 def test_load_run_reads_back_what_annotate_wrote(run_dir):
     run = load_run(run_dir)
     track = run.tracks[0]

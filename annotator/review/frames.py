@@ -67,11 +67,14 @@ class SourceFrames:
                 yield position, frame
 
 
-def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None = None) -> FrameSource:
+def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None = None,
+                    input_checked: bool = False) -> FrameSource:
     """Open the run's input over its recorded range and check it is the input the run saw.
 
     ``input_path`` replaces the recorded path (the input was moved or copied);
     its content hash must then equal the recorded one, whatever ``verify_input`` says.
+    ``input_checked``: the caller has just hashed the input into run.json, so
+    its recorded frame count stands without decoding it again.
     """
     source_info, rng = run.info["input"], run.info["range"]
     moved = input_path is not None
@@ -82,7 +85,8 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     same_bytes = verify and path.is_file() and _check_content_hash(path, source_info["content_hash"], run,
                                                                    moved=moved, unreadable=False)
     # The same bytes decode to the same frames: a video need not be decoded once more just to count them.
-    known = (int(source_info["frame_count"]), source_info["damage"]) if same_bytes and "damage" in source_info else None
+    trusted = same_bytes or (input_checked and not moved)
+    known = (int(source_info["frame_count"]), source_info["damage"]) if trusted and "damage" in source_info else None
     try:
         source = open_frames(path, start=int(rng["start"]), stop=int(rng["stop"]), step=int(rng["step"]),
                              known_count=known)

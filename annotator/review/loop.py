@@ -131,6 +131,7 @@ def apply_corrections(
     verify_input: bool = True,
     rewrite_unchanged: bool = False,
     input_path: str | os.PathLike | None = None,
+    input_checked: bool = False,
 ) -> ReviewResult:
     """Apply a corrections file to the run in ``out_dir``, re-track what they affect, rewrite every output.
 
@@ -155,6 +156,10 @@ def apply_corrections(
         Where the input is now, when it moved since the run; checked against
         the content hash in run.json, and recorded there once the re-track
         is written.
+    input_checked : bool
+        The caller has just read the input and recorded its content hash in
+        run.json (``track --corrections`` right after the run): it counts as
+        verified without ``verify_input`` reading it again.
 
     Returns
     -------
@@ -174,7 +179,10 @@ def apply_corrections(
                                        frames=range(run.store.start, run.store.stop, run.store.step))
     resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
-    source = open_run_source(run, verify_input=verify_input, input_path=input_path)
+    source = open_run_source(run, verify_input=verify_input, input_path=input_path, input_checked=input_checked)
+    # Kept passes only for the bytes they were computed on: an input that was not checked (--no-verify, or a run
+    # without a content hash) may have changed, and its passes would be stored under the recorded hash.
+    checked = bool(run.info["input"].get("content_hash")) and (verify_input or input_path is not None or input_checked)
     if input_path is not None:
         moved = str(Path(input_path).resolve())
         run.info["input"] = {**run.info["input"], "path": moved}
@@ -189,7 +197,7 @@ def apply_corrections(
 
     result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
     # The passes this run already ran and that its anchors still start: the re-track runs only the others.
-    passes = read_pass_cache(out_dir / PASSES_NAME, _fingerprint(run))
+    passes = read_pass_cache(out_dir / PASSES_NAME, _fingerprint(run)) if checked else None
     try:
         try:
             max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
@@ -266,7 +274,7 @@ def _fingerprint(run: LoadedRun) -> str:
 
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
-               merge: str, show_progress: bool, passes: dict) -> list[Path]:
+               merge: str, show_progress: bool, passes: dict | None) -> list[Path]:
     out_dir = run.out_dir
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
@@ -303,7 +311,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
 
 
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,
-                   *, merge: str, show_progress: bool, passes: dict) -> list[Path]:
+                   *, merge: str, show_progress: bool, passes: dict | None) -> list[Path]:
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
     from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
@@ -312,8 +320,9 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     formats, tracks, video = run.formats, retrack.tracks, run.video
     store = RunStore(video=video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
     written: dict[str, list[Path]] = {"store": [write_store(tmp / STORE_NAME, store).relative_to(tmp)]}
-    written["passes"] = [write_pass_cache(tmp / PASSES_NAME, keep_anchored(passes, tracks),
-                                          _fingerprint(run)).relative_to(tmp)]
+    if passes is not None:  # else the file is left as it was: still right for the recorded input
+        written["passes"] = [write_pass_cache(tmp / PASSES_NAME, keep_anchored(passes, tracks),
+                                              _fingerprint(run)).relative_to(tmp)]
     written.update({name: [p.relative_to(tmp) for p in paths]
                     for name, paths in write_exports(tmp, store, formats).items()})
     thumbnails: list[SpanThumbnail] = []

@@ -17,7 +17,9 @@ never an error. Its arrays are plain numbers and fixed-width text (no pickles).
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib
 import json
 import os
 from dataclasses import dataclass
@@ -57,18 +59,76 @@ def pass_key(track_id: int, position: int, direction: int, box: Iterable[float])
 
 
 def keep_anchored(cache: Mapping[PassKey, CachedPass], tracks: Iterable[TrackResult]) -> dict[PassKey, CachedPass]:
-    """The passes that start at an anchor of ``tracks`` as it is now: a replaced box's passes can never be used."""
-    anchors = {(t.track_id, int(p), tuple(float(v) for v in t.boxes_xywh[p]))
-               for t in tracks for p in np.flatnonzero(t.keyframe & ~t.outside)}
-    return {k: v for k, v in cache.items() if (k[0], k[1], k[3]) in anchors}
+    """The passes that start at an anchor of ``tracks`` as it is now, each cut to its segment.
+
+    A replaced box's passes can never be used again. Anchors are only added or replaced, never removed, so a
+    segment only ever shrinks: a forward pass needs no row past the next anchor, a backward pass none before the
+    previous one (without the cut, a review from the start to the end kept every earlier, longer pass).
+    """
+    kept: dict[PassKey, CachedPass] = {}
+    for t in tracks:
+        anchors = np.flatnonzero(t.keyframe)  # absences too: a segment ends there
+        boxes = {int(p): tuple(float(v) for v in t.boxes_xywh[p]) for p in anchors if not t.outside[p]}
+        for k, cached in cache.items():
+            track_id, position, direction, box = k
+            if track_id != t.track_id or boxes.get(position) != box:
+                continue
+            if direction == 0:
+                later = anchors[anchors > position]
+                room = (int(later[0]) if len(later) else len(t)) - position - 1
+            else:
+                earlier = anchors[anchors < position]
+                room = position - (int(earlier[-1]) if len(earlier) else -1) - 1
+            n = len(cached.rows.confidence)
+            rows = cached.rows if n <= room else _head(cached.rows, room)
+            kept[k] = CachedPass(rows, cached.init_log_likelihood, cached.init_seconds)
+    return kept
+
+
+def _head(rows: PassResult, n: int) -> PassResult:
+    """The first ``n`` rows of a pass (in pass order: for a backward pass, those nearest its anchor)."""
+    return PassResult(*(np.asarray(getattr(rows, f))[:n].copy() for f in
+                        ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
 
 def pass_fingerprint(config: Mapping[str, Any], content_hash: str | None, frame_range: Mapping[str, int]) -> str:
     """What the passes of a run depend on besides their anchors: tracker configuration and seed, the input's
-    bytes and range, the failure signals measured, and the tool's version."""
+    bytes and range, the failure signals measured, and the code that computes them (:func:`code_identity`)."""
     what = {"config": config, "input": content_hash, "range": dict(frame_range), "signals": list(SIGNALS),
-            "tool_version": __version__}
+            "code": code_identity()}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
+
+
+#: Modules besides the ``sptpt`` package whose code decides a pass's rows: decoding, the failure signals measured
+#: along a pass, how a pass runs and is seeded.
+_PASS_MODULES = ("annotator.frames", "annotator.failure.signals", "annotator.review.passes", "annotator.pipeline")
+
+
+@functools.lru_cache(maxsize=1)
+def code_identity() -> dict[str, str]:
+    """The code a pass's rows come from: a digest of the tracker's and those modules' sources, and the versions
+    of the libraries under them (NumPy's random streams, numba, OpenCV's optical flow, ffmpeg's decoding).
+
+    The tool's version number alone is not enough: it does not change with every change of the tracker.
+    """
+    import cv2
+    import imageio_ffmpeg
+    import numba
+
+    import sptpt
+
+    digest = hashlib.sha256()
+    package = Path(sptpt.__file__).parent
+    files = [(f"sptpt/{f.relative_to(package).as_posix()}", f) for f in sorted(package.rglob("*.py"))]
+    files += [(name, Path(importlib.import_module(name).__file__)) for name in _PASS_MODULES]
+    for name, file in files:
+        digest.update(name.encode() + b"\0" + file.read_bytes() + b"\0")
+    try:
+        ffmpeg = imageio_ffmpeg.get_ffmpeg_version()
+    except Exception:  # noqa: BLE001 - no ffmpeg to ask: image folders still decode; the exe's path stands in
+        ffmpeg = "unknown"
+    return {"tool": __version__, "sources": digest.hexdigest(), "numpy": np.__version__, "numba": numba.__version__,
+            "opencv": cv2.__version__, "ffmpeg": ffmpeg}
 
 
 def first_pass(track: TrackResult, tracker_confidence: np.ndarray) -> tuple[PassKey, CachedPass]:
