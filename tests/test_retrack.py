@@ -623,6 +623,25 @@ def test_changed_input_is_refused(out, tmp_path):
     assert err.value.exit_code == EXIT_INPUT
 
 
+def test_a_round_without_render_removes_the_overlay_and_the_next_that_renders_brings_it_back(out, tmp_path):
+    (tmp_path / "fix.csv").write_text(csv_row(12, GT[12]))
+    result = apply_corrections(out, tmp_path / "fix.csv", show_progress=False, render=False)
+    assert result.changed and result.overlay_removed and "overlay.mp4 removed (--no-render)" in result.summary()
+    assert not (out / "overlay.mp4").exists()
+    info = json.loads((out / "run.json").read_text())
+    assert "overlay" in info["formats"] and "overlay" not in info["outputs"]
+    assert "overlay.mp4" not in (out / "report.html").read_text()
+    # The same corrections again: nothing to re-track, but the overlay is rendered again.
+    again = apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
+    assert not again.changed and "outputs rewritten" in again.summary()
+    assert len(open_frames(out / "overlay.mp4")) == 13 and "overlay.mp4" in (out / "report.html").read_text()
+    assert json.loads((out / "run.json").read_text())["outputs"]["overlay"] == ["overlay.mp4"]
+    # And once it is there, the same corrections change nothing.
+    before = snapshot(out)
+    assert not apply_corrections(out, tmp_path / "fix.csv", show_progress=False).written
+    assert snapshot(out) == before
+
+
 def test_retrack_command(out):
     app = typer.Typer()
     app.command()(retrack_command)
@@ -631,9 +650,11 @@ def test_retrack_command(out):
     assert result.exit_code == EXIT_VALUE
     assert result.output.strip().count("\n") == 0 and "bad.csv:2: frame 5 was not processed" in result.output
     (out.parent / "good.csv").write_text(csv_row(8, GT[8]))
-    result = CliRunner().invoke(app, [str(out), "--corrections", str(out.parent / "good.csv"), "--merge", "blend"])
+    result = CliRunner().invoke(app, [str(out), "--corrections", str(out.parent / "good.csv"), "--merge", "blend",
+                                      "--no-render"])
     assert result.exit_code == 0, result.output
-    assert "1 new or changed correction" in result.output
+    assert "1 new or changed correction" in result.output and "overlay.mp4 removed" in result.output
+    assert not (out / "overlay.mp4").exists()
     assert json.loads((out / "run.json").read_text())["review"]["retracks"][0]["merge"] == "blend"
 
 

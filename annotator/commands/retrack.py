@@ -24,6 +24,9 @@ def retrack_command(
     input_path: Optional[Path] = typer.Option(
         None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "
                               "the content hash in run.json, then recorded there)."),
+    no_render: bool = typer.Option(False, "--no-render", help="Do not re-render the overlay video this time (on a "
+                                   "long video, most of a round's time): it is removed, as it would show the old "
+                                   "boxes; a later retrack without --no-render renders it again."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
@@ -38,7 +41,7 @@ def retrack_command(
         if method not in MERGES:
             raise ToolError(f"--merge {merge!r} is not known: choose from {', '.join(MERGES)}", EXIT_VALUE)
         result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
-                                   verify_input=not no_verify, input_path=input_path)
+                                   verify_input=not no_verify, input_path=input_path, render=not no_render)
     except ToolError as error:
         fail(error, debug)
     except KeyboardInterrupt:

@@ -93,6 +93,8 @@ class ReviewResult:
     written: list[Path] = field(default_factory=list)
     flagged_before: int = 0
     flagged_after: int = 0
+    #: The overlay of the run was removed, not re-rendered (``--no-render``): it would show the old boxes.
+    overlay_removed: bool = False
 
     @property
     def changed(self) -> bool:
@@ -100,6 +102,8 @@ class ReviewResult:
 
     def summary(self) -> str:
         if not self.changed:
+            if self.written:
+                return f"every correction is already applied; nothing re-tracked; outputs rewritten in {self.out_dir}"
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
@@ -107,7 +111,9 @@ class ReviewResult:
                 f"{plural(frames, 'frame')} in {plural(len(r.segments), 'span')} in {r.seconds:.1f} s; "
                 f"{plural(self.flagged_after, 'frame box', 'frame boxes')} flagged for review "
                 f"(was {self.flagged_before}); "
-                f"outputs rewritten in {self.out_dir}")
+                f"outputs rewritten in {self.out_dir}"
+                + ("; overlay.mp4 removed (--no-render): the next retrack without --no-render renders it again"
+                   if self.overlay_removed else ""))
 
 
 def _sha256(path: Path) -> str:
@@ -132,6 +138,7 @@ def apply_corrections(
     rewrite_unchanged: bool = False,
     input_path: str | os.PathLike | None = None,
     input_checked: bool = False,
+    render: bool = True,
 ) -> ReviewResult:
     """Apply a corrections file to the run in ``out_dir``, re-track what they affect, rewrite every output.
 
@@ -160,6 +167,12 @@ def apply_corrections(
         The caller has just read the input and recorded its content hash in
         run.json (``track --corrections`` right after the run): it counts as
         verified without ``verify_input`` reading it again.
+    render : bool
+        Re-render the overlay (if the run has one). Without, it is removed,
+        since it would show the old boxes; the report then has no overlay
+        or thumbnails, and the next re-track that renders writes it again.
+        The overlay is decoded and encoded in full every time: on a long
+        video, most of a round's time.
 
     Returns
     -------
@@ -211,10 +224,13 @@ def apply_corrections(
                 bar[0].close()
         result.retrack = retrack
         result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
-        if not retrack.changed and not rewrite_unchanged:
+        # A run whose overlay a --no-render round removed gets it back from the next round that renders.
+        overlay_missing = render and "overlay" in run.formats and not (out_dir / OVERLAY_NAME).exists()
+        if not retrack.changed and not rewrite_unchanged and not overlay_missing:
             return result
         result.written = _write_all(run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress,
-                                    passes=passes)
+                                    passes=passes, render=render)
+        result.overlay_removed = not render and "overlay" in run.formats
     finally:
         provider.close()
     return result
@@ -274,7 +290,7 @@ def _fingerprint(run: LoadedRun) -> str:
 
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
-               merge: str, show_progress: bool, passes: dict | None) -> list[Path]:
+               merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
     out_dir = run.out_dir
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
@@ -287,7 +303,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
     try:
         try:
             written = _write_outputs(tmp, run, retrack, provider, corrections_path, merge=merge,
-                                     show_progress=show_progress, passes=passes)
+                                     show_progress=show_progress, passes=passes, render=render)
         except DecodeError as exc:
             raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
         except OSError as exc:
@@ -298,6 +314,8 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
         try:
             for rel in written:
                 target = out_dir / rel
+                if rel == Path(RUN_JSON) and not render:
+                    (out_dir / OVERLAY_NAME).unlink(missing_ok=True)  # it shows the boxes before this re-track
                 target.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp / rel, target)
                 done.append(rel)
@@ -311,7 +329,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
 
 
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,
-                   *, merge: str, show_progress: bool, passes: dict | None) -> list[Path]:
+                   *, merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
     from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
@@ -326,7 +344,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     written.update({name: [p.relative_to(tmp) for p in paths]
                     for name, paths in write_exports(tmp, store, formats).items()})
     thumbnails: list[SpanThumbnail] = []
-    if "overlay" in formats:
+    rendered = "overlay" in formats and render
+    if rendered:
         renderer = OverlayRenderer()
         capture = WorstFrameThumbnails()
         p_fail = {t.track_id: t.p_fail for t in tracks}
@@ -355,7 +374,7 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                       "seconds_total": timings.get("seconds_total") or 0.0,
                       "seconds_tracking": timings.get("seconds_tracking") or 0.0,
                       "seconds_outside": timings.get("seconds_outside_tracker") or 0.0},
-            overlay_name=OVERLAY_NAME if "overlay" in formats else None,
+            overlay_name=OVERLAY_NAME if rendered else None,
             review=_report_review(info["review"], tracks, video.fps),
         )
         written["report"] = [Path("report.html")]
