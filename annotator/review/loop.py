@@ -314,7 +314,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
         try:
             for rel in written:
                 target = out_dir / rel
-                if rel == Path(RUN_JSON) and not render:
+                if rel == Path(RUN_JSON) and not render and "overlay" in run.formats:
                     (out_dir / OVERLAY_NAME).unlink(missing_ok=True)  # it shows the boxes before this re-track
                 target.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp / rel, target)
