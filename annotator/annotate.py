@@ -42,7 +42,7 @@ from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs",
-           "remove_staging_folders", "RESULT_FILES"]
+           "ctrl_c_ignored", "remove_staging_folders", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
@@ -247,7 +247,7 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
                               f"their results were written to {destination}{kept}")
         _write_outputs(result, source, targets, config, formats, input_path)
         try:
-            with _ctrl_c_ignored():
+            with ctrl_c_ignored():
                 if destination == out_dir and _holds_run(out_dir / INCOMPLETE_DIR):
                     # A partial run kept beside an earlier finished one is out of date once that one is replaced.
                     shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
@@ -351,7 +351,7 @@ def _exclusive(out_dir: Path):
 
 
 @contextlib.contextmanager
-def _ctrl_c_ignored():
+def ctrl_c_ignored():
     """Ignore Ctrl-C while a run is moved into place (well under a second), so the folder is never half old."""
     if threading.current_thread() is not threading.main_thread():
         yield

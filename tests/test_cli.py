@@ -434,7 +434,7 @@ def test_no_render_skips_the_overlay(clip, config_file, work):
     names = {p.name for p in out.iterdir()}
     assert "overlay.mp4" not in names and {"report.html", "annotations.json", "flags.csv", "run.json"} <= names
     page = (out / "report.html").read_text(encoding="utf-8")
-    assert "No overlay video was rendered" in page and "<video" not in page
+    assert "No overlay video in this folder" in page and "<video" not in page
     check_complete_outputs(out, "clip", [0, 1, 2, 3])
 
 

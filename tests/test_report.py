@@ -248,7 +248,7 @@ def test_report_without_overlay_has_no_links_and_says_why(tmp_path):
     page = render(tmp_path, make_tracks(), overlay=None)
     parsed = parse(page)
     assert len(parsed.rows) == 4 and all(row["seek"] is None for row in parsed.rows)
-    assert parsed.videos == [] and "No overlay video was rendered" in page
+    assert parsed.videos == [] and "No overlay video in this folder" in page
 
 
 def test_report_without_flags(tmp_path):

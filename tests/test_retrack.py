@@ -633,13 +633,63 @@ def test_a_round_without_render_removes_the_overlay_and_the_next_that_renders_br
     assert "overlay.mp4" not in (out / "report.html").read_text()
     # The same corrections again: nothing to re-track, but the overlay is rendered again.
     again = apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
-    assert not again.changed and "outputs rewritten" in again.summary()
+    assert not again.changed and "overlay.mp4 rendered again" in again.summary()
     assert len(open_frames(out / "overlay.mp4")) == 13 and "overlay.mp4" in (out / "report.html").read_text()
     assert json.loads((out / "run.json").read_text())["outputs"]["overlay"] == ["overlay.mp4"]
     # And once it is there, the same corrections change nothing.
     before = snapshot(out)
     assert not apply_corrections(out, tmp_path / "fix.csv", show_progress=False).written
     assert snapshot(out) == before
+
+
+def test_a_round_without_render_that_fails_keeps_the_overlay(out, tmp_path, monkeypatch):
+    """The stale overlay is moved aside first and back on a failure, so run.json never lists a missing file."""
+    import os
+
+    (tmp_path / "fix.csv").write_text(csv_row(12, GT[12]))
+    real_replace = os.replace
+    before = snapshot(out)
+
+    def busy_overlay(src, dst):  # Windows, while a player holds the file open
+        if Path(src).name == "overlay.mp4":
+            raise PermissionError(13, "The process cannot access the file", str(src))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", busy_overlay)
+    with pytest.raises(ToolError, match="overlay.mp4 cannot be removed.*nothing was changed") as caught:
+        apply_corrections(out, tmp_path / "fix.csv", show_progress=False, render=False)
+    assert caught.value.exit_code == 5 and snapshot(out) == before
+
+    def full_disk(src, dst):
+        if Path(dst) == out / "run.json":  # the last move in, not the write beside the folder
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    with pytest.raises(ToolError, match="run.json still describes the previous state"):
+        apply_corrections(out, tmp_path / "fix.csv", show_progress=False, render=False)
+    assert (out / "overlay.mp4").read_bytes() == before["overlay.mp4"]
+    assert json.loads((out / "run.json").read_text())["outputs"]["overlay"] == ["overlay.mp4"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_without_render_only_an_overlay_that_was_there_is_removed(out, tmp_path):
+    (tmp_path / "fix.csv").write_text(csv_row(12, GT[12]))
+    first = apply_corrections(out, tmp_path / "fix.csv", show_progress=False, render=False)
+    assert first.overlay_removed
+    entry = json.loads((out / "run.json").read_text())["review"]["retracks"][-1]
+    assert entry["overlay"] == "removed (--no-render)"
+    (tmp_path / "fix2.csv").write_text(csv_row(20, GT[20]))
+    second = apply_corrections(out, tmp_path / "fix2.csv", show_progress=False, render=False)
+    assert second.changed and not second.overlay_removed and "removed" not in second.summary()
+    # A run without an overlay in its formats: a file of that name is not the run's, and stays.
+    info = json.loads((out / "run.json").read_text())
+    info["formats"] = [f for f in info["formats"] if f != "overlay"]
+    (out / "run.json").write_text(json.dumps(info))
+    (out / "overlay.mp4").write_text("mine")
+    (tmp_path / "fix3.csv").write_text(csv_row(24, GT[24]))
+    third = apply_corrections(out, tmp_path / "fix3.csv", show_progress=False, render=False)
+    assert third.changed and not third.overlay_removed and (out / "overlay.mp4").read_text() == "mine"
 
 
 def test_retrack_command(out):

@@ -24,15 +24,17 @@ def retrack_command(
     input_path: Optional[Path] = typer.Option(
         None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "
                               "the content hash in run.json, then recorded there)."),
-    no_render: bool = typer.Option(False, "--no-render", help="Do not re-render the overlay video this time (on a "
-                                   "long video, most of a round's time): it is removed, as it would show the old "
-                                   "boxes; a later retrack without --no-render renders it again."),
+    no_render: bool = typer.Option(False, "--no-render", help="This round only: do not re-render the overlay video "
+                                   "(it is decoded and encoded in full, which on a long video takes much of a "
+                                   "round). It is removed, as it would show the old boxes, and the report has no "
+                                   "video or thumbnails; a later retrack without --no-render (with the same "
+                                   "corrections file if nothing is new) renders them again."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Apply corrections to a run: human boxes become anchors, the spans they affect are re-tracked forward and
-    backward, and every output (OTB, COCO, flags, overlay, report, run.json) is rewritten; on any error the folder
-    is left unchanged."""
+    backward, and every output (OTB, COCO, flags, overlay unless --no-render, report, run.json) is rewritten; on
+    any error the folder is left unchanged."""
     from annotator.review import DEFAULT_MERGE, MERGES
     from annotator.review import apply_corrections
 

@@ -11,7 +11,8 @@ per-frame value at full precision: boxes, scores, scoring stages, flags, and
 the anchors (keyframe rows, with who gave them). No export is read. So a
 re-track rewrites rows outside the affected spans bit for bit, and a
 re-track with no new correction writes nothing at all (the outputs are
-already those of the anchors: the command is idempotent). A folder written
+already those of the anchors: the command is idempotent), unless a
+``--no-render`` round removed the overlay, which it then renders again. A folder written
 before track stores existed is rejected with a message that says how to redo
 it.
 
@@ -47,6 +48,7 @@ frames only would suggest a difference that is not there.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import hashlib
@@ -61,7 +63,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from annotator import __version__
-from annotator.annotate import json_default
+from annotator.annotate import ctrl_c_ignored, json_default
 from annotator.atomic import write_text_atomic
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
@@ -95,6 +97,8 @@ class ReviewResult:
     flagged_after: int = 0
     #: The overlay of the run was removed, not re-rendered (``--no-render``): it would show the old boxes.
     overlay_removed: bool = False
+    #: The overlay was rendered again after a ``--no-render`` round had removed it.
+    overlay_restored: bool = False
 
     @property
     def changed(self) -> bool:
@@ -103,7 +107,8 @@ class ReviewResult:
     def summary(self) -> str:
         if not self.changed:
             if self.written:
-                return f"every correction is already applied; nothing re-tracked; outputs rewritten in {self.out_dir}"
+                why = "; overlay.mp4 rendered again (a --no-render round had removed it)" if self.overlay_restored else ""
+                return f"every correction is already applied; nothing re-tracked; outputs rewritten in {self.out_dir}{why}"
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
@@ -112,8 +117,8 @@ class ReviewResult:
                 f"{plural(self.flagged_after, 'frame box', 'frame boxes')} flagged for review "
                 f"(was {self.flagged_before}); "
                 f"outputs rewritten in {self.out_dir}"
-                + ("; overlay.mp4 removed (--no-render): the next retrack without --no-render renders it again"
-                   if self.overlay_removed else ""))
+                + ("; overlay.mp4 removed (--no-render): a retrack without --no-render (with this corrections file "
+                   "again if nothing is new) renders it again" if self.overlay_removed else ""))
 
 
 def _sha256(path: Path) -> str:
@@ -225,18 +230,22 @@ def apply_corrections(
         result.retrack = retrack
         result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
         # A run whose overlay a --no-render round removed gets it back from the next round that renders.
-        overlay_missing = render and "overlay" in run.formats and not (out_dir / OVERLAY_NAME).exists()
+        overlay_missing = render and "overlay" in run.formats and (
+            not (out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
         if not retrack.changed and not rewrite_unchanged and not overlay_missing:
             return result
+        removed: list[Path] = []
         result.written = _write_all(run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress,
-                                    passes=passes, render=render)
-        result.overlay_removed = not render and "overlay" in run.formats
+                                    passes=passes, render=render, removed=removed)
+        result.overlay_removed = bool(removed)
+        result.overlay_restored = overlay_missing
     finally:
         provider.close()
     return result
 
 
-def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Path, merge: str) -> dict[str, Any]:
+def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Path, merge: str,
+                    rendered: bool) -> dict[str, Any]:
     """run.json's record of the corrections in force and of the re-tracks; written for people, never read back
     (the anchors that re-tracking uses are the store's keyframe rows)."""
     review = dict(run.info.get("review") or {})
@@ -256,6 +265,7 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
             "anchors": [c.to_dict() for c in retrack.anchors],
             "segments": [s.to_dict() for s in retrack.segments],
             "frames_tracked": retrack.frames_tracked,
+            **({"overlay": "rendered" if rendered else "removed (--no-render)"} if "overlay" in run.formats else {}),
             "seconds": round(retrack.seconds, 3),
         })
     return {"anchors": [anchors[k] for k in sorted(anchors)], "retracks": history}
@@ -290,7 +300,8 @@ def _fingerprint(run: LoadedRun) -> str:
 
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
-               merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
+               merge: str, show_progress: bool, passes: dict | None, render: bool, removed: list[Path]) -> list[Path]:
+    """Write every output beside the folder, then move them in; ``removed`` receives the overlay taken out."""
     out_dir = run.out_dir
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
@@ -309,21 +320,41 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
         except OSError as exc:
             raise ToolError(f"cannot write the new outputs beside {out_dir} ({exc}); nothing was changed",
                             EXIT_OUTPUT) from None
-        # Everything is complete: move it in, run.json last (its presence marks a finished run).
+        # Everything is complete: move it in, the track store (which tells a later re-track what is applied) next
+        # to last and run.json last (its presence marks a finished run). A stale overlay (a --no-render round: it
+        # shows the boxes before this re-track) is first moved aside, so that a failure leaves it as it was.
+        first = [rel for rel in written if rel not in (Path(STORE_NAME), Path(RUN_JSON))]
+        order = [*first, *(rel for rel in (Path(STORE_NAME), Path(RUN_JSON)) if rel in written)]
+        stale = out_dir / OVERLAY_NAME if not render and "overlay" in run.formats else None
+        aside = out_dir / f".{OVERLAY_NAME}.stale"
         done: list[Path] = []
-        try:
-            for rel in written:
-                target = out_dir / rel
-                if rel == Path(RUN_JSON) and not render and "overlay" in run.formats:
-                    (out_dir / OVERLAY_NAME).unlink(missing_ok=True)  # it shows the boxes before this re-track
-                target.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(tmp / rel, target)
-                done.append(rel)
-        except OSError as exc:
-            raise ToolError(f"output folder {out_dir} could not take the new outputs ({exc}) after "
-                            f"{', '.join(map(str, done)) or 'no file'} had been replaced; run.json still describes "
-                            "the previous state - fix the folder and run the re-track again", EXIT_OUTPUT) from None
-        return [out_dir / rel for rel in written]
+        with ctrl_c_ignored():
+            if stale is not None and stale.exists():
+                try:
+                    os.replace(stale, aside)
+                except OSError as exc:
+                    raise ToolError(f"{stale} cannot be removed ({exc.strerror}; is it open in a player?): close it "
+                                    "and run the re-track again; nothing was changed", EXIT_OUTPUT) from None
+            else:
+                stale = None
+            try:
+                for rel in order:
+                    target = out_dir / rel
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(tmp / rel, target)
+                    done.append(rel)
+            except OSError as exc:
+                if stale is not None:
+                    with contextlib.suppress(OSError):
+                        os.replace(aside, stale)
+                raise ToolError(f"output folder {out_dir} could not take the new outputs ({exc}) after "
+                                f"{', '.join(map(str, done)) or 'no file'} had been replaced; run.json still "
+                                "describes the previous state - fix the folder and run the re-track again",
+                                EXIT_OUTPUT) from None
+            if stale is not None:
+                aside.unlink(missing_ok=True)
+        removed[:] = [stale] if stale is not None else []
+        return [out_dir / rel for rel in order]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -365,7 +396,7 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
         written["overlay"] = [Path(OVERLAY_NAME)]
     info = dict(run.info)
     info["tracks"] = [track_summary(t) for t in tracks]
-    info["review"] = _review_section(run, retrack, corrections_path, merge)
+    info["review"] = _review_section(run, retrack, corrections_path, merge, rendered)
     if "report" in formats:
         timings = info.get("timings") or {}
         render_report(
