@@ -423,6 +423,7 @@ def test_passes_are_kept_only_for_an_input_that_was_checked(out, tmp_path):
     unchecked = apply_corrections(out, tmp_path / "fix.csv", show_progress=False, verify_input=False)
     assert unchecked.retrack.frames_tracked == 5 + 5 + 8  # every pass ran
     assert (out / PASSES_NAME).read_bytes() == before and PASSES_NAME not in [p.name for p in unchecked.written]
+    assert json.loads((out / "run.json").read_text())["outputs"]["passes"] == [PASSES_NAME]  # still listed
     (tmp_path / "fix2.csv").write_text(csv_row(20, GT[20]))
     checked = apply_corrections(out, tmp_path / "fix2.csv", show_progress=False, verify_input=False,
                                 input_checked=True)

@@ -410,6 +410,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
         )
         written["report"] = [Path("report.html")]
     info["outputs"] = {k: [str(p) for p in v] for k, v in written.items()}
+    if passes is None and (run.out_dir / PASSES_NAME).is_file():
+        info["outputs"]["passes"] = [PASSES_NAME]  # left as it was (input not checked), and still the folder's
     write_text_atomic(tmp / RUN_JSON, json.dumps(info, indent=2, default=json_default) + "\n")
     files = [p for paths in written.values() for p in paths]
     return files + [Path(RUN_JSON)]
