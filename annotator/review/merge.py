@@ -70,6 +70,11 @@ class PassResult:
         return cls(np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan), np.zeros(n, bool),
                    np.full(n, NO_SCORING, dtype=object), np.zeros(n))
 
+    def take(self, index) -> PassResult:
+        """Copies of the rows at ``index`` (a slice or indices), as a pass of their own (no ``pass_iou``)."""
+        return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
+                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
+
 def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_MERGE) -> PassResult:
     """Combine a forward and a backward pass over the same frames (see :data:`MERGES`).
 

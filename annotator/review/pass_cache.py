@@ -80,15 +80,9 @@ def keep_anchored(cache: Mapping[PassKey, CachedPass], tracks: Iterable[TrackRes
                 earlier = anchors[anchors < position]
                 room = position - (int(earlier[-1]) if len(earlier) else -1) - 1
             n = len(cached.rows.confidence)
-            rows = cached.rows if n <= room else _head(cached.rows, room)
+            rows = cached.rows if n <= room else cached.rows.take(slice(0, room))
             kept[k] = CachedPass(rows, cached.init_log_likelihood, cached.init_seconds)
     return kept
-
-
-def _head(rows: PassResult, n: int) -> PassResult:
-    """The first ``n`` rows of a pass (in pass order: for a backward pass, those nearest its anchor)."""
-    return PassResult(*(np.asarray(getattr(rows, f))[:n].copy() for f in
-                        ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
 
 def pass_fingerprint(config: Mapping[str, Any], content_hash: str | None, frame_range: Mapping[str, int]) -> str:

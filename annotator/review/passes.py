@@ -64,12 +64,8 @@ def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, fi
         return seed_for_track(seed, track_id)
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(track_id), int(anchor_frame), int(direction)]))
 
+
 # --------------------------------------------------------------------------- the passes
-
-
-def _take(result: PassResult, index) -> PassResult:
-    return PassResult(*(np.asarray(getattr(result, f))[index].copy() for f in
-                        ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
 
 class _SegmentRun:
@@ -108,13 +104,13 @@ class _SegmentRun:
         if self.fwd_todo:
             hit = self.cache.get(self._key(0))
             if hit is not None and len(hit.rows.confidence) >= n:
-                self.fwd = _take(hit.rows, slice(0, n))
+                self.fwd = hit.rows.take(slice(0, n))
                 self.start_row = (hit.init_log_likelihood, hit.init_seconds)
                 self.fwd_todo = False
         if self.bwd_todo:
             hit = self.cache.get(self._key(1))
             if hit is not None and len(hit.rows.confidence) >= n:
-                self.bwd = _take(hit.rows, slice(n - 1, None, -1) if n else slice(0, 0))
+                self.bwd = hit.rows.take(slice(n - 1, None, -1) if n else slice(0, 0))
                 self.bwd_todo = False
 
     def _remember(self, direction: int, rows: PassResult, init: tuple[float, float]) -> None:
@@ -123,7 +119,7 @@ class _SegmentRun:
         key = self._key(direction)
         known = self.cache.get(key)
         if known is None or len(known.rows.confidence) < len(rows.confidence):
-            ordered = rows if direction == 0 else _take(rows, slice(None, None, -1))
+            ordered = rows if direction == 0 else rows.take(slice(None, None, -1))
             self.cache[key] = CachedPass(ordered, *init)
 
     @property
