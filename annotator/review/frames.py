@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Iterator
@@ -12,7 +13,7 @@ from annotator.errors import EXIT_INPUT, ToolError
 from annotator.frames import FrameSource, FrameSourceError, open_frames
 from annotator.review.run import RUN_JSON, LoadedRun
 
-__all__ = ["BUFFER_BYTES", "SourceFrames", "open_run_source"]
+__all__ = ["BUFFER_BYTES", "SourceFrames", "checks_content_hash", "open_run_source"]
 
 #: Memory a backward pass may spend on buffered frames; longer spans are re-read in chunks of this size
 #: (see :mod:`annotator.review.retrack`). 512 MiB is ~580 frames of 640x480, ~85 of 1080p.
@@ -79,11 +80,13 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     source_info, rng = run.info["input"], run.info["range"]
     moved = input_path is not None
     path = Path(input_path) if moved else Path(source_info["path"])
-    verify = bool((verify_input or moved) and source_info.get("content_hash"))
-    # A video file's hash is checked before opening it, so that the count can be taken from the run (a missing or
-    # unreadable path is left to open_frames to explain); an image folder's count costs nothing.
-    same_bytes = verify and path.is_file() and _check_content_hash(path, source_info["content_hash"], run,
-                                                                   moved=moved, unreadable=False)
+    verify = checks_content_hash(run, verify_input=verify_input, input_path=input_path)
+    # A video file's hash is checked before opening it, so that the count can be taken from the run; an image
+    # folder's count costs nothing.
+    same_bytes = False
+    if verify and path.is_file():
+        with contextlib.suppress(OSError):  # unreadable: open_frames below says why
+            same_bytes = _check_content_hash(path, source_info["content_hash"], run, moved=moved)
     # The same bytes decode to the same frames: a video need not be decoded once more just to count them.
     trusted = same_bytes or (input_checked and not moved)
     known = (int(source_info["frame_count"]), source_info["damage"]) if trusted and "damage" in source_info else None
@@ -111,19 +114,17 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     return source
 
 
-def _check_content_hash(path: Path, recorded: str, run: LoadedRun, *, moved: bool, unreadable: bool | None = None
-                        ) -> bool:
-    """True if ``path`` holds the bytes the run was made on, a one-line error if not; ``unreadable`` if it cannot be
-    read (None: the read error is raised)."""
+def checks_content_hash(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None) -> bool:
+    """Whether :func:`open_run_source` checks the input's bytes against run.json: when asked, always for an input
+    given with ``--input``, and only where the run recorded a content hash."""
+    return bool((verify_input or input_path is not None) and run.info["input"].get("content_hash"))
+
+
+def _check_content_hash(path: Path, recorded: str, run: LoadedRun, *, moved: bool) -> bool:
+    """True if ``path`` holds the bytes the run was made on, else a one-line error (``OSError`` if unreadable)."""
     from annotator.annotate import content_hash
 
-    try:
-        digest = content_hash(path)
-    except OSError:
-        if unreadable is None:
-            raise
-        return unreadable
-    if digest != recorded:
+    if content_hash(path) != recorded:
         if moved:
             raise ToolError(f"--input {path} is not the input of this run (its content hash differs from the one "
                             f"recorded in {run.out_dir / RUN_JSON}): give the file or folder the run was made on",

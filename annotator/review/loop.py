@@ -70,7 +70,7 @@ from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import write_exports
 from annotator.frames import DecodeError
 from annotator.progress import Progress
-from annotator.review.frames import BUFFER_BYTES, SourceFrames, open_run_source
+from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
 from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
 from annotator.review.pass_cache import (PASSES_NAME, keep_anchored, pass_fingerprint, read_pass_cache,
@@ -200,7 +200,7 @@ def apply_corrections(
     source = open_run_source(run, verify_input=verify_input, input_path=input_path, input_checked=input_checked)
     # Kept passes only for the bytes they were computed on: an input that was not checked (--no-verify, or a run
     # without a content hash) may have changed, and its passes would be stored under the recorded hash.
-    checked = bool(run.info["input"].get("content_hash")) and (verify_input or input_path is not None or input_checked)
+    checked = checks_content_hash(run, verify_input=verify_input or input_checked, input_path=input_path)
     if input_path is not None:
         moved = str(Path(input_path).resolve())
         run.info["input"] = {**run.info["input"], "path": moved}
