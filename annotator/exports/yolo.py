@@ -59,6 +59,13 @@ def _image_names(video: VideoInfo, frames: Sequence[int]) -> dict[int, str] | No
 def build_yolo_labels(video: VideoInfo, tracks: Sequence[TrackResult], *,
                       frames: range | None = None) -> tuple[dict[str, str], list[str]]:
     """``({stem: label file text}, names)`` for every processed frame (layout in the module docstring)."""
+    texts, names = _label_texts(video, tracks, frames)
+    return _by_stem(texts, _image_names(video, list(texts))), names
+
+
+def _label_texts(video: VideoInfo, tracks: Sequence[TrackResult],
+                 frames: range | None) -> tuple[dict[int, str], list[str]]:
+    """``({source frame: label file text}, names)`` for every processed frame."""
     tracks = list(tracks)
     frames = check_frame_range(video, tracks, frames)
     names = labels_in_order(tracks) or ["object"]
@@ -74,9 +81,13 @@ def build_yolo_labels(video: VideoInfo, tracks: Sequence[TrackResult], *,
             x, y, w, h = box
             values = ((x + w / 2) / video.width, (y + h / 2) / video.height, w / video.width, h / video.height)
             rows[int(frame)].append(f"{class_of[track.label]} " + " ".join(number(v, _DECIMALS) for v in values))
-    images = _image_names(video, list(rows))
+    return {f: "".join(r + "\n" for r in lines) for f, lines in rows.items()}, names
+
+
+def _by_stem(texts: dict[int, str], images: dict[int, str] | None) -> dict[str, str]:
+    """The label texts keyed by file stem: the image's own (image folders), else the frame index's."""
     stem = (lambda f: Path(images[f]).stem) if images is not None else yolo_frame_stem
-    return {stem(f): "".join(r + "\n" for r in lines) for f, lines in rows.items()}, names
+    return {stem(f): text for f, text in texts.items()}
 
 
 def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[TrackResult], *,
@@ -88,8 +99,9 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
     list of Path
         ``data.yaml``, ``frames.txt``, then the label files in frame order.
     """
-    labels, names = build_yolo_labels(video, tracks, frames=frames)
-    images = _image_names(video, check_frame_range(video, tracks, frames))
+    texts, names = _label_texts(video, tracks, frames)
+    images = _image_names(video, list(texts))
+    labels = _by_stem(texts, images)
     if images is not None:
         image_files = list(images.values())
         folder = json.dumps(Path(video.frame_files[0]).parent.as_posix(), ensure_ascii=False)
