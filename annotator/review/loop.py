@@ -234,10 +234,9 @@ def apply_corrections(
             not (out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
         if not retrack.changed and not rewrite_unchanged and not overlay_missing:
             return result
-        removed: list[Path] = []
-        result.written = _write_all(run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress,
-                                    passes=passes, render=render, removed=removed)
-        result.overlay_removed = bool(removed)
+        result.written, result.overlay_removed = _write_all(
+            run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
+            render=render)
         result.overlay_restored = overlay_missing
     finally:
         provider.close()
@@ -300,8 +299,8 @@ def _fingerprint(run: LoadedRun) -> str:
 
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
-               merge: str, show_progress: bool, passes: dict | None, render: bool, removed: list[Path]) -> list[Path]:
-    """Write every output beside the folder, then move them in; ``removed`` receives the overlay taken out."""
+               merge: str, show_progress: bool, passes: dict | None, render: bool) -> tuple[list[Path], bool]:
+    """Write every output beside the folder, then move them in: their paths, and whether a stale overlay went."""
     out_dir = run.out_dir
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
@@ -353,8 +352,7 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
                                 EXIT_OUTPUT) from None
             if stale is not None:
                 aside.unlink(missing_ok=True)
-        removed[:] = [stale] if stale is not None else []
-        return [out_dir / rel for rel in order]
+        return [out_dir / rel for rel in order], stale is not None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
