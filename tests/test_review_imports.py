@@ -66,6 +66,24 @@ def test_cvat_outside_keyframe_is_an_absence_and_a_shown_box_a_return(tmp_path):
     assert [(c.frame, c.box_xywh) for c in corrections] == [(5, None), (7, (12.0, 10.0, 20.0, 20.0))]
 
 
+def test_cvat_a_hidden_stretch_ends_at_the_next_shown_keyframe_even_with_the_runs_box(tmp_path):
+    """A reviewer hides the object at 5 and it shows again at 9 with the run's own box (every box a keyframe, as
+    CVAT dumps a track a reviewer stepped through): the return at 9 is a correction too, else the absence, which
+    lasts until the next correction, would hide the object to the end."""
+    track = TrackResult(**{**shifted_track().__dict__, "outside": np.zeros(4, bool),
+                           "flagged": np.zeros(4, bool), "reasons": ("",) * 4})
+    path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, [track], frames=SHIFTED)
+    text = path.read_text()
+    for frame in SHIFTED:
+        text = edit_box(text, frame, keyframe="1")
+    path.write_text(edit_box(text, 5, outside="1"))
+    corrections = read_cvat_corrections(path, video=VIDEO, tracks=[track], frames=SHIFTED)
+    assert [(c.frame, c.box_xywh) for c in corrections] == [(5, None), (7, (14.0, 10.0, 20.0, 20.0))]
+    # Unedited, the same all-keyframe file is no correction at all.
+    path.write_text(text)
+    assert read_cvat_corrections(path, video=VIDEO, tracks=[track], frames=SHIFTED) == []
+
+
 def cvat_error(tmp_path, text: str) -> ToolError:
     path = tmp_path / "edited.xml"
     path.write_text(text)
@@ -146,6 +164,26 @@ def test_labelstudio_enabled_false_is_an_absence_from_the_next_processed_frame(t
     path = tmp_path / "export.json"
     path.write_text(json.dumps(reviewed_export(tasks, edit)))
     corrections = read_labelstudio_corrections(path, video=VIDEO, tracks=[track], frames=SHIFTED)
+    # Label Studio shows the object again at the next keyframe (9): its box, though the run's own, ends the
+    # absence, which would otherwise last to the track's end (an absence lasts until the next correction).
+    assert [c.frame for c in corrections] == [5, 9] and corrections[0].box_xywh is None
+    assert corrections[1].box_xywh == pytest.approx((16.0, 10.0, 20.0, 20.0))
+    resolved = resolve_corrections(corrections, frame_indices=np.array(list(SHIFTED)), track_ids=[4], width=64,
+                                   height=48)
+    assert sorted(resolved[4]) == [1, 3] and resolved[4][1][0] is None
+
+
+def test_labelstudio_absence_to_the_end_needs_no_return(tmp_path):
+    tasks = build_labelstudio_tasks(VIDEO, [shifted_track()], frames=SHIFTED)
+
+    def edit(sequence):
+        # Hide after the first keyframe and drop every later one: absent from 5 to the end.
+        sequence[0]["enabled"] = False
+        del sequence[1:]
+
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(reviewed_export(tasks, edit)))
+    corrections = read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
     assert [(c.frame, c.box_xywh) for c in corrections] == [(5, None)]
 
 

@@ -110,6 +110,14 @@ class _RunTrack:
         return self._raw_box(frame) is not None
 
 
+def _int_or(text: str | None, default: int = -1) -> int:
+    """``int(text)``, or ``default`` for a missing or malformed number (refused later, with its line)."""
+    try:
+        return int(text or "")
+    except ValueError:
+        return default
+
+
 def _checked_box(values: Sequence[float], where: str, layout: str) -> Box:
     x, y, w, h = values
     if not all(math.isfinite(v) for v in values) or w <= 0 or h <= 0:
@@ -227,7 +235,11 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
                             f"run's track {track.track_id} in that place {track.label!r}: keep the tracks' order and "
                             "labels", EXIT_VALUE)
         run = _RunTrack(track, video)
-        for box in element:
+        # After a new absence, the box where the object shows again ends it and is a correction even when it is
+        # the run's box: an absence lasts until the next correction (as in a CSV), so without it the object
+        # would stay hidden to the track's end.
+        hidden = False
+        for box in sorted(element, key=lambda b: _int_or(b.get("frame"))):
             if box.tag != "box":
                 raise ToolError(f"{where(box)}: <{box.tag}> in a track: only boxes (rectangles) can correct a "
                                 "box track", EXIT_VALUE)
@@ -246,11 +258,13 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
                 if run.absence_changed(frame):
                     corrections.append(Correction(frame=frame, box_xywh=None, track_id=track.track_id,
                                                   where=where(box)))
+                    hidden = True
                 continue
             x0, y0, x1, y1 = corners
             xywh = _checked_box((x0, y0, x1 - x0, y1 - y0), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
-            if run.box_changed(frame, xywh):
+            if hidden or run.box_changed(frame, xywh):
                 corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where(box)))
+            hidden = False
     return corrections
 
 
@@ -365,6 +379,7 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
             raise ToolError(f"{path}:{line}: region {region_id!r} has no 'sequence' list of keyframes", EXIT_VALUE)
         run = _RunTrack(track, video)
         items = sorted(sequence, key=_keyframe_order)
+        hidden = False  # a new absence is open: the next keyframe, which shows the object, ends it (see CVAT)
         for n, item in enumerate(items):
             where = f"{path}:{line}"
             try:
@@ -378,14 +393,16 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
             xywh = _checked_box((pct[0] * video.width / 100.0, pct[1] * video.height / 100.0,
                                  pct[2] * video.width / 100.0, pct[3] * video.height / 100.0), where,
                                 f"x={pct[0]:g}% y={pct[1]:g}% width={pct[2]:g}% height={pct[3]:g}%")
-            if run.box_changed(frame, xywh):
+            if hidden or run.box_changed(frame, xywh):
                 corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where))
+            hidden = False
             if item.get("enabled", True) is False:
                 # Hidden from the next processed frame until the next keyframe.
                 after = _next_processed(frames, frame)
                 next_key = int(items[n + 1]["frame"]) - 1 if n + 1 < len(items) else None
                 if after is not None and (next_key is None or after < next_key) and run.absence_changed(after):
                     corrections.append(Correction(frame=after, box_xywh=None, track_id=track.track_id, where=where))
+                    hidden = True
     return corrections
 
 
