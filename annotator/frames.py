@@ -686,12 +686,17 @@ def _selection_filter(wanted: range) -> tuple[list[str], int]:
     return ["-vf", f"select={keep}", "-frames:v", str(len(wanted) + head)], head
 
 
+#: ffmpeg codecs that render text as images (its ``tty``, ``bin``, ``xbin`` and ``idf`` demuxers read any text
+#: file as "ANSI art"): such an input is a text file given by mistake, not a video.
+TEXT_ART_CODECS = frozenset({"ansi", "bintext", "xbin", "idf"})
+
+
 def _video_meta(path: Path) -> dict:
     """Size, nominal fps, duration and codec from ffmpeg's header, via imageio-ffmpeg's reader."""
     reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24", output_params=list(_DECODE_OPTIONS))
     try:
         with _rotation_note_silenced():
-            return next(reader)
+            meta = next(reader)
     except (OSError, RuntimeError, StopIteration) as err:
         raise UnreadableSourceError(
             f"{path}: ffmpeg decodes it but its header cannot be parsed ({_ffmpeg_reason(str(err))}); "
@@ -699,6 +704,11 @@ def _video_meta(path: Path) -> dict:
         ) from err
     finally:
         reader.close()
+    if str(meta.get("codec", "")).split(",")[0].strip() in TEXT_ART_CODECS:
+        raise UnreadableSourceError(
+            f"{path}: a text file (ffmpeg would draw its characters as frames); expected a video file, a folder of "
+            "images or an OTB sequence folder - a box or ground-truth file goes to --box, --corrections or eval")
+    return meta
 
 
 def _image_folder(path: Path) -> tuple[Path, str]:
@@ -865,4 +875,9 @@ def open_frames(
         )
     if path.is_dir():
         return ImageFolderSource(path, start=start, stop=stop, step=step, fps=fps)
-    return VideoSource(path, start=start, stop=stop, step=step, fps=fps, counting=counting, known_count=known_count)
+    source = VideoSource(path, start=start, stop=stop, step=step, fps=fps, counting=counting, known_count=known_count)
+    if source.frame_count == 1 and path.suffix.lower() in IMAGE_SUFFIXES:
+        # ffmpeg reads one image as a one-frame video; the user most likely meant the folder of frames.
+        warnings.warn(f"{path} is a single image, so there is nothing to track after its first frame; to track a "
+                      f"sequence of images give their folder ({path.parent})", InputWarning, stacklevel=2)
+    return source

@@ -411,6 +411,27 @@ def test_not_a_video(tmp_path, content, needle):
     one_line(caught.value, str(path), needle, "expected")
 
 
+@pytest.mark.parametrize("name", ["notes.txt", "groundtruth_rect.txt"])
+def test_a_text_file_is_not_a_video_though_ffmpeg_draws_it(tmp_path, name):
+    """ffmpeg's tty demuxer turns any text file of a few kB into frames of ANSI art; the tool must refuse it."""
+    path = tmp_path / name
+    path.write_text("".join(f"{10 + k},{20 + k},30,40\n" for k in range(400)))
+    with pytest.raises(UnreadableSourceError) as caught:
+        open_frames(path)
+    one_line(caught.value, str(path), "a text file", "expected a video file")
+
+
+def test_a_single_image_opens_as_one_frame_with_a_warning_that_names_its_folder(tmp_path):
+    from annotator.errors import InputWarning
+
+    (tmp_path / "img").mkdir()
+    path = tmp_path / "img" / "0001.jpg"
+    cv2.imwrite(str(path), np.full((48, 64, 3), 120, np.uint8))
+    with pytest.warns(InputWarning, match=r"0001.jpg is a single image, .* give their folder \(.*img\)"):
+        source = open_frames(path)
+    assert source.frame_count == 1 and (source.width, source.height) == (64, 48)
+
+
 def test_folder_without_images(tmp_path):
     (tmp_path / "notes.txt").write_text("hello")
     with pytest.raises(NoImagesError) as caught:
