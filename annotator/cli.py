@@ -7,13 +7,14 @@ and an exit code documented in :mod:`annotator.errors` (no traceback unless
 
 from __future__ import annotations
 
+import errno
 import sys
 import traceback
 
 import typer
 
 from annotator import __version__
-from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, ToolError
+from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 
 app = typer.Typer(
     add_completion=False,
@@ -62,6 +63,16 @@ def _mistyped_command(argv: list[str]) -> str | None:
     return close[0] if close else None
 
 
+#: errno values that mean the disk (or the user's quota) is full.
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def _internal_error(exc: Exception) -> None:
+    print(f"sptpt-annotate: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
+          file=sys.stderr)
+    raise SystemExit(EXIT_INTERNAL)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point."""
     # The click that typer raises from: its own copy in recent typer, the click package before.
@@ -99,12 +110,19 @@ def main(argv: list[str] | None = None) -> None:
     except ToolError as exc:  # re-raised by the command under --debug: the traceback, and still its exit code
         traceback.print_exc()
         raise SystemExit(exc.exit_code)
+    except OSError as exc:
+        if debug:
+            raise
+        if exc.errno in DISK_FULL:  # not a bug: the machine ran out of room for the results
+            where = f" while writing {exc.filename}" if exc.filename else ""
+            print(f"sptpt-annotate: error: no space left on the disk{where} ({exc.strerror}): free space, or write "
+                  "the results elsewhere with --out", file=sys.stderr)
+            raise SystemExit(EXIT_OUTPUT)
+        _internal_error(exc)
     except Exception as exc:  # a bug: one line unless --debug
         if debug:
             raise
-        print(f"sptpt-annotate: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",
-              file=sys.stderr)
-        raise SystemExit(EXIT_INTERNAL)
+        _internal_error(exc)
     # A command ends by returning None or raising typer.Exit (its code comes back here): nothing else is a code.
     raise SystemExit(code if isinstance(code, int) and not isinstance(code, bool) else EXIT_OK)
 

@@ -310,6 +310,26 @@ def test_debug_shows_the_traceback_and_keeps_the_exit_code(work):
     assert debug.returncode == 3 and "Traceback" in debug.stderr and "ToolError" in debug.stderr
 
 
+@pytest.mark.parametrize("error, code, needle", [
+    (OSError(28, "No space left on device", "/data/out/overlay.mp4"), 5,
+     "sptpt-annotate: error: no space left on the disk while writing /data/out/overlay.mp4 (No space left on "
+     "device): free space, or write the results elsewhere with --out\n"),
+    (OSError(5, "Input/output error"), 1, "sptpt-annotate: internal error: OSError: [Errno 5] Input/output error"),
+])
+def test_a_full_disk_is_an_output_error_not_a_bug(clip, monkeypatch, capsys, error, code, needle):
+    import annotator.annotate
+
+    def full(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(annotator.annotate, "annotate", full)
+    with pytest.raises(SystemExit) as caught:
+        main([str(clip), "--box", "1,2,3,4", "--quiet"])
+    assert caught.value.code == code
+    err = capsys.readouterr().err
+    assert err.startswith(needle) and err.count("\n") == 1
+
+
 def interrupt_after_two_frames(*args) -> str:
     """Run the console script and send it SIGINT once its progress shows tracking; its stderr after that."""
     proc = subprocess.Popen([*console_script(), *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
