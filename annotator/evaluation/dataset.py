@@ -225,7 +225,7 @@ class SequencePair:
             return None
         f = self.frames
         steps = np.unique(np.diff(f))
-        step = f", every {int(steps[0])}th" if len(steps) == 1 and steps[0] > 1 else ""
+        step = f", every {_ordinal(int(steps[0]))}" if len(steps) == 1 and steps[0] > 1 else ""
         return (f"{self.name}: scored the {len(f)} frames the run processed (source frames {int(f[0])}-{int(f[-1])}"
                 f"{step}) against those rows of the {self.gt_rows}-row ground truth")
 
@@ -444,3 +444,9 @@ def evaluate_results_dir(
     if pairs is not None:
         pairs.extend((loaded[name], scores[name]) for name in loaded)
     return DatasetScore.from_sequences(tracker or results_dir.resolve().name, scores)
+
+
+def _ordinal(n: int) -> str:
+    """``2nd``, ``3rd``, ``11th``, ``21st``: the English ordinal of ``n``."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
