@@ -112,7 +112,8 @@ def track_summary(track: TrackResult) -> dict[str, Any]:
         "flagged_share": float(track.flagged.mean()) if n else 0.0,
         "spans": len(spans),
         "longest_span": max((s.length for s in spans), default=0),
-        "mean_confidence": float(track.confidence.mean()) if n else float("nan"),
+        # Over the frames that have a box: an absent frame's confidence (0) says nothing about the boxes.
+        "mean_confidence": float(track.confidence[~track.outside].mean()) if (~track.outside).any() else float("nan"),
         "seconds": seconds,
         "fps": n / seconds if seconds > 0 else float("nan"),
     }

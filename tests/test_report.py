@@ -384,3 +384,10 @@ def test_report_golden(tmp_path):
 def test_counts_are_worded_in_the_right_number(count, text):
     assert plural(count, "frame") == text
     assert plural(count, "frame box", "frame boxes") == text.replace("frame", "frame box").replace("boxs", "boxes")
+
+
+def test_mean_confidence_is_over_the_frames_with_a_box():
+    """An absent frame has confidence 0 in flags.csv; the summary's mean leaves it out (0.8, not 0.53)."""
+    track = make_track(1, range(6), "..OO..", p_fail=np.full(6, 0.2))
+    assert track_summary(track)["mean_confidence"] == pytest.approx(0.8)
+    assert np.isnan(track_summary(make_track(2, range(2), "OO"))["mean_confidence"])

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -96,7 +97,8 @@ def _status_row(plan: PlannedItem, outcome: ItemOutcome | None, run: Mapping[str
         boxes = sum(int(t.get("frames", 0)) for t in tracks)
         flagged = sum(int(t.get("flagged", 0)) for t in tracks)
         timings = run.get("timings") or {}
-        confidences = [t.get("mean_confidence") for t in tracks if isinstance(t.get("mean_confidence"), (int, float))]
+        confidences = [t["mean_confidence"] for t in tracks
+                       if isinstance(t.get("mean_confidence"), (int, float)) and math.isfinite(t["mean_confidence"])]
         row.update({
             "frames": run.get("frames_processed"),
             "flagged": flagged,
