@@ -126,6 +126,8 @@ def resolve_config(
         tracker = params_from_mapping(_mapping(file_values.get("tracker"), "tracker", source), base)
         tracker = params_from_mapping(dict(tracker_overrides or {}), tracker)
         _check_tracker_accepts(tracker)
+    except ConfigError:
+        raise  # already names its source
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     flag_values = {**_mapping(file_values.get("flags"), "flags", source), **dict(flag_overrides or {})}
@@ -134,8 +136,14 @@ def resolve_config(
         if key not in valid:
             raise _unknown("flag parameter", key, valid, source)
     defaults = FlagParams()
+    # Settings typed ``X | None`` take null (YAML ``~``/``null``, run.json's null): "not set", or "never".
+    nullable = {f.name for f in dataclasses.fields(FlagParams) if "None" in str(f.type)}
     try:
-        flags = dataclasses.replace(defaults, **{k: _like(getattr(defaults, k), v, k, source) for k, v in flag_values.items()})
+        flags = dataclasses.replace(defaults, **{k: None if v is None and k in nullable else
+                                                 _like(getattr(defaults, k), v, k, source)
+                                                 for k, v in flag_values.items()})
+    except ConfigError:
+        raise  # already names its source
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     model_path = failure_model if failure_model is not None else file_values.get("failure_model")

@@ -25,7 +25,8 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail", "spans_from_mask"]
+__all__ = ["REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail", "keyframe_request",
+           "spans_from_mask", "with_keyframe_request"]
 
 #: Every reason a user can see, with what it means. ``doubt:<group>`` names the group of signals that
 #: raised the failure probability most (annotator.failure.model.FEATURE_GROUPS).
@@ -43,6 +44,8 @@ REASONS: Mapping[str, str] = {
                     "that has a between_anchors section; the shipped one has none)",
     "span": "between two doubtful frames a few frames apart: flagged so the span is reviewed in one go",
     "budget": "among the most doubtful frames of the track (--review-budget)",
+    "keyframe": "the track is probably lost on most of its frames: box this frame (one every few frames, and the "
+                "last), then re-track, instead of reviewing the track frame by frame",
     "outside": "the object is marked absent from this frame (a correction said so)",
 }
 
@@ -60,6 +63,15 @@ class FlagParams:
     """Doubtful frames at most this many frames apart form one span. [ours]"""
     min_span: int = 3
     """Spans shorter than this many frames are not flagged. [ours]"""
+    lost_threshold: float | None = 0.6
+    """A track whose tracked frames have a mean ``p_fail`` above this is probably lost on most of them: instead of
+    its doubtful spans, every ``keyframe_every``-th frame and the last are flagged (reason ``keyframe``) for a person
+    to box. Correcting a lost track one doubtful frame at a time costs more than boxing keyframes: the tracker loses
+    the object again after each correction and every re-tracked span is looked at again. ``None`` never asks.
+    Chosen by leave-one-sequence-out on held-out failure probabilities of ``../shared/otb`` (0.6 in 15 of 17 folds).
+    Not with a review budget. [ours, benchmarks/RESULTS.md "keyframe request"]"""
+    keyframe_every: int = 10
+    """Processed frames between the keyframes a lost track asks for. [ours, benchmarks/RESULTS.md]"""
 
     def __post_init__(self) -> None:
         checks = [
@@ -68,6 +80,9 @@ class FlagParams:
              "a percentage in (0, 100]"),
             (self.merge_gap >= 0, "merge_gap", "an integer >= 0"),
             (self.min_span >= 1, "min_span", "an integer >= 1"),
+            (self.lost_threshold is None or 0.0 < self.lost_threshold < 1.0, "lost_threshold",
+             "a probability in (0, 1), or null to never ask for keyframes"),
+            (self.keyframe_every >= 2, "keyframe_every", "an integer >= 2"),
         ]
         for ok, name, expected in checks:
             if not ok:
@@ -207,7 +222,8 @@ def flag_p_fail(p_fail: np.ndarray, groups, threshold: float, params: FlagParams
                                 outside=bool(outside[t]))
     decided += flagger.finish()
     flagged = np.array([f for _, f, _ in decided], dtype=bool)
-    return FlagResult(flagged=flagged, reasons=tuple(r for _, _, r in decided), spans=spans_from_mask(flagged))
+    result = FlagResult(flagged=flagged, reasons=tuple(r for _, _, r in decided), spans=spans_from_mask(flagged))
+    return with_keyframe_request(result, p_fail, keyframe=keyframe, outside=outside, params=params)
 
 
 def budget_flags(p_fail: np.ndarray, groups, percent: float, *, keyframe: np.ndarray,
@@ -225,4 +241,36 @@ def budget_flags(p_fail: np.ndarray, groups, percent: float, *, keyframe: np.nda
     flagged[order[:k]] = True
     reasons = tuple("outside" if outside[t] else f"budget+{_doubt_reason(groups[t])}" if flagged[t] else ""
                     for t in range(n))
+    return FlagResult(flagged=flagged, reasons=reasons, spans=spans_from_mask(flagged))
+
+
+
+def keyframe_request(p_fail: np.ndarray, *, keyframe: np.ndarray, outside: np.ndarray,
+                     params: FlagParams) -> np.ndarray:
+    """Positions a person should box because the track is probably lost (:attr:`FlagParams.lost_threshold`).
+
+    Empty unless the mean ``p_fail`` of the tracked positions (no human box, not absent) exceeds the threshold.
+    Else positions ``every``, ``2 every``, ... and the last, as an interpolation tool asks for keyframes, minus
+    those that already hold a human box or an absence.
+    """
+    p_fail = np.asarray(p_fail, dtype=np.float64)
+    keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
+    n = p_fail.shape[0]
+    tracked = ~keyframe & ~outside & np.isfinite(p_fail)
+    if params.lost_threshold is None or n < 2 or not tracked.any() or p_fail[tracked].mean() <= params.lost_threshold:
+        return np.zeros(0, dtype=np.int64)
+    rows = np.unique(np.append(np.arange(params.keyframe_every, n, params.keyframe_every), n - 1))
+    return rows[~keyframe[rows] & ~outside[rows]].astype(np.int64)
+
+
+def with_keyframe_request(result: FlagResult, p_fail: np.ndarray, *, keyframe: np.ndarray, outside: np.ndarray,
+                          params: FlagParams) -> FlagResult:
+    """``result``, or, for a track that is probably lost, its keyframe request: the requested positions flagged
+    with reason ``keyframe`` and absences with ``outside``, nothing else (see :func:`keyframe_request`)."""
+    rows = keyframe_request(p_fail, keyframe=keyframe, outside=outside, params=params)
+    if rows.size == 0:
+        return result
+    flagged = np.asarray(outside, bool).copy()
+    flagged[rows] = True
+    reasons = tuple("outside" if outside[t] else "keyframe" if flagged[t] else "" for t in range(len(flagged)))
     return FlagResult(flagged=flagged, reasons=reasons, spans=spans_from_mask(flagged))

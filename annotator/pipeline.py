@@ -29,7 +29,7 @@ import numpy as np
 
 from annotator.config import RunConfig
 from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
-from annotator.flagging import FlagParams, flag_p_fail
+from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frames import DecodeError, FrameSource
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter
@@ -334,6 +334,8 @@ def track_source(
     tracks = [recorders[t.track_id].to_result() for t in targets]
     if budget:
         tracks = [_budget_flags(track, config.flags, model) for track in tracks]
+    else:
+        tracks = [_with_keyframe_request(track, config.flags) for track in tracks]
     return TrackingRun(
         video=info,
         tracks=tracks,
@@ -346,6 +348,18 @@ def track_source(
         overlay_path=overlay_path if render else None,
         tracker_confidence={tid: np.asarray(values, dtype=np.float64) for tid, values in tracker_confidence.items()},
     )
+
+
+def _with_keyframe_request(track: TrackResult, params: FlagParams) -> TrackResult:
+    """The track, or, when it is probably lost, flagged for keyframes instead (see
+    :func:`annotator.flagging.with_keyframe_request`). Needs the whole track, so it comes after the overlay, whose
+    review marks stay those of the doubtful frames."""
+    current = FlagResult(flagged=track.flagged, reasons=track.reasons, spans=spans_from_mask(track.flagged))
+    result = with_keyframe_request(current, track.p_fail, keyframe=track.keyframe, outside=track.outside,
+                                   params=params)
+    if result is current:
+        return track
+    return dataclasses.replace(track, flagged=result.flagged, reasons=result.reasons)
 
 
 def _budget_flags(track: TrackResult, params: FlagParams, model) -> TrackResult:

@@ -17,7 +17,8 @@ from annotator.pipeline import SpanThumbnail
 from annotator.tracks import TrackResult
 from annotator.wording import plural
 
-__all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "reason_legend", "track_summary", "render_report", "templates_dir"]
+__all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",
+           "track_summary", "render_report", "templates_dir"]
 
 REPORT_TEMPLATE = "report.html.j2"
 
@@ -99,8 +100,32 @@ def reason_legend(tracks: Sequence[TrackResult]) -> list[tuple[str, str]]:
     return known + unknown
 
 
+def keyframes_asked(track: TrackResult) -> list[int]:
+    """Source frame indices flagged with reason ``keyframe``: the track is probably lost, and a person should box
+    these (:func:`annotator.flagging.with_keyframe_request`)."""
+    return [int(track.frame_indices[p]) for p, reason in enumerate(track.reasons) if "keyframe" in reason.split("+")]
+
+
+def _frame_list(frames: Sequence[int], most: int = 6) -> str:
+    if len(frames) <= most:
+        return ", ".join(map(str, frames))
+    return ", ".join(map(str, frames[: most - 2])) + f", ..., {frames[-1]}"
+
+
+def keyframe_note(tracks: Sequence[TrackResult], out_dir: Path | str) -> str:
+    """What the command line says about tracks that ask for keyframes; '' when none does."""
+    asking = [(t, keyframes_asked(t)) for t in tracks]
+    asking = [(t, frames) for t, frames in asking if frames]
+    if not asking:
+        return ""
+    parts = [f"track {t.track_id} ({t.label}) looks lost on most of its frames: box frames {_frame_list(frames)} "
+             f"({plural(len(frames), 'frame')}, reason 'keyframe' in flags.csv)" for t, frames in asking]
+    return ("; ".join(parts) + f"; then 'sptpt-annotate retrack {out_dir} --corrections FILE' tracks between them "
+            "(for a lost track this costs less time than correcting one doubtful frame at a time)")
+
+
 def track_summary(track: TrackResult) -> dict[str, Any]:
-    """Headline numbers of one track: frames, flagged share, longest flagged span, speed."""
+    """Headline numbers of one track: frames, flagged share, longest flagged span, speed, keyframes asked for."""
     spans = flagged_spans(track)
     seconds = float(track.seconds.sum())
     n = len(track.frame_indices)
@@ -116,6 +141,7 @@ def track_summary(track: TrackResult) -> dict[str, Any]:
         "mean_confidence": float(track.confidence[~track.outside].mean()) if (~track.outside).any() else float("nan"),
         "seconds": seconds,
         "fps": n / seconds if seconds > 0 else float("nan"),
+        "keyframes_asked": keyframes_asked(track),
     }
 
 
@@ -257,6 +283,9 @@ def render_report(
         summaries=[track_summary(t) for t in tracks],
         timelines=[(t.track_id, Markup(_timeline_svg(t, fps))) for t in tracks],
         spans=[span_item(s) for s in spans],
+        keyframes=[{"track_id": t.track_id, "label": t.label,
+                    "frames": [(int(t.frame_indices[p]), _seek_seconds(p, fps)) for p, reason in enumerate(t.reasons)
+                               if "keyframe" in reason.split("+")]} for t in tracks],
         legend=reason_legend(tracks),
         settings=settings,
         run=run_info,

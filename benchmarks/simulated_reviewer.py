@@ -243,7 +243,7 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
             looks_moved[tol] += int(moved.sum())
             memory[moved] = track.boxes_xywh[moved]
 
-    corrections, fallbacks, shown, right_picks = [], 0, [], 0
+    corrections, fallbacks, shown, right_picks, requested = [], 0, [], 0, 0
     while True:
         candidates = track.flagged & ~track.keyframe
         shown.append(int(candidates.sum()))
@@ -251,7 +251,13 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
         if curve[-1] >= target or len(corrections) >= budget:
             break
         picks = []
-        if policy == "spans":
+        asked = [int(p) for p in np.flatnonzero(candidates) if "keyframe" in track.reasons[p].split("+")]
+        if asked:
+            # The tool judged the track lost and asks for keyframes instead of flagging doubtful spans: whatever
+            # its policy, the reviewer boxes them (looked at above, as the baseline's keyframes are), then re-tracks.
+            picks = asked[: budget - len(corrections)]
+            requested += len(picks)
+        elif policy == "spans":
             # The reviewer has just looked at every flagged frame, so it knows which boxes are wrong.
             wrong = iou_rows(track.boxes_xywh, gt) < threshold
             picks = [int(lo + np.argmax(wrong[lo:hi])) for lo, hi in spans_from_mask(candidates) if wrong[lo:hi].any()]
@@ -309,6 +315,7 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
         "final_success": curve[-1],
         "corrected_frames": corrections,
         "fallbacks": fallbacks,
+        "keyframes_requested": requested,
         "curve": curve,
         "tracker_calls": calls,
         "seconds": time.perf_counter() - tic,
@@ -322,7 +329,8 @@ def run_sequence(job: dict) -> dict:
         numba.set_num_threads(job["threads"])
     seq_dir = Path(job["seq_dir"])
     config = RunConfig(preset=job["preset"], tracker=params_from_mapping(job["params"]),
-                       flags=FlagParams(threshold=job["flag_threshold"]), seed=job["seed"],
+                       flags=FlagParams(threshold=job["flag_threshold"], lost_threshold=job["lost_threshold"],
+                                        keyframe_every=job["keyframe_every"]), seed=job["seed"],
                        failure_model=job["failure_model"])
     frames, gt = load_sequence(seq_dir, job["stop"])
     record = {"sequence": seq_dir.name, "seed": job["seed"], "frames": len(frames)}
@@ -398,7 +406,8 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                          if args.fallback == "first-wrong" else "corrects the least confident non-anchor frame")
         lines += [f"Human time: {i_s:g} s per frame looked at, {c_s:g} s per box drawn. **Reviewer**: each round it "
                   f"looks at every flagged frame whose box it has not seen (a frame counts again only after a "
-                  f"re-track changed its box), stops if the target is met, else corrects {POLICY_TEXT[args.policy]} "
+                  f"re-track changed its box), stops if the target is met, else boxes the keyframes the tool asks for "
+                  f"if it asks (a track it judges lost), else corrects {POLICY_TEXT[args.policy]} "
                   f"(policy `{args.policy}`; when {NOTHING_TO_CORRECT[args.policy]} "
                   f"it {fallback_text}; 'fallback picks'), and the tool "
                   f"re-tracks forward and backward between anchors (merge `{args.merge}`). **Baseline**: a person "
@@ -407,10 +416,10 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                   f"keyframe costs {i_s + c_s:g} s (looked at and boxed), interpolated frames are trusted unseen as "
                   f"the reviewer trusts unflagged frames. Frame 0's box is given to both and not counted. "
                   f"Figures are mean ± std over seeds (sample std); the baseline has no randomness.", "",
-                  "| sequence | frames | success before review | looked at | corrections | reached (seeds) | "
-                  "fallback picks | reviewer s / 100 frames | baseline k | keyframes | baseline s / 100 frames | "
-                  "ratio |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                  "| sequence | frames | success before review | looked at | corrections | of which keyframes asked | "
+                  "reached (seeds) | fallback picks | reviewer s / 100 frames | baseline k | keyframes | "
+                  "baseline s / 100 frames | ratio |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for name in names:
             rs = [r for r in records if r["sequence"] == name]
             n, b = rs[0]["frames"], rs[0]["baseline"]
@@ -419,6 +428,7 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
                 f"| {name} | {n} | {mean_std(100 * r['reviewer']['initial_success'] for r in rs)}% | "
                 f"{mean_std(r['reviewer']['inspected'] for r in rs)} | "
                 f"{mean_std(r['reviewer']['corrections'] for r in rs)} | "
+                f"{mean_std(r['reviewer'].get('keyframes_requested', 0) for r in rs)} | "
                 f"{sum(r['reviewer']['reached'] for r in rs)}/{len(rs)} | "
                 f"{mean_std(r['reviewer']['fallbacks'] for r in rs)} | "
                 f"{mean_std(per100(c['reviewer'], n) for c in cost)} | {b['k']} | {b['keyframes']} | "
@@ -430,6 +440,7 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         lines.append(f"| **pooled** | {ps[0]['frames']} | | "
                      f"{mean_std(sum(r['reviewer']['inspected'] for r in records if r['seed'] == s) for s in seeds)} | "
                      f"{mean_std(sum(r['reviewer']['corrections'] for r in records if r['seed'] == s) for s in seeds)}"
+                     f" | {mean_std(sum(r['reviewer'].get('keyframes_requested', 0) for r in records if r['seed'] == s) for s in seeds)}"
                      f" | | | **{mean_std(per100(p['reviewer'], p['frames']) for p in ps)}** | | "
                      f"{sum(r['baseline']['keyframes'] for r in records if r['seed'] == seeds[0])} | "
                      f"**{per100(ps[0]['baseline'], ps[0]['frames']):.1f}** | **{mean_std(ratio, 2)}** |")
@@ -527,6 +538,12 @@ def main() -> None:
                              "that sequence)")
     parser.add_argument("--flag-threshold", type=float, default=None,
                         help="flag frames with p_fail above this (default: the failure model's threshold)")
+    parser.add_argument("--lost-threshold", type=lambda v: None if v.lower() == "none" else float(v),
+                        default=FlagParams.lost_threshold,
+                        help="mean p_fail above which the tool asks for keyframes instead of flagging spans "
+                             f"(default {FlagParams.lost_threshold}, the run default; 'none': never)")
+    parser.add_argument("--keyframe-every", type=int, default=FlagParams.keyframe_every,
+                        help=f"frames between the keyframes a lost track asks for (default {FlagParams.keyframe_every})")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None,
                         help="JSON of every record (default: benchmarks/_runs/simulated_reviewer[-POLICY].json)")
@@ -550,7 +567,7 @@ def main() -> None:
     model_path = None if args.failure_model is None else str(args.failure_model.resolve())
     try:
         model = load_model(model_path)
-        FlagParams(threshold=args.flag_threshold)
+        FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold, keyframe_every=args.keyframe_every)
     except (FailureModelError, ValueError) as exc:
         parser.error(str(exc))
     model_record = {"path": model_path or f"annotator/{MODEL_PATH}", "info": dict(model.info),
@@ -558,10 +575,13 @@ def main() -> None:
                     "sha256": hashlib.sha256(json.dumps(model.to_json(), sort_keys=True).encode()).hexdigest()}
     threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None
                       else f"{model.threshold:g} (the model's)")
+    keyframe_text = ("never a keyframe request" if args.lost_threshold is None else
+                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every {args.keyframe_every}th "
+                     "frame and the last instead (reason `keyframe`)")
     model_text = (f"failure model `{model_record['path']}`{'' if model_path else ' (installed)'}, info "
                   f"`{json.dumps(model_record['info'])}`, sha256 of its canonical JSON "
-                  f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, other flag settings the run "
-                  "defaults")
+                  f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, {keyframe_text}, other flag "
+                  "settings the run defaults")
 
     try:
         all_sequences = select_sequences(args.otb, args.sequences)
@@ -585,7 +605,8 @@ def main() -> None:
                 json.dumps(fold.to_json(), sort_keys=True).encode()).hexdigest()
         model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json` "
                       "(benchmarks/anchored_failure.py --write: main part and between_anchors section both fitted "
-                      f"without the sequence's video); flag threshold {threshold_text}, other flag settings the run "
+                      f"without the sequence's video); flag threshold {threshold_text}, {keyframe_text}, other flag "
+                      "settings the run "
                       "defaults")
         model_record["fold_models"] = str(args.fold_models.resolve())
     params = get_preset(args.preset)
@@ -599,7 +620,8 @@ def main() -> None:
                  merge_study=args.merge_study if seed == seeds[0] else 0, skip_reviewer=args.skip_reviewer,
                  fallback=args.fallback, policy=args.policy, accept=args.accept,
                  failure_model=sequence_models[s.name],
-                 flag_threshold=args.flag_threshold,
+                 flag_threshold=args.flag_threshold, lost_threshold=args.lost_threshold,
+                 keyframe_every=args.keyframe_every,
                  threads=1 if args.workers > 1 else 0)
             for seed in (seeds[:1] if args.skip_reviewer else seeds) for s in all_sequences]
     started = time.perf_counter()

@@ -57,6 +57,14 @@ def test_flag_threshold_and_budget_default_to_none_and_take_numbers():
     assert both.flags.threshold == 0.4 and both.flags.review_budget == 5.0
 
 
+def test_keyframe_request_settings_take_numbers_and_null_turns_it_off():
+    assert resolve_config().flags.lost_threshold == 0.6 and resolve_config().flags.keyframe_every == 10
+    off = resolve_config({"flags": {"lost_threshold": None, "keyframe_every": 5}})
+    assert off.flags.lost_threshold is None and off.flags.keyframe_every == 5
+    again = resolve_config(yaml.safe_load(yaml.safe_dump(off.to_dict())))
+    assert again == off
+
+
 def test_recorded_config_reproduces_the_run():
     """run.json records ``RunConfig.to_dict()``; fed back as a config file it gives the same configuration."""
     config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]}, "flags": {"threshold": 0.3}})
@@ -101,6 +109,9 @@ BAD_VALUES = [
     ({"flags": {"merge_gap": 1.5}}, "merge_gap=1.5 is invalid: expected an integer"),
     ({"flags": {"min_span": "3"}}, "min_span='3' is invalid"),
     ({"flags": {"min_span": True}}, "min_span=True is invalid"),
+    ({"flags": {"merge_gap": None}}, "merge_gap=None is invalid: expected an integer"),
+    ({"flags": {"lost_threshold": 1.5}}, "lost_threshold=1.5 is invalid: expected a probability in (0, 1), or null"),
+    ({"flags": {"keyframe_every": 1}}, "keyframe_every=1 is invalid: expected an integer >= 2"),
 ]
 
 
@@ -110,6 +121,7 @@ def test_bad_values_name_source_key_and_value(values, needle):
         resolve_config(values, source="my.yaml")
     message = str(caught.value)
     assert message.startswith("my.yaml: ") and needle in message and "\n" not in message
+    assert "my.yaml: my.yaml" not in message
 
 
 @pytest.mark.parametrize(

@@ -19,7 +19,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from annotator.flagging import REASONS, FlagParams, SpanFlagger, budget_flags, flag_p_fail, spans_from_mask
+from annotator.flagging import (REASONS, FlagParams, FlagResult, SpanFlagger, budget_flags, flag_p_fail,
+                                keyframe_request, spans_from_mask, with_keyframe_request)
 
 
 def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tuple[list[bool], list[str]]:
@@ -49,6 +50,13 @@ def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tu
     flagged = [final[t] or bool(outside[t]) for t in range(n)]
     reasons = ["outside" if outside[t] else (f"doubt:{groups[t]}" if doubtful[t] else "span") if final[t] else ""
                for t in range(n)]
+    # A lost track (mean p_fail of its tracked frames above lost_threshold) asks for keyframes instead.
+    tracked = [p_fail[t] for t in range(n) if not keyframe[t] and not outside[t] and np.isfinite(p_fail[t])]
+    if p.lost_threshold is not None and n >= 2 and tracked and sum(tracked) / len(tracked) > p.lost_threshold:
+        asked = {t for t in range(n) if (t % p.keyframe_every == 0 and t > 0) or t == n - 1}
+        asked = {t for t in asked if not keyframe[t] and not outside[t]}
+        flagged = [bool(outside[t]) or t in asked for t in range(n)]
+        reasons = ["outside" if outside[t] else "keyframe" if t in asked else "" for t in range(n)]
     return flagged, reasons
 
 
@@ -58,7 +66,8 @@ track_st = st.integers(0, 60).flatmap(lambda n: st.tuples(
     st.lists(st.sampled_from([False, False, False, True]), min_size=n, max_size=n),
     st.lists(st.sampled_from([False, False, False, True]), min_size=n, max_size=n),
 ))
-params_st = st.builds(FlagParams, merge_gap=st.integers(0, 6), min_span=st.integers(1, 5))
+params_st = st.builds(FlagParams, merge_gap=st.integers(0, 6), min_span=st.integers(1, 5),
+                      lost_threshold=st.sampled_from([None, 0.3, 0.6]), keyframe_every=st.integers(2, 7))
 
 
 @settings(max_examples=100, deadline=None)
@@ -86,7 +95,7 @@ def test_each_decision_is_final_exactly_lag_frames_later(track, params):
 
 
 def test_hand_made_spans():
-    p = FlagParams(merge_gap=1, min_span=2)
+    p = FlagParams(merge_gap=1, min_span=2, lost_threshold=None)  # its mean p_fail, 0.61, would ask for keyframes
     p_fail = np.array([0.9, 0.1, 0.9, 0.9, 0.1, 0.1, 0.9, 0.1, 0.9, 0.9, 0.9])
     groups = ["flow"] * 11
     keyframe = np.zeros(11, bool)
@@ -112,9 +121,54 @@ def test_budget_flags_exactly_the_most_doubtful_share():
     assert via.flagged.tolist() == result.flagged.tolist()
 
 
+def test_a_lost_track_asks_for_every_kth_frame_and_the_last_instead_of_its_spans():
+    n = 23
+    p_fail = np.full(n, 0.7)
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 10]] = True  # the given box, and a correction that is one of the frames asked for
+    outside = np.zeros(n, bool)
+    outside[15] = True  # absent: neither asked for nor counted in the mean
+    p_fail[keyframe], p_fail[outside] = 0.0, np.nan
+    params = FlagParams(keyframe_every=5)
+    assert keyframe_request(p_fail, keyframe=keyframe, outside=outside, params=params).tolist() == [5, 20, 22]
+    result = flag_p_fail(p_fail, ["score"] * n, 0.9, params, keyframe=keyframe, outside=outside)
+    assert np.flatnonzero(result.flagged).tolist() == [5, 15, 20, 22]
+    assert [result.reasons[t] for t in (5, 15, 20, 22)] == ["keyframe", "outside", "keyframe", "keyframe"]
+    assert result.spans.tolist() == [[5, 6], [15, 16], [20, 21], [22, 23]]
+    # The mean of the tracked frames decides: 0.7 is above 0.6 (the default) and below 0.75.
+    for low in (FlagParams(lost_threshold=0.75), FlagParams(lost_threshold=None)):
+        assert keyframe_request(p_fail, keyframe=keyframe, outside=outside, params=low).size == 0
+        plain = flag_p_fail(p_fail, ["score"] * n, 0.6, low, keyframe=keyframe, outside=outside)
+        assert "keyframe" not in plain.reasons and plain.flagged[1:10].all()
+    # With a review budget the budget decides, lost or not.
+    budget = flag_p_fail(p_fail, ["score"] * n, 0.9, FlagParams(review_budget=10), keyframe=keyframe, outside=outside)
+    assert "keyframe" not in budget.reasons
+
+
+def test_once_the_asked_frames_are_boxed_the_track_is_flagged_as_usual():
+    n = 12
+    p_fail = np.full(n, 0.95)
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 4, 8, 11]] = True
+    p_fail[keyframe] = 0.0
+    outside = np.zeros(n, bool)
+    params = FlagParams(keyframe_every=4, min_span=1)
+    assert keyframe_request(p_fail, keyframe=keyframe, outside=outside, params=params).size == 0
+    current = flag_p_fail(p_fail, ["score"] * n, 0.9, params, keyframe=keyframe, outside=outside)
+    assert current.flagged.tolist() == (~keyframe).tolist()
+    # Nothing asked for: the result passes through unchanged.
+    assert with_keyframe_request(current, p_fail, keyframe=keyframe, outside=outside, params=params) is current
+    # A track of one frame, or with no tracked frame, never asks.
+    one = FlagResult(flagged=np.zeros(1, bool), reasons=("",), spans=spans_from_mask(np.zeros(1, bool)))
+    assert with_keyframe_request(one, np.array([0.99]), keyframe=np.zeros(1, bool), outside=np.zeros(1, bool),
+                                 params=params) is one
+    assert keyframe_request(np.zeros(3), keyframe=np.ones(3, bool), outside=np.zeros(3, bool), params=params).size == 0
+
+
 @pytest.mark.parametrize("field, value, expected", [
     ("threshold", 1.0, "(0, 1)"), ("threshold", 0.0, "(0, 1)"), ("review_budget", 0.0, "(0, 100]"),
-    ("review_budget", 101.0, "(0, 100]"), ("merge_gap", -1, ">= 0"), ("min_span", 0, ">= 1")])
+    ("review_budget", 101.0, "(0, 100]"), ("merge_gap", -1, ">= 0"), ("min_span", 0, ">= 1"),
+    ("lost_threshold", 1.0, "(0, 1)"), ("lost_threshold", 0.0, "(0, 1)"), ("keyframe_every", 1, ">= 2")])
 def test_bad_flag_parameters_name_the_field(field, value, expected):
     with pytest.raises(ValueError, match=rf"flag parameter {field}={value!r} is invalid: expected .*{re.escape(expected)}"):
         FlagParams(**{field: value})
@@ -125,7 +179,7 @@ def test_every_reason_a_flag_can_carry_is_explained():
 
     for group in set(FEATURE_GROUPS.values()):
         assert f"doubt:{group}" in REASONS
-    assert {"span", "budget", "outside"} <= set(REASONS)
+    assert {"span", "budget", "outside", "keyframe"} <= set(REASONS)
 
 
 def test_readme_explains_every_flag_reason_as_the_code_does():

@@ -414,6 +414,39 @@ def test_parse_box_errors(text, needle):
     assert caught.value.exit_code == EXIT_VALUE and needle in str(caught.value) and "--box" in str(caught.value)
 
 
+def test_a_lost_track_asks_for_keyframes_in_flags_csv_the_report_and_run_json(scripted, clip, tmp_path):
+    """With a mean p_fail above lost_threshold (set low here: the scripted track is mostly right), the flags ask
+    for every keyframe_every-th processed frame and the last instead of the doubtful span; the overlay, drawn
+    while tracking, still marks the doubtful frames."""
+    from test_report import parse
+
+    config = resolve_config({"seed": 4, "flags": {"merge_gap": 2, "min_span": 3, "lost_threshold": 0.01,
+                                                  "keyframe_every": 4}, "failure_model": str(SCORE_ONLY_MODEL)})
+    out = tmp_path / "out"
+    result = annotate(clip, TARGETS[:1], config, out_dir=out, start=START, stop=STOP, step=STEP, show_progress=False)
+    asked = [INDICES[p] for p in (4, 8, 12, 13)]  # positions 4, 8, 12 and the last of 14 processed frames
+    table = read_flags_csv(out / "flags.csv")
+    assert table.frame[table.flagged].tolist() == asked
+    assert {table.reason[i] for i in np.flatnonzero(table.flagged)} == {"keyframe"}
+    info = json.loads((out / "run.json").read_text())
+    assert info["tracks"][0]["keyframes_asked"] == asked
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "Keyframes asked for" in page and "Track 1 (car) looks lost" in page
+    # Spans of the asked-for frames (positions 12 and 13 are next to each other), by expected errors.
+    assert sorted(r["cells"][1] for r in parse(page).rows) == ["17\u201317", "25\u201327", "9\u20139"]
+    overlay = open_frames(out / "overlay.mp4")
+    assert [read_index(frame) for _, frame in overlay if border_is_red(frame)] == [11, 13, 15, 17]
+    # The command line says it too.
+    from annotator.report import keyframe_note
+
+    note = keyframe_note(result.run.tracks, out)
+    assert note.startswith(f"track 1 (car) looks lost on most of its frames: box frames 9, 17, 25, 27 (4 frames, ")
+    assert f"'sptpt-annotate retrack {out} --corrections FILE'" in note
+    # At the default threshold the same track asks for nothing.
+    assert keyframe_note(annotate(clip, TARGETS[:1], CONFIG, out_dir=tmp_path / "plain", start=START, stop=STOP,
+                                  step=STEP, show_progress=False).run.tracks, out) == ""
+
+
 def test_review_budget_flags_the_most_doubtful_share_and_the_overlay_marks_none(scripted, clip, tmp_path):
     config = resolve_config({"seed": 4, "flags": {"review_budget": 25}, "failure_model": str(SCORE_ONLY_MODEL)})
     result = annotate(clip, TARGETS[:1], config, out_dir=tmp_path / "out", start=START, stop=STOP, step=STEP,

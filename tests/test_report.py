@@ -23,7 +23,8 @@ import pytest
 
 from annotator.flagging import REASONS
 from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
-from annotator.report import _tick_step, by_expected_errors, flagged_spans, reason_legend, render_report, track_summary
+from annotator.report import (_tick_step, by_expected_errors, flagged_spans, keyframe_note, keyframes_asked,
+                              reason_legend, render_report, track_summary)
 from annotator.wording import plural
 from annotator.tracks import TrackResult, VideoInfo
 
@@ -384,6 +385,24 @@ def test_report_golden(tmp_path):
 def test_counts_are_worded_in_the_right_number(count, text):
     assert plural(count, "frame") == text
     assert plural(count, "frame box", "frame boxes") == text.replace("frame", "frame box").replace("boxs", "boxes")
+
+
+def test_keyframes_asked_for_are_listed_shortly_on_the_command_line():
+    n = 30
+    flags = "".join("X" if (p % 10 == 0 and p > 0) or p == n - 1 else "." for p in range(n))
+    lost = make_track(3, np.arange(100, 100 + 2 * n, 2), flags, label="car",
+                      reasons={p: "keyframe" for p in (10, 20, 29)})
+    other = make_track(4, np.arange(n), "....XXXX" + "." * (n - 8))
+    assert keyframes_asked(lost) == [120, 140, 158] and keyframes_asked(other) == []
+    assert track_summary(lost)["keyframes_asked"] == [120, 140, 158]
+    note = keyframe_note([lost, other], "out/clip_sptpt")
+    assert note == ("track 3 (car) looks lost on most of its frames: box frames 120, 140, 158 (3 frames, reason "
+                    "'keyframe' in flags.csv); then 'sptpt-annotate retrack out/clip_sptpt --corrections FILE' tracks "
+                    "between them (for a lost track this costs less time than correcting one doubtful frame at a "
+                    "time)")
+    many = make_track(5, np.arange(200), "X" * 200, reasons={p: "keyframe" for p in range(200)})
+    assert "box frames 0, 1, 2, 3, ..., 199 (200 frames," in keyframe_note([many], "o")
+    assert keyframe_note([other], "o") == ""
 
 
 def test_mean_confidence_is_over_the_frames_with_a_box():

@@ -310,6 +310,26 @@ def test_rows_between_two_anchors_carry_the_passes_agreement_and_are_scored_with
     np.testing.assert_array_equal(again.p_fail[~between], p_track[~between])
 
 
+def test_a_lost_track_asks_for_keyframes_until_a_person_boxes_them(first):
+    """With lost_threshold set below the track's mean p_fail, the re-track flags every 5th row and the last for a
+    person to box; once they are human boxes the track is flagged by its doubtful spans again."""
+    from annotator.failure import SIGNALS
+
+    config = dataclasses.replace(CONFIG, flags=dataclasses.replace(CONFIG.flags, lost_threshold=1e-6,
+                                                                   keyframe_every=5))
+    asked = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {0: tuple(CLIP.boxes_xywh[0])}}, config).tracks[0]
+    np.testing.assert_array_equal(asked.boxes_xywh, first.tracks[0].boxes_xywh)
+    assert np.flatnonzero(asked.flagged).tolist() == [5, 10, 15]
+    assert {asked.reasons[p] for p in (5, 10, 15)} == {"keyframe"}
+    previous = {1: PreviousTrack(asked, first.scoring[1])}
+    boxed = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {p: tuple(CLIP.boxes_xywh[p]) for p in (5, 10, 15)}},
+                           config, previous=previous, width=96, height=72).tracks[0]
+    assert "keyframe" not in boxed.reasons and boxed.keyframe[[0, 5, 10, 15]].all()
+    reflagged, _, _ = reflag({name: boxed.signals[name] for name in SIGNALS}, boxed.keyframe, boxed.outside,
+                             dataclasses.replace(config, flags=CONFIG.flags))
+    np.testing.assert_array_equal(boxed.flagged, reflagged)
+
+
 def test_backward_in_chunks_equals_buffered(first, corrected):
     previous = {1: PreviousTrack(first.tracks[0], first.scoring[1])}
     chunked = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,

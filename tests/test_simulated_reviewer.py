@@ -44,10 +44,15 @@ def fake_retrack(false_alarm: int | None):
             confidence[7] = 0.1
         if false_alarm is not None:  # a flagged frame whose box is right and never changes
             flagged[false_alarm], confidence[false_alarm] = True, 0.3
-        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe, confidence=confidence)
+        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe, confidence=confidence,
+                                      reasons=doubt_reasons(flagged))
         return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
 
     return retrack
+
+
+def doubt_reasons(flagged: np.ndarray) -> tuple[str, ...]:
+    return tuple("doubt:score" if f else "" for f in flagged)
 
 
 def run(sr, monkeypatch, false_alarm, fallback="first-wrong", policy="worst", retrack=None, accept=False):
@@ -111,7 +116,7 @@ def scripted_retrack(calls: list, losses, right_flags=()):
                 boxes[lo:hi, 0] += 100.0
                 flagged[flagged_lo:flagged_hi] = True
         track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
-                                      confidence=np.where(flagged, 0.2, 0.9))
+                                      confidence=np.where(flagged, 0.2, 0.9), reasons=doubt_reasons(flagged))
         return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
     return retrack
 
@@ -139,6 +144,55 @@ def test_worst_policy_corrects_one_box_a_round(sr, monkeypatch):
     # All flagged frames share one p_fail, so the first flagged is taken each round, right box or not: 2, 3, 9, 12.
     assert out["corrected_frames"] == [2, 3, 9, 12]
     assert calls == [[0], [2], [3], [9], [12]]
+
+
+def lost_retrack(calls: list):
+    """Lost from frame 2 on, and the tool asks for keyframes 4, 8, 12, 16 and 19 (reason ``keyframe``) until they
+    are boxed; then the boxes are right except 13, flagged as doubtful."""
+    asked = [4, 8, 12, 16, 19]
+
+    def retrack(frames, indices, anchors, config, *, previous=None, **_):
+        calls.append(sorted(anchors[1]))
+        keyframe = np.zeros(N, bool) if previous is None else previous[1].track.keyframe.copy()
+        keyframe[list(anchors[1])] = True
+        boxes, flagged, reasons = GT.copy(), np.zeros(N, bool), [""] * N
+        if not keyframe[asked].all():
+            boxes[2:][~keyframe[2:], 0] += 100.0
+            flagged[asked] = True
+            reasons = ["keyframe" if f else "" for f in flagged]
+        elif not keyframe[13]:
+            boxes[13, 0] += 100.0
+            flagged[13], reasons[13] = True, "doubt:score"
+        track = types.SimpleNamespace(boxes_xywh=boxes, flagged=flagged, keyframe=keyframe,
+                                      confidence=np.where(flagged, 0.2, 0.9), reasons=tuple(reasons))
+        return types.SimpleNamespace(tracks=[track], scoring={1: np.full(N, "subspace")}, frames_tracked=N)
+    return retrack
+
+
+@pytest.mark.parametrize("policy", ["worst", "worst-wrong", "spans"])
+def test_keyframes_the_tool_asks_for_are_boxed_in_one_round_whatever_the_policy(sr, monkeypatch, policy):
+    calls = []
+    monkeypatch.setattr(sr, "retrack_tracks", lost_retrack(calls))
+    monkeypatch.setattr(sr, "PreviousTrack", lambda track, scoring: types.SimpleNamespace(track=track))
+    frames = [np.zeros((4, 4, 3), np.uint8)] * N
+    out = sr.simulated_reviewer(frames, GT, None, merge="anchored", target=1.0, threshold=0.5, budget=10,
+                                fallback="first-wrong", policy=policy)
+    # Round 1: the five asked-for frames, looked at and boxed, one re-track; round 2: frame 13, flagged and wrong.
+    assert calls == [[0], [4, 8, 12, 16, 19], [13]]
+    assert out["keyframes_requested"] == 5
+    assert out["corrected_frames"] == [4, 8, 12, 16, 19, 13]
+    assert out["inspected"] == 6 and out["reached"]
+
+
+def test_keyframes_asked_for_stop_at_the_correction_budget(sr, monkeypatch):
+    calls = []
+    monkeypatch.setattr(sr, "retrack_tracks", lost_retrack(calls))
+    monkeypatch.setattr(sr, "PreviousTrack", lambda track, scoring: types.SimpleNamespace(track=track))
+    frames = [np.zeros((4, 4, 3), np.uint8)] * N
+    out = sr.simulated_reviewer(frames, GT, None, merge="anchored", target=1.0, threshold=0.5, budget=3,
+                                fallback="first-wrong", policy="worst")
+    assert calls == [[0], [4, 8, 12]]
+    assert out["keyframes_requested"] == 3 and not out["reached"]
 
 
 def three_losses_retrack(calls: list):

@@ -108,5 +108,11 @@ def track_command(
         typer.echo(f"{plural(result.run.frames_processed, 'frame')} tracked in {result.run.seconds_total:.1f} s; "
                    f"{flagged} of {plural(total, 'frame box', 'frame boxes')} flagged for review; "
                    f"results in {result.out_dir}", err=True)
+        from annotator.report import keyframe_note
+
+        # After corrections that changed the boxes, the review's summary speaks for the re-tracked tracks.
+        note = "" if review is not None and review.changed else keyframe_note(result.run.tracks, result.out_dir)
+        if note:
+            typer.echo(note, err=True)
         if review is not None:
             typer.echo(review.summary(), err=True)

@@ -112,13 +112,17 @@ class ReviewResult:
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
+        from annotator.report import keyframe_note
+
+        note = keyframe_note(r.tracks, self.out_dir)
         return (f"{plural(len(r.anchors), 'new or changed correction')}; re-tracked "
                 f"{plural(frames, 'frame')} in {plural(len(r.segments), 'span')} in {r.seconds:.1f} s; "
                 f"{plural(self.flagged_after, 'frame box', 'frame boxes')} flagged for review "
                 f"(was {self.flagged_before}); "
                 f"outputs rewritten in {self.out_dir}"
                 + ("; overlay.mp4 removed (--no-render): a retrack without --no-render (with this corrections file "
-                   "again if nothing is new) renders it again" if self.overlay_removed else ""))
+                   "again if nothing is new) renders it again" if self.overlay_removed else "")
+                + (f"\n{note}" if note else ""))
 
 
 def _sha256(path: Path) -> str:
