@@ -246,3 +246,24 @@ def test_corrections_have_the_csv_record_type(tmp_path):
     path.write_text(edit_box(path.read_text(), 9, xtl="1.00"))
     (c,) = read_cvat_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
     assert type(c) is Correction and c.box_xywh == (1.0, 10.0, 35.0, 20.0) and not c.absent
+
+
+def test_a_box_wholly_outside_the_image_reads_back_as_the_runs_own_not_as_an_absence(tmp_path):
+    """The exporters hide a box that lies outside the image (Label Studio: enabled false); read back unchanged,
+    that is no correction (it used to give an absence, and with it a return where the box comes back)."""
+    video = VideoInfo(path="walk.mp4", name="walk", width=64, height=48, fps=25.0, frame_count=8)
+    boxes = np.array([[10, 10, 20, 20], [12, 10, 20, 20], [70, 10, 20, 20], [72, 10, 20, 20], [14, 10, 20, 20],
+                      [16, 10, 20, 20], [18, 10, 20, 20], [20, 10, 20, 20]], float)
+    n = len(boxes)
+    track = TrackResult(track_id=1, label="object", frame_indices=np.arange(n), boxes_xywh=boxes,
+                        confidence=np.full(n, 0.9), log_likelihood=np.zeros(n), accepted=np.ones(n, bool),
+                        flagged=np.zeros(n, bool), reasons=("",) * n, keyframe=np.eye(n, dtype=bool)[0],
+                        outside=np.zeros(n, bool), seconds=np.zeros(n))
+    tasks = build_labelstudio_tasks(video, [track], frames=range(n))
+    sequence = tasks[0]["predictions"][0]["result"][0]["value"]["sequence"]
+    assert [(k["frame"], k["enabled"]) for k in sequence] == [(1, True), (2, False), (5, True), (8, True)]
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(tasks))
+    assert read_labelstudio_corrections(path, video=video, tracks=[track], frames=range(n)) == []
+    xml = write_cvat_xml(tmp_path / "cvat.xml", video, [track], frames=range(n))
+    assert read_cvat_corrections(xml, video=video, tracks=[track], frames=range(n)) == []

@@ -106,8 +106,9 @@ class _RunTrack:
         return tuple(float(v) for v in self.track.boxes_xywh[i])
 
     def absence_changed(self, frame: int) -> bool:
-        """An absence at ``frame`` is news only where the run shows the object."""
-        return self._raw_box(frame) is not None
+        """An absence at ``frame`` is news only where the run shows the object in the image: the exporters hide
+        a box that lies wholly outside it, as an absence."""
+        return self.clipped_box(frame) is not None
 
 
 def _int_or(text: str | None, default: int = -1) -> int:
