@@ -249,7 +249,8 @@ def keyframe_request(p_fail: np.ndarray, *, keyframe: np.ndarray, outside: np.nd
                      params: FlagParams) -> np.ndarray:
     """Positions a person should box because the track is probably lost (:attr:`FlagParams.lost_threshold`).
 
-    Empty unless the mean ``p_fail`` of the tracked positions (no human box, not absent) exceeds the threshold.
+    Empty unless the mean ``p_fail`` of the tracked positions (no human box, not absent) exceeds the threshold
+    and the track has more positions than ``keyframe_every``.
     Else positions ``every``, ``2 every``, ... and the last, as an interpolation tool asks for keyframes, minus
     those that already hold a human box or an absence.
     """
@@ -257,7 +258,9 @@ def keyframe_request(p_fail: np.ndarray, *, keyframe: np.ndarray, outside: np.nd
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
     n = p_fail.shape[0]
     tracked = ~keyframe & ~outside & np.isfinite(p_fail)
-    if params.lost_threshold is None or n < 2 or not tracked.any() or p_fail[tracked].mean() <= params.lost_threshold:
+    # A track no longer than the interval would be asked for its last frame alone: it is flagged as usual.
+    if (params.lost_threshold is None or n <= params.keyframe_every or not tracked.any()
+            or p_fail[tracked].mean() <= params.lost_threshold):
         return np.zeros(0, dtype=np.int64)
     rows = np.unique(np.append(np.arange(params.keyframe_every, n, params.keyframe_every), n - 1))
     return rows[~keyframe[rows] & ~outside[rows]].astype(np.int64)

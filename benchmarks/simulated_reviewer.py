@@ -97,6 +97,7 @@ from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
 from annotator.flagging import FlagParams, spans_from_mask  # noqa: E402
+from annotator.wording import ordinal  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import (  # noqa: E402
@@ -576,7 +577,7 @@ def main() -> None:
     threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None
                       else f"{model.threshold:g} (the model's)")
     keyframe_text = ("never a keyframe request" if args.lost_threshold is None else
-                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every {args.keyframe_every}th "
+                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every {ordinal(args.keyframe_every)} "
                      "frame and the last instead (reason `keyframe`)")
     model_text = (f"failure model `{model_record['path']}`{'' if model_path else ' (installed)'}, info "
                   f"`{json.dumps(model_record['info'])}`, sha256 of its canonical JSON "

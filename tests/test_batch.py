@@ -11,6 +11,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import re
 import os
 import signal
 import subprocess
@@ -589,3 +590,28 @@ def test_merged_coco_from_the_stores_keeps_real_image_paths_and_renames_frame_du
     assert [v["name"] for v in merged["videos"]] == ["item-a", "item-b"]
     assert [im["file_name"] for im in merged["images"]] == [
         "Coke/img/0001.jpg", "Coke/img/0002.jpg", "item-b/000000.jpg", "item-b/000001.jpg"]
+
+
+def test_an_item_whose_track_asks_for_keyframes_is_marked_in_the_summary_index_and_output(dataset, tmp_path, capsys):
+    """Its flags are few (every 3rd frame here), so its flagged share would look good: the row counts the keyframes
+    asked for, the index marks them, and the command line names the item."""
+    config = tmp_path / "lost.yaml"
+    config.write_text(FAST + "flags:\n  lost_threshold: 0.0001\n  keyframe_every: 3\n", encoding="utf-8")
+    manifest = tmp_path / "one.jsonl"
+    row = json.loads((dataset / "good.jsonl").read_text().splitlines()[0])
+    row["video"] = str(dataset / row["video"])
+    write_jsonl(manifest, [row])
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as info:
+        main(["batch", str(manifest), "--out", str(out), "--workers", "1", "--config", str(config)])
+    assert info.value.code == 0
+    (item,) = json.loads((out / "summary.json").read_text())["items"]
+    assert item["keyframes_asked"] == 3  # of 10 frames: positions 3, 6, 9 (9 is also the last)
+    assert item["flagged"] == 3
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "<th class=\"num\" data-type=\"num\">Keyframes asked</th>" in page
+    assert re.search(r'<td class="num warn" data-sort="3" title="a track looks lost: box these frames, then '
+                     r'retrack">3</td>', page)
+    err = capsys.readouterr().err
+    assert f"1 item with a track that looks lost and asks for keyframes (box them, then retrack the item's folder; " \
+           f"see its report.html): {item['id']}" in err

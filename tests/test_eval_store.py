@@ -163,6 +163,27 @@ def test_eval_scores_the_failure_probability_of_stores_and_plots_its_calibration
     assert (tmp_path / "eval" / "calibration.png").stat().st_size > 1000
 
 
+def test_eval_leaves_a_track_that_asks_for_keyframes_out_of_the_flag_metrics(tmp_path):
+    """Its flags are the frames a person should box (every 10th), not predictions of wrong boxes; its p_fail
+    still counts."""
+    gt = _gt(20)
+    write_otb_boxes(tmp_path / "gt.txt", gt)
+    pred = gt + [40.0, 40.0, 0.0, 0.0]  # lost throughout
+    pred[0] = gt[0]
+    flagged = np.isin(np.arange(20), [10, 19])
+    track = _track(np.arange(20), pred)
+    track = TrackResult(**{**{k: getattr(track, k) for k in track.__dataclass_fields__},
+                           "flagged": flagged, "reasons": tuple("keyframe" if f else "" for f in flagged),
+                           "signals": {"p_fail": np.where(np.arange(20) > 0, 0.8, 0.0)}})
+    (tmp_path / "run").mkdir()
+    write_store(tmp_path / "run" / STORE_NAME, RunStore(video=VIDEO, start=0, stop=20, step=1, tracks=[track]))
+    code, table, err = _run("eval", tmp_path / "run", tmp_path / "gt.txt")
+    assert code == 0, err
+    assert "| AUROC of p_fail for failure frames (IoU < 0.5) | 1.000 |" in table
+    assert "| flag precision | nan |" in table and "| flag recall | nan |" in table
+    assert "the track looked lost and its flags ask for keyframes" in table + err
+
+
 def test_eval_of_binary_files_and_an_out_that_is_a_file_are_one_line_errors(tmp_path):
     gt = tmp_path / "gt.txt"
     write_otb_boxes(gt, _gt(5))

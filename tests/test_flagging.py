@@ -52,11 +52,12 @@ def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tu
                for t in range(n)]
     # A lost track (mean p_fail of its tracked frames above lost_threshold) asks for keyframes instead.
     tracked = [p_fail[t] for t in range(n) if not keyframe[t] and not outside[t] and np.isfinite(p_fail[t])]
-    if p.lost_threshold is not None and n >= 2 and tracked and sum(tracked) / len(tracked) > p.lost_threshold:
+    if p.lost_threshold is not None and n > p.keyframe_every and tracked and sum(tracked) / len(tracked) > p.lost_threshold:
         asked = {t for t in range(n) if (t % p.keyframe_every == 0 and t > 0) or t == n - 1}
         asked = {t for t in asked if not keyframe[t] and not outside[t]}
-        flagged = [bool(outside[t]) or t in asked for t in range(n)]
-        reasons = ["outside" if outside[t] else "keyframe" if t in asked else "" for t in range(n)]
+        if asked:  # nothing left to ask for: the doubtful spans stay
+            flagged = [bool(outside[t]) or t in asked for t in range(n)]
+            reasons = ["outside" if outside[t] else "keyframe" if t in asked else "" for t in range(n)]
     return flagged, reasons
 
 
@@ -158,7 +159,11 @@ def test_once_the_asked_frames_are_boxed_the_track_is_flagged_as_usual():
     assert current.flagged.tolist() == (~keyframe).tolist()
     # Nothing asked for: the result passes through unchanged.
     assert with_keyframe_request(current, p_fail, keyframe=keyframe, outside=outside, params=params) is current
-    # A track of one frame, or with no tracked frame, never asks.
+    # A track no longer than the interval, or with no tracked frame, never asks.
+    short = np.full(4, 0.99)
+    assert keyframe_request(short, keyframe=np.zeros(4, bool), outside=np.zeros(4, bool), params=params).size == 0
+    assert keyframe_request(np.full(5, 0.99), keyframe=np.zeros(5, bool), outside=np.zeros(5, bool),
+                            params=params).tolist() == [4]
     one = FlagResult(flagged=np.zeros(1, bool), reasons=("",), spans=spans_from_mask(np.zeros(1, bool)))
     assert with_keyframe_request(one, np.array([0.99]), keyframe=np.zeros(1, bool), outside=np.zeros(1, bool),
                                  params=params) is one

@@ -463,6 +463,19 @@ def test_load_run_reads_back_what_annotate_wrote(run_dir):
     assert track.scoring[0] == "init" and set(track.scoring[1:]) <= {"bootstrap", "subspace"}
 
 
+def test_a_run_json_from_before_a_flag_setting_reads_its_default_and_records_it_after_a_retrack(out):
+    info = json.loads((out / "run.json").read_text())
+    for key in ("lost_threshold", "keyframe_every"):
+        del info["config"]["flags"][key]
+    (out / "run.json").write_text(json.dumps(info))
+    assert load_run(out).config.flags == FlagParams()
+    fixes = out.parent / "fixes.csv"
+    fixes.write_text(f"frame,x,y,w,h\n10,{','.join(f'{v:g}' for v in GT[10])}\n")
+    apply_corrections(out, fixes, show_progress=False)
+    flags = json.loads((out / "run.json").read_text())["config"]["flags"]
+    assert flags["lost_threshold"] == 0.6 and flags["keyframe_every"] == 10
+
+
 @pytest.mark.parametrize("edit", [
     lambda info: info.pop("input"),
     lambda info: info.pop("range"),

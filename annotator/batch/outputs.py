@@ -80,6 +80,7 @@ def _status_row(plan: PlannedItem, outcome: ItemOutcome | None, run: Mapping[str
         "flagged": None,
         "flagged_share": None,
         "longest_flagged_span": None,
+        "keyframes_asked": None,
         "mean_confidence": None,
         "seconds": None,
         "frames_per_second": None,
@@ -104,6 +105,8 @@ def _status_row(plan: PlannedItem, outcome: ItemOutcome | None, run: Mapping[str
             "flagged": flagged,
             "flagged_share": flagged / boxes if boxes else 0.0,
             "longest_flagged_span": max((int(t.get("longest_span", 0)) for t in tracks), default=0),
+            # A lost track's flags are the keyframes it asks for: few and short, so its flagged share looks good.
+            "keyframes_asked": sum(len(t.get("keyframes_asked") or []) for t in tracks),
             "mean_confidence": sum(confidences) / len(confidences) if confidences else None,
             "seconds": timings.get("seconds_total"),
             "frames_per_second": timings.get("frames_per_second"),

@@ -65,8 +65,16 @@ def batch_command(
                f"run), {counts['partial']} partly decoded, {counts['failed']} failed; "
                f"{plural(result.frames_this_run, 'frame')} tracked in {result.seconds:.1f} s; "
                f"index {result.paths['report']}")
+    lost = [r["id"] for r in result.rows if r.get("keyframes_asked")]
+    lost_note = (f"{plural(len(lost), 'item')} with a track that looks lost and asks for keyframes (box them, then "
+                 f"retrack the item's folder; see its report.html): {', '.join(lost[:10])}"
+                 + (f" and {len(lost) - 10} more" if len(lost) > 10 else "")) if lost else ""
     if result.exit_code != EXIT_OK:
         typer.echo(f"sptpt-annotate: warning: {message}; reasons in {result.paths['failures']}", err=True)
+        if lost_note:
+            typer.echo(lost_note, err=True)
         raise typer.Exit(result.exit_code)
     if not quiet:
         typer.echo(message, err=True)
+        if lost_note:
+            typer.echo(lost_note, err=True)

@@ -118,7 +118,8 @@ def failure_summary(pairs) -> dict[str, float] | None:
     of other tools) are left out, and None is returned when none has one.
     Keys: ``auroc``, ``ece``, ``precision``, ``recall``, ``flagged_share``,
     ``onset_recall``, ``good_flagged_share`` (on sequences tracked with
-    success AUC >= 0.6), ``sequences``, ``frames``.
+    success AUC >= 0.6), ``sequences``, ``frames``. The flag metrics leave
+    out tracks whose flags ask for keyframes.
     """
     from annotator.evaluation.flag_quality import flag_quality_dataset
 
@@ -128,17 +129,20 @@ def failure_summary(pairs) -> dict[str, float] | None:
     failed = [~(score.ious >= 0.5) for _, score in scored]
     p = np.concatenate([pair.p_fail for pair, _ in scored])
     y = np.concatenate(failed)
-    report = flag_quality_dataset({pair.name: (pair.flagged, score.ious) for pair, score in scored})
-    good = [(pair, score) for pair, score in scored if score.auc >= 0.6]
+    # A track whose flags ask for keyframes has no doubtful-frame flags to score (SequencePair.keyframes_asked).
+    flagged = [(pair, score) for pair, score in scored if pair.flagged is not None]
+    nan = float("nan")
+    pooled = (flag_quality_dataset({pair.name: (pair.flagged, score.ious) for pair, score in flagged}).pooled
+              if flagged else None)
+    good = [(pair, score) for pair, score in flagged if score.auc >= 0.6]
     good_frames = sum(len(pair.flagged) for pair, _ in good)
-    pooled = report.pooled
     return {
         "auroc": auroc(p, y),
         "ece": expected_calibration_error(p, y),
-        "precision": pooled.precision,
-        "recall": pooled.recall,
-        "flagged_share": pooled.flagged_share,
-        "onset_recall": pooled.onset_recall,
+        "precision": pooled.precision if pooled else nan,
+        "recall": pooled.recall if pooled else nan,
+        "flagged_share": pooled.flagged_share if pooled else nan,
+        "onset_recall": pooled.onset_recall if pooled else nan,
         "good_flagged_share": (sum(int(pair.flagged.sum()) for pair, _ in good) / good_frames
                                if good_frames else float("nan")),
         "sequences": len(scored),

@@ -56,6 +56,7 @@ from annotator.otb import OTBFormatError, read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult
+from annotator.wording import ordinal
 
 __all__ = [
     "OUTPUT_FOLDER_RESULT_NAMES",
@@ -217,17 +218,24 @@ class SequencePair:
     #: From a track store: the failure probability and the flags of each scored frame (else None).
     p_fail: np.ndarray | None = None
     flagged: np.ndarray | None = None
+    #: The track's flags ask for keyframes (it looked lost), so they are not its doubtful frames: ``flagged`` is
+    #: then None and the flag metrics leave the sequence out.
+    keyframes_asked: bool = False
 
     @property
     def note(self) -> str | None:
-        """A sentence for the output when only part of the ground truth was scored."""
-        if self.frames is None or len(self.frames) == self.gt_rows:
-            return None
-        f = self.frames
-        steps = np.unique(np.diff(f))
-        step = f", every {_ordinal(int(steps[0]))}" if len(steps) == 1 and steps[0] > 1 else ""
-        return (f"{self.name}: scored the {len(f)} frames the run processed (source frames {int(f[0])}-{int(f[-1])}"
-                f"{step}) against those rows of the {self.gt_rows}-row ground truth")
+        """Sentences for the output when only part of the ground truth was scored, or the flags were left out."""
+        parts = []
+        if self.frames is not None and len(self.frames) != self.gt_rows:
+            f = self.frames
+            steps = np.unique(np.diff(f))
+            step = f", every {ordinal(int(steps[0]))}" if len(steps) == 1 and steps[0] > 1 else ""
+            parts.append(f"{self.name}: scored the {len(f)} frames the run processed (source frames "
+                         f"{int(f[0])}-{int(f[-1])}{step}) against those rows of the {self.gt_rows}-row ground truth")
+        if self.keyframes_asked:
+            parts.append(f"{self.name}: the track looked lost and its flags ask for keyframes, not for doubtful "
+                         "frames: left out of the flag metrics (its p_fail still counts)")
+        return "; ".join(parts) or None
 
 
 def _store_track(path: Path, name: str) -> TrackResult:
@@ -279,9 +287,10 @@ def load_sequence_pair(
                 f"sequence {name!r}: {pred_path} holds source frames up to {last} but the ground truth {gt_path} has "
                 f"{len(gt)} rows (frames 0-{len(gt) - 1}); evaluate against the ground truth of the same video")
         p_fail = track.signals.get("p_fail")
+        asked = any("keyframe" in reason.split("+") for reason in track.reasons)
         return SequencePair(name=name, pred=np.array(pred), gt=gt[frames], pred_path=pred_path, gt_path=gt_path,
                             frames=frames, gt_rows=len(gt), p_fail=None if p_fail is None else np.array(p_fail),
-                            flagged=np.array(track.flagged))
+                            flagged=None if asked else np.array(track.flagged), keyframes_asked=asked)
     pred = read_otb_boxes(pred_path, origin=pred_origin)
     if len(pred) != len(gt):
         raise EvaluationError(
@@ -445,8 +454,3 @@ def evaluate_results_dir(
         pairs.extend((loaded[name], scores[name]) for name in loaded)
     return DatasetScore.from_sequences(tracker or results_dir.resolve().name, scores)
 
-
-def _ordinal(n: int) -> str:
-    """``2nd``, ``3rd``, ``11th``, ``21st``: the English ordinal of ``n``."""
-    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
-    return f"{n}{suffix}"

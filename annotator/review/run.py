@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -88,6 +89,8 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
         config = RunConfig(preset=str(cfg["preset"]), tracker=params_from_mapping(cfg["tracker"]),
                            flags=FlagParams(**cfg["flags"]), seed=int(cfg["seed"]),
                            failure_model=cfg.get("failure_model"))
+        # A run.json from before a flag setting existed gets its default, and says so when it is written again.
+        cfg["flags"] = dataclasses.asdict(config.flags)
         targets = {int(t["track_id"]): t for t in info["targets"]}
         formats = list(info.get("formats") or [])
         # What re-tracking reads the frames back with (review.frames.open_run_source).
