@@ -16,6 +16,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shutil
 import signal
 import tempfile
@@ -70,7 +71,8 @@ class AnnotateResult:
 
 def parse_box(text: str, *, origin: int = 0, name: str = "--box") -> tuple[float, float, float, float]:
     """Parse ``"x,y,w,h"`` into a 0-based box; ``origin=1`` takes OTB-style 1-based coordinates."""
-    parts = [p.strip() for p in str(text).replace(";", ",").split(",")]
+    # Commas as documented; also semicolons, and the spaces or tabs of a row copied from a whitespace-separated file.
+    parts = [p for p in re.split(r"\s*[,;]\s*|\s+", str(text).strip())]
     try:
         values = [float(p) for p in parts]
     except ValueError:

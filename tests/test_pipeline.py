@@ -386,6 +386,8 @@ def test_an_empty_label_is_refused_before_any_work(scripted, clip, tmp_path):
         ("10,20,30,40", 0, (10.0, 20.0, 30.0, 40.0)),
         (" 10, 20 ,30,40 ", 0, (10.0, 20.0, 30.0, 40.0)),
         ("10;20;30;40", 0, (10.0, 20.0, 30.0, 40.0)),
+        ("10 20 30 40", 0, (10.0, 20.0, 30.0, 40.0)),
+        ("10\t20\t30\t40", 0, (10.0, 20.0, 30.0, 40.0)),
         ("10.5,20.25,30,40", 0, (10.5, 20.25, 30.0, 40.0)),
         ("-5,-5,30,40", 0, (-5.0, -5.0, 30.0, 40.0)),  # partly outside is allowed
         ("11,21,30,40", 1, (10.0, 20.0, 30.0, 40.0)),  # OTB 1-based
@@ -400,6 +402,8 @@ def test_parse_box(text, origin, expected):
     [
         ("10,20,30", "not four numbers"),
         ("10,20,30,40,50", "not four numbers"),
+        ("10,,20,30", "not four numbers"),
+        ("10 20 30", "not four numbers"),
         ("a,b,c,d", "not four numbers"),
         ("", "not four numbers"),
         ("nan,1,2,3", "not four numbers"),
