@@ -27,7 +27,7 @@ def batch_command(
     formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats", help="Comma-separated outputs per item, as for a single video (otb, coco, flags, overlay, report, cvat, mot, labelstudio, yolo)."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay videos (faster)."),
     force: bool = typer.Option(False, "--force", help="Redo every item, finished ones included."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Label a dataset: every manifest item in parallel; finished items are skipped on a rerun; failures stay isolated."""

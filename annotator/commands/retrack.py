@@ -29,7 +29,7 @@ def retrack_command(
                                    "round). It is removed, as it would show the old boxes, and the report has no "
                                    "video or thumbnails; a later retrack without --no-render (with the same "
                                    "corrections file if nothing is new) renders them again."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Apply corrections to a run: human boxes become anchors, the spans they affect are re-tracked forward and

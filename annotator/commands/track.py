@@ -46,7 +46,7 @@ def track_command(
     failure_model: Optional[Path] = typer.Option(
         None, "--failure-model", help="A failure-model JSON refitted with benchmarks/failure_model.py "
                                       "(default: the one shipped)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
