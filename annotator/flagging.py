@@ -25,8 +25,8 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail", "keyframe_request",
-           "spans_from_mask", "with_keyframe_request"]
+__all__ = ["KEYFRAME_REASON", "REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail",
+           "keyframe_request", "keyframe_rows", "spans_from_mask", "with_keyframe_request"]
 
 #: Every reason a user can see, with what it means. ``doubt:<group>`` names the group of signals that
 #: raised the failure probability most (annotator.failure.model.FEATURE_GROUPS).
@@ -48,6 +48,8 @@ REASONS: Mapping[str, str] = {
                 "last), then re-track, instead of reviewing the track frame by frame",
     "outside": "the object is marked absent from this frame (a correction said so)",
 }
+#: The reason of the frames a lost track asks a person to box (:func:`with_keyframe_request`).
+KEYFRAME_REASON = "keyframe"
 
 
 @dataclass(frozen=True)
@@ -244,7 +246,6 @@ def budget_flags(p_fail: np.ndarray, groups, percent: float, *, keyframe: np.nda
     return FlagResult(flagged=flagged, reasons=reasons, spans=spans_from_mask(flagged))
 
 
-
 def keyframe_request(p_fail: np.ndarray, *, keyframe: np.ndarray, outside: np.ndarray,
                      params: FlagParams) -> np.ndarray:
     """Positions a person should box because the track is probably lost (:attr:`FlagParams.lost_threshold`).
@@ -275,5 +276,10 @@ def with_keyframe_request(result: FlagResult, p_fail: np.ndarray, *, keyframe: n
         return result
     flagged = np.asarray(outside, bool).copy()
     flagged[rows] = True
-    reasons = tuple("outside" if outside[t] else "keyframe" if flagged[t] else "" for t in range(len(flagged)))
+    reasons = tuple("outside" if outside[t] else KEYFRAME_REASON if flagged[t] else "" for t in range(len(flagged)))
     return FlagResult(flagged=flagged, reasons=reasons, spans=spans_from_mask(flagged))
+
+
+def keyframe_rows(reasons) -> list[int]:
+    """Positions whose flag is a keyframe request (reason :data:`KEYFRAME_REASON`, alone or ``+``-joined)."""
+    return [p for p, reason in enumerate(reasons) if KEYFRAME_REASON in reason.split("+")]

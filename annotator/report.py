@@ -12,7 +12,7 @@ import numpy as np
 from markupsafe import Markup
 
 from annotator.atomic import write_text_atomic
-from annotator.flagging import REASONS, spans_from_mask
+from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
 from annotator.pipeline import SpanThumbnail
 from annotator.tracks import TrackResult
 from annotator.wording import plural
@@ -103,7 +103,7 @@ def reason_legend(tracks: Sequence[TrackResult]) -> list[tuple[str, str]]:
 def keyframes_asked(track: TrackResult) -> list[int]:
     """Source frame indices flagged with reason ``keyframe``: the track is probably lost, and a person should box
     these (:func:`annotator.flagging.with_keyframe_request`)."""
-    return [int(track.frame_indices[p]) for p, reason in enumerate(track.reasons) if "keyframe" in reason.split("+")]
+    return [int(track.frame_indices[p]) for p in keyframe_rows(track.reasons)]
 
 
 def _frame_list(frames: Sequence[int], most: int = 6) -> str:
@@ -284,8 +284,8 @@ def render_report(
         timelines=[(t.track_id, Markup(_timeline_svg(t, fps))) for t in tracks],
         spans=[span_item(s) for s in spans],
         keyframes=[{"track_id": t.track_id, "label": t.label,
-                    "frames": [(int(t.frame_indices[p]), _seek_seconds(p, fps)) for p, reason in enumerate(t.reasons)
-                               if "keyframe" in reason.split("+")]} for t in tracks],
+                    "frames": [(int(t.frame_indices[p]), _seek_seconds(p, fps)) for p in keyframe_rows(t.reasons)]}
+                   for t in tracks],
         legend=reason_legend(tracks),
         settings=settings,
         run=run_info,

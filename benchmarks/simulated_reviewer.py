@@ -96,8 +96,7 @@ from _sequences import SequenceError, select_sequences  # noqa: E402
 from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
-from annotator.flagging import FlagParams, spans_from_mask  # noqa: E402
-from annotator.wording import ordinal  # noqa: E402
+from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import (  # noqa: E402
@@ -108,6 +107,7 @@ from annotator.review import (  # noqa: E402
     merge_passes,
     retrack_tracks,
 )
+from annotator.wording import ordinal  # noqa: E402
 from sptpt.params import get_preset, params_from_mapping  # noqa: E402
 
 DEFAULT_SUBSET = ("Deer", "Skiing", "Crossing", "Couple", "Diving", "Jogging.1", "Bolt2")
@@ -252,7 +252,7 @@ def simulated_reviewer(frames, gt, config: RunConfig, *, merge: str, target: flo
         if curve[-1] >= target or len(corrections) >= budget:
             break
         picks = []
-        asked = [int(p) for p in np.flatnonzero(candidates) if "keyframe" in track.reasons[p].split("+")]
+        asked = [p for p in keyframe_rows(track.reasons) if candidates[p]]
         if asked:
             # The tool judged the track lost and asks for keyframes instead of flagging doubtful spans: whatever
             # its policy, the reviewer boxes them (looked at above, as the baseline's keyframes are), then re-tracks.

@@ -52,6 +52,7 @@ from annotator.evaluation.metrics import (
     SequenceScore,
     evaluate_sequence,
 )
+from annotator.flagging import keyframe_rows
 from annotator.otb import OTBFormatError, read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
 from annotator.text import TEXT_ENCODINGS, read_text
@@ -287,7 +288,7 @@ def load_sequence_pair(
                 f"sequence {name!r}: {pred_path} holds source frames up to {last} but the ground truth {gt_path} has "
                 f"{len(gt)} rows (frames 0-{len(gt) - 1}); evaluate against the ground truth of the same video")
         p_fail = track.signals.get("p_fail")
-        asked = any("keyframe" in reason.split("+") for reason in track.reasons)
+        asked = bool(keyframe_rows(track.reasons))
         return SequencePair(name=name, pred=np.array(pred), gt=gt[frames], pred_path=pred_path, gt_path=gt_path,
                             frames=frames, gt_rows=len(gt), p_fail=None if p_fail is None else np.array(p_fail),
                             flagged=None if asked else np.array(track.flagged), keyframes_asked=asked)
@@ -453,4 +454,3 @@ def evaluate_results_dir(
     if pairs is not None:
         pairs.extend((loaded[name], scores[name]) for name in loaded)
     return DatasetScore.from_sequences(tracker or results_dir.resolve().name, scores)
-
