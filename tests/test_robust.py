@@ -122,9 +122,35 @@ def test_preset_boxes_are_unchanged(preset):
     # test_independent_runs), by contrast when run_choice became "contrast", and with the candidates re-ranked
     # by contrast when contrast_candidates became 5.
     clip = make_clip(40, seed=3)
-    recorded = np.loadtxt(GOLDEN / f"{preset}_clip3_seed5_boxes.txt")
+    golden = golden_boxes_file(preset)
+    boxes = track(clip.frames, clip.boxes_xywh[0], preset, 5)
     # Tolerance only for floating-point reassociation in faster kernels; any algorithmic change moves boxes by pixels.
-    np.testing.assert_allclose(track(clip.frames, clip.boxes_xywh[0], preset, 5), recorded, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(boxes, np.loadtxt(golden), rtol=0, atol=1e-6,
+                               err_msg=f"{golden.name}, BLAS kernels {blas_architecture()}")
+
+
+#: OpenBLAS architectures whose double-precision kernels round differently from the AVX-512 ones the golden boxes
+#: were first recorded with, and the suffix of their own golden files. A two-run tracker amplifies the last bit of
+#: a subspace update into pixels within 10 frames, so its boxes are the same only for the same kernels: the AVX2
+#: kernels (OpenBLAS's Haswell, which Zen also uses, and which this workplace forces with OPENBLAS_CORETYPE on
+#: some processors) give other robust boxes than SkylakeX, Cooperlake and SapphireRapids, which agree.
+BLAS_VARIANTS = {"Haswell": "haswell", "Zen": "haswell"}
+
+
+def blas_architecture() -> str:
+    """The architecture of NumPy's OpenBLAS kernels (threadpoolctl), or the BLAS's name where it is not OpenBLAS."""
+    from threadpoolctl import threadpool_info
+
+    blas = [i for i in threadpool_info() if i.get("user_api") == "blas"]
+    return next((str(i.get("architecture")) for i in blas if i.get("internal_api") == "openblas"),
+                blas[0].get("internal_api", "unknown") if blas else "unknown")
+
+
+def golden_boxes_file(preset: str) -> Path:
+    """The golden boxes of ``preset`` for this machine's BLAS kernels: their own file where they differ from those
+    recorded with the AVX-512 kernels (written with ``np.savetxt`` of :func:`track`'s boxes), else that file."""
+    own = GOLDEN / f"{preset}_clip3_seed5_boxes.{BLAS_VARIANTS.get(blas_architecture())}.txt"
+    return own if own.exists() else GOLDEN / f"{preset}_clip3_seed5_boxes.txt"
 
 
 def test_robust_same_seed_same_boxes():
