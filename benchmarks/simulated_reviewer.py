@@ -163,13 +163,15 @@ def merge_study(frames, gt, config: RunConfig, every: int, threshold: float) -> 
     if n - 1 not in anchors:
         anchors[n - 1] = tuple(gt[n - 1])
     result = retrack_tracks(ArrayFrames(frames), np.arange(n), {1: anchors}, config)
+    model = load_model(config.failure_model)
     hits: dict[str, list[np.ndarray]] = {m: [] for m in (*MERGES, "forward only", "backward only")}
     for (_, start, stop), (fwd, bwd) in result.passes.items():
         if bwd is None or stop - start < 2:
             continue
         truth = gt[start + 1 : stop]
         for m in MERGES:
-            hits[m].append(iou_rows(merge_passes(fwd, bwd, m).boxes_xywh, truth))
+            merged = merge_passes(fwd, bwd, m, model=model, ends=(tuple(gt[start]), tuple(gt[stop])))
+            hits[m].append(iou_rows(merged.boxes_xywh, truth))
         hits["forward only"].append(iou_rows(fwd.boxes_xywh, truth))
         hits["backward only"].append(iou_rows(bwd.boxes_xywh, truth))
     out = {}
@@ -535,8 +537,8 @@ def main() -> None:
                         help="failure-model JSON (default: the one installed with the package)")
     parser.add_argument("--fold-models", type=Path, default=None, metavar="DIR",
                         help="score each sequence with DIR/SEQUENCE.json instead (the per-fold models of "
-                             "benchmarks/anchored_failure.py --write: the between_anchors section fitted without "
-                             "that sequence)")
+                             "benchmarks/anchored_failure.py --write or benchmarks/pass_choice.py --write: their "
+                             "between_anchors or pass_choice section fitted without that sequence)")
     parser.add_argument("--flag-threshold", type=float, default=None,
                         help="flag frames with p_fail above this (default: the failure model's threshold)")
     parser.add_argument("--lost-threshold", type=lambda v: None if v.lower() == "none" else float(v),
@@ -592,23 +594,30 @@ def main() -> None:
     if args.fold_models is not None:
         if args.failure_model is not None:
             parser.error("give --fold-models or --failure-model, not both")
+        held_out_parts = set()
         for s in all_sequences:
             path = (args.fold_models / f"{s.name}.json").resolve()
             try:
                 fold = load_model(path)
             except FailureModelError as exc:
                 parser.error(f"{exc} (--fold-models needs one model file per sequence)")
-            if fold.between_anchors is None or fold.between_anchors.info.get("held_out") != s.name:
-                parser.error(f"{path} is not the fold model of {s.name}: its between_anchors section must be "
-                             "fitted without that sequence (benchmarks/anchored_failure.py --write)")
+            sections = [part for part in (fold.between_anchors, fold.pass_choice) if part is not None]
+            if not sections or any(part.info.get("held_out") != s.name for part in sections):
+                parser.error(f"{path} is not the fold model of {s.name}: its between_anchors or pass_choice "
+                             "section must be fitted without that sequence (benchmarks/anchored_failure.py or "
+                             "benchmarks/pass_choice.py --write)")
+            held_out_parts |= {"between_anchors" if fold.between_anchors is not None else "",
+                               "pass_choice" if fold.pass_choice is not None else ""} - {""}
             sequence_models[s.name] = str(path)
             model_record.setdefault("fold_sha256", {})[s.name] = hashlib.sha256(
                 json.dumps(fold.to_json(), sort_keys=True).encode()).hexdigest()
-        model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json` "
-                      "(benchmarks/anchored_failure.py --write: main part and between_anchors section both fitted "
-                      f"without the sequence's video); flag threshold {threshold_text}, {keyframe_text}, other flag "
-                      "settings the run "
-                      "defaults")
+        made_by = {"between_anchors": "benchmarks/anchored_failure.py --write: main part and between_anchors "
+                                      "section both fitted without the sequence's video",
+                   "pass_choice": "benchmarks/pass_choice.py --write: the installed main part, the pass_choice "
+                                  "section fitted without the sequence's video"}
+        model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json` ("
+                      + "; ".join(made_by[part] for part in sorted(held_out_parts)) + f"); flag threshold "
+                      f"{threshold_text}, {keyframe_text}, other flag settings the run defaults")
         model_record["fold_models"] = str(args.fold_models.resolve())
     params = get_preset(args.preset)
     preset_text = f"preset `{args.preset}`"

@@ -264,7 +264,19 @@ def test_tolerant_look_counts_skip_boxes_that_barely_moved(sr, monkeypatch):
     assert out["inspected"] == 7 and out["inspected_moved"] == {"0.95": 7, "0.9": 6, "0.8": 6}
 
 
-def test_fold_models_must_be_each_sequences_own(tmp_path):
+PASS_CHOICE_OF_OTHER = {"features": ["logit_p_forward", "logit_p_backward", "forward_iou_interpolation",
+                                     "backward_iou_interpolation", "pass_iou", "position", "edge_distance", "gap"],
+                        "options": ["forward", "backward", "interpolation"], "mean": [0.0] * 8, "scale": [1.0] * 8,
+                        "coef": [[0.0] * 8] * 3, "intercept": [0.0] * 3, "disagree_below": 0.5, "max_gap": 10,
+                        "info": {"held_out": "Other"}}
+
+
+@pytest.mark.parametrize("section, value", [
+    ("between_anchors", {"log_odds": 1.0, "pass_iou": -4.0, "intercept": 1.0, "info": {"held_out": "Other"}}),
+    ("pass_choice", PASS_CHOICE_OF_OTHER),
+    (None, None),
+])
+def test_fold_models_must_be_each_sequences_own(tmp_path, section, value):
     import json
     import subprocess
     import sys
@@ -281,7 +293,8 @@ def test_fold_models_must_be_each_sequences_own(tmp_path):
     folds = tmp_path / "folds"
     folds.mkdir()
     data = load_model().to_json()
-    data["between_anchors"] = {"log_odds": 1.0, "pass_iou": -4.0, "intercept": 1.0, "info": {"held_out": "Other"}}
+    if section is not None:  # a section fitted without another sequence; or none at all
+        data[section] = value
     (folds / "Seq.json").write_text(json.dumps(data))
     done = subprocess.run([sys.executable, str(BENCHMARKS / "simulated_reviewer.py"), "--otb", str(otb),
                            "--sequences", "Seq", "--fold-models", str(folds), "--no-record"],

@@ -17,9 +17,11 @@ def retrack_command(
                                      "0-based pixels; empty x,y,w,h = absent until the next correction), a COCO "
                                      "file whose corrected annotations have attributes.keyframe = true, or the run's "
                                      "cvat.xml / Label Studio export after review (boxes that differ from the run)."),
-    merge: str = typer.Option("", "--merge", help="Where a forward and a backward pass meet: anchored (default: the "
-                              "pass still near its human box, else the more confident), confidence, blend or "
-                              "handover."),
+    merge: str = typer.Option("", "--merge", help="Where a forward and a backward pass meet: chosen (default: where "
+                              "the passes disagree, the forward box, the backward box or the interpolation of the two "
+                              "human boxes, as the failure model's pass_choice section finds most probably right; "
+                              "elsewhere as anchored), anchored (the pass still near its human box, else the more "
+                              "confident), confidence, blend or handover."),
     no_verify: bool = typer.Option(False, "--no-verify", help="Skip checking the input's content hash against run.json."),
     input_path: Optional[Path] = typer.Option(
         None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "

@@ -12,9 +12,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, PassAgreement, logit, model_from_fit
+from annotator.failure.model import (FEATURE_GROUPS, FEATURES, PASS_CHOICE_FEATURES, PASS_OPTIONS, FailureModel,
+                                     PassAgreement, PassChoice, logit, model_from_fit)
 
-__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "fit_fold", "fit_model",
+__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "fit_fold", "fit_model", "fit_pass_choice",
            "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
 
 #: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
@@ -248,3 +249,37 @@ def fit_pass_agreement(p_track: np.ndarray, pass_iou: np.ndarray, failed: np.nda
     fit = LogisticRegression(C=1e4, max_iter=1000, solver="lbfgs").fit(X, failed)
     return PassAgreement(log_odds=float(fit.coef_[0, 0]), pass_iou=float(fit.coef_[0, 1]),
                          intercept=float(fit.intercept_[0]), info=dict(info or {}))
+
+
+def fit_pass_choice(features: np.ndarray, right: np.ndarray, *, disagree_below: float, max_gap: int, C: float = 1.0,
+                    info: Mapping[str, Any] | None = None) -> PassChoice:
+    """The ``pass_choice`` section from frames where two passes disagreed (``benchmarks/pass_choice.py``).
+
+    ``features``: ``(n, len(PASS_CHOICE_FEATURES))`` rows; ``right``: ``(n, 3)`` whether the forward box, the
+    backward box and the interpolation were right (IoU >= 0.5). One logistic regression per option on the
+    standardised features, each fitted on the rows where that option was possible (the interpolation only on
+    rows whose two human boxes are at most ``max_gap`` frames apart).
+    """
+    from sklearn.linear_model import LogisticRegression
+
+    features = np.asarray(features, dtype=np.float64)
+    right = np.asarray(right, dtype=bool)
+    if features.ndim != 2 or features.shape[1] != len(PASS_CHOICE_FEATURES) or right.shape != (len(features), 3):
+        raise ValueError(f"features must be (n, {len(PASS_CHOICE_FEATURES)}) and right (n, 3)")
+    if not np.all(np.isfinite(features)):
+        raise ValueError("every pass-choice feature must be finite")
+    mean, scale = features.mean(axis=0), features.std(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    z = (features - mean) / scale
+    allowed = [np.ones(len(z), bool), np.ones(len(z), bool),
+               features[:, PASS_CHOICE_FEATURES.index("gap")] <= max_gap]
+    coef, intercept = np.zeros((3, z.shape[1])), np.zeros(3)
+    for k in range(3):
+        y = right[allowed[k], k]
+        if len(np.unique(y)) < 2:
+            raise ValueError(f"the {PASS_OPTIONS[k]} option needs frames where it was right and frames where it "
+                             "was wrong")
+        fit = LogisticRegression(C=C, max_iter=2000, solver="lbfgs").fit(z[allowed[k]], y)
+        coef[k], intercept[k] = fit.coef_[0], fit.intercept_[0]
+    return PassChoice(mean=mean, scale=scale, coef=coef, intercept=intercept, disagree_below=float(disagree_below),
+                      max_gap=int(max_gap), info=dict(info or {}))

@@ -43,6 +43,20 @@ has none: measured, the section ranks failures between anchors better but
 flags more frames there, and the simulated reviewer, who looks at every
 flagged frame, spent more time with it (RESULTS.md, "anchored-failure");
 ``benchmarks/anchored_failure.py --write`` makes a file with it.
+
+Which box between two human boxes
+---------------------------------
+Where the two passes disagree (``pass_iou`` below
+:attr:`PassChoice.disagree_below`), one of them, or both, lost the object, and
+the frame's box is chosen among three: the forward pass's, the backward
+pass's, or the linear interpolation of the two human boxes (only where they
+are at most :attr:`PassChoice.max_gap` frames apart, as in the data it was
+fitted on). The optional ``pass_choice`` section (:class:`PassChoice`,
+fitted by ``benchmarks/pass_choice.py``) holds one logistic regression per
+option for "this option's box is right" (IoU >= 0.5) on
+:data:`PASS_CHOICE_FEATURES`, and the option with the highest probability is
+taken. Its features read each pass's own failure probability under this
+file's main model, so the section is refitted whenever the main model is.
 """
 
 from __future__ import annotations
@@ -69,7 +83,10 @@ __all__ = [
     "FailureModel",
     "FailureModelError",
     "OnlineFailure",
+    "PASS_CHOICE_FEATURES",
+    "PASS_OPTIONS",
     "PassAgreement",
+    "PassChoice",
     "feature_matrix",
     "load_model",
 ]
@@ -145,6 +162,78 @@ class PassAgreement:
         if not all(math.isfinite(v) for v in values.values()):
             raise FailureModelError(f"{where}: between_anchors log_odds, pass_iou and intercept must be finite")
         return cls(info=info, **values)
+
+
+#: Features of a frame where two passes disagree (:func:`annotator.review.merge.pass_choice_features`): each pass's
+#: own failure probability (as log-odds), the IoU of each pass's box with the interpolation of the two human boxes,
+#: the passes' IoU, the frame's place between the two boxes (0..1) and its distance to the nearer one (0..0.5), and
+#: the number of frames between the boxes.
+PASS_CHOICE_FEATURES: tuple[str, ...] = ("logit_p_forward", "logit_p_backward", "forward_iou_interpolation",
+                                         "backward_iou_interpolation", "pass_iou", "position", "edge_distance", "gap")
+#: What a frame between two human boxes may take its box from, in the order of :attr:`PassChoice.coef`'s rows.
+PASS_OPTIONS: tuple[str, ...] = ("forward", "backward", "interpolation")
+_FORWARD, _BACKWARD, _INTERPOLATION = range(3)
+
+
+@dataclass(frozen=True)
+class PassChoice:
+    """The ``pass_choice`` section: which box a frame between two human boxes takes where the passes disagree.
+
+    One logistic regression per :data:`PASS_OPTIONS` entry on standardised :data:`PASS_CHOICE_FEATURES` (rows of
+    ``coef`` and ``intercept``), for the probability that the option's box is right (see the module docstring).
+    """
+
+    mean: np.ndarray
+    scale: np.ndarray
+    coef: np.ndarray
+    intercept: np.ndarray
+    disagree_below: float
+    max_gap: int
+    info: Mapping[str, Any]
+
+    def p_right(self, features: np.ndarray) -> np.ndarray:
+        """``(n, 3)`` probability that each option's box is right, for ``(n, len(PASS_CHOICE_FEATURES))`` rows."""
+        z = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        return sigmoid((z[:, None, :] * self.coef[None]).sum(axis=2) + self.intercept)
+
+    def choose(self, features: np.ndarray, interpolation: np.ndarray) -> np.ndarray:
+        """Per row, the index in :data:`PASS_OPTIONS` of the option most probably right; interpolation only where
+        ``interpolation`` allows it (ties go forward, then backward)."""
+        p = self.p_right(features)
+        p[:, _INTERPOLATION] = np.where(np.asarray(interpolation, dtype=bool), p[:, _INTERPOLATION], -np.inf)
+        return np.argmax(p, axis=1)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"features": list(PASS_CHOICE_FEATURES), "options": list(PASS_OPTIONS), "mean": self.mean.tolist(),
+                "scale": self.scale.tolist(), "coef": self.coef.tolist(), "intercept": self.intercept.tolist(),
+                "disagree_below": self.disagree_below, "max_gap": self.max_gap, "info": dict(self.info)}
+
+    @classmethod
+    def from_json(cls, data: Any, where: str) -> PassChoice:
+        refit = "refit it with benchmarks/pass_choice.py --write"
+        try:
+            features, options = tuple(data["features"]), tuple(data["options"])
+            arrays = {k: np.asarray(data[k], dtype=np.float64) for k in ("mean", "scale", "coef", "intercept")}
+            disagree_below, max_gap = float(data["disagree_below"]), data["max_gap"]
+            info = dict(data.get("info") or {})
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise FailureModelError(f"{where}: its pass_choice section lacks or garbles a field "
+                                    f"({type(exc).__name__}: {exc}); {refit}") from None
+        if features != PASS_CHOICE_FEATURES or options != PASS_OPTIONS:
+            raise FailureModelError(f"{where}: its pass_choice section is for features {list(features)} and options "
+                                    f"{list(options)}, this version computes {list(PASS_CHOICE_FEATURES)} and "
+                                    f"{list(PASS_OPTIONS)}; {refit}")
+        k, m = len(PASS_CHOICE_FEATURES), len(PASS_OPTIONS)
+        shapes = {"mean": (k,), "scale": (k,), "coef": (m, k), "intercept": (m,)}
+        for key, shape in shapes.items():
+            if arrays[key].shape != shape or not np.all(np.isfinite(arrays[key])):
+                raise FailureModelError(f"{where}: pass_choice {key} must be {' x '.join(map(str, shape))} finite "
+                                        f"numbers; {refit}")
+        if np.any(arrays["scale"] <= 0) or not 0.0 < disagree_below <= 1.0 or isinstance(max_gap, bool) \
+                or not isinstance(max_gap, int) or max_gap < 2:
+            raise FailureModelError(f"{where}: pass_choice scales must be > 0, disagree_below in (0, 1] and max_gap "
+                                    f"an integer >= 2; {refit}")
+        return cls(disagree_below=disagree_below, max_gap=max_gap, info=info, **arrays)
 
 
 class FailureModelError(ValueError):
@@ -224,6 +313,7 @@ class FailureModel:
     threshold: float
     info: Mapping[str, Any]
     between_anchors: PassAgreement | None = None
+    pass_choice: PassChoice | None = None
 
     def p_fail(self, features: np.ndarray) -> np.ndarray:
         """``(F,)`` failure probabilities of ``(F, len(FEATURES))`` feature rows."""
@@ -266,6 +356,8 @@ class FailureModel:
                 "intercept": self.intercept, "threshold": self.threshold, "info": dict(self.info)}
         if self.between_anchors is not None:
             data["between_anchors"] = self.between_anchors.to_json()
+        if self.pass_choice is not None:
+            data["pass_choice"] = self.pass_choice.to_json()
         return data
 
     @classmethod
@@ -302,8 +394,9 @@ class FailureModel:
             raise FailureModelError(f"{where}: scales must be > 0, the intercept finite and the threshold in (0, 1)")
         section = data.get("between_anchors")
         between = None if section is None else PassAgreement.from_json(section, where)
+        choice = None if data.get("pass_choice") is None else PassChoice.from_json(data["pass_choice"], where)
         return cls(features=features, intercept=intercept, threshold=threshold, info=info,
-                   between_anchors=between, **arrays)
+                   between_anchors=between, pass_choice=choice, **arrays)
 
 
 def load_model(path: str | os.PathLike | None = None) -> FailureModel:

@@ -14,12 +14,14 @@ import numpy as np
 
 from annotator.config import RunConfig
 from annotator.failure import SIGNALS, FailureModel, load_model, score_track
+from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, logit
 from annotator.failure.signals import NEUTRAL
 from annotator.flagging import flag_p_fail
+from annotator.review.segments import Box
 from sptpt.boxes import iou_xywh
 
-__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "filled_signals", "merge_passes", "reflag",
-           "track_p_fail"]
+__all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_CHOICE", "PASS_IOU", "PassResult", "filled_signals",
+           "merge_passes", "pass_choice_features", "pass_p_fail", "reflag", "track_p_fail"]
 
 #: How a frame between two anchors takes its box from the forward and the backward pass:
 #:
@@ -32,15 +34,23 @@ __all__ = ["DEFAULT_MERGE", "MERGES", "NO_SCORING", "PASS_IOU", "PassResult", "f
 #: * ``blend``: the confidence-weighted mean of both boxes.
 #: * ``handover``: forward up to the one frame that maximises the summed confidence of
 #:   "forward before, backward from", backward after it.
-MERGES = ("anchored", "confidence", "blend", "handover")
-#: Measured on ../shared/otb by ``benchmarks/simulated_reviewer.py --merge-study`` (RESULTS.md,
-#: "Simulated reviewer: merge study"): anchored > confidence ~ handover > blend.
-DEFAULT_MERGE = "anchored"
+#: * ``chosen``: as ``anchored`` where the passes agree; where they disagree (IoU below the failure model's
+#:   ``pass_choice.disagree_below``), the forward box, the backward box or the interpolation of the two human
+#:   boxes, whichever the model's ``pass_choice`` section finds most probably right
+#:   (:class:`annotator.failure.model.PassChoice`). Exactly ``anchored`` with a model without the section.
+MERGES = ("chosen", "anchored", "confidence", "blend", "handover")
+#: Measured on ../shared/otb: ``anchored`` > confidence ~ handover > blend by ``benchmarks/simulated_reviewer.py
+#: --merge-study`` (RESULTS.md, "Simulated reviewer: merge study"); ``chosen`` against ``anchored``, held out, by
+#: ``benchmarks/pass_choice.py`` (RESULTS.md, "pass-choice").
+DEFAULT_MERGE = "chosen"
 
 #: ``scoring`` value of rows no tracker scored (``outside`` rows).
 NO_SCORING = "none"
 #: Track signal holding each row's :attr:`PassResult.pass_iou` (NaN where the row was not merged from two passes).
 PASS_IOU = "pass_iou"
+#: Track signal holding each row's :attr:`PassResult.choice`: the index in
+#: :data:`~annotator.failure.model.PASS_OPTIONS` of the box a disagreeing row took (NaN elsewhere).
+PASS_CHOICE = "pass_choice"
 
 
 
@@ -58,12 +68,16 @@ class PassResult:
     signals: np.ndarray | None = None
     #: (n,) IoU of the forward and the backward pass's boxes on a merged row; NaN for a single pass.
     pass_iou: np.ndarray | None = None
+    #: (n,) index in PASS_OPTIONS of the box the ``chosen`` merge took where the passes disagreed; NaN elsewhere.
+    choice: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.signals is None:
             self.signals = np.full((len(self.confidence), len(SIGNALS)), np.nan)
         if self.pass_iou is None:
             self.pass_iou = np.full(len(self.confidence), np.nan)
+        if self.choice is None:
+            self.choice = np.full(len(self.confidence), np.nan)
 
     @classmethod
     def empty(cls, n: int) -> PassResult:
@@ -75,9 +89,13 @@ class PassResult:
         return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
                             ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
-def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_MERGE) -> PassResult:
+def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_MERGE, *,
+                 model: FailureModel | None = None, ends: tuple[Box, Box] | None = None) -> PassResult:
     """Combine a forward and a backward pass over the same frames (see :data:`MERGES`).
 
+    ``model`` and ``ends`` (the human boxes the forward pass starts from and
+    the backward pass from) serve the ``chosen`` merge, which without either,
+    or with a model without a ``pass_choice`` section, is ``anchored``.
     ``bwd=None`` returns the forward pass. Per row the result keeps the
     log-likelihood, acceptance and scoring stage of the pass whose box (or
     whose larger weight, for ``blend``) it takes, and that pass's failure
@@ -92,6 +110,10 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         return fwd
     n = len(fwd.confidence)
     cf, cb = fwd.confidence, bwd.confidence
+    # Only the chosen merge reads the section: every other merge is what its name says, whatever the model holds.
+    chooser = model.pass_choice if method == "chosen" and model is not None and ends is not None else None
+    if method == "chosen":
+        method = "anchored"  # where the passes agree, and throughout without a chooser
     if method == "handover":
         # Forward up to t*, backward from t*: t* maximises sum(cf[:t*]) + sum(cb[t*:]).
         gain = np.concatenate([[0.0], np.cumsum(cf)]) + np.concatenate([np.cumsum(cb[::-1])[::-1], [0.0]])
@@ -122,7 +144,74 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         out.boxes_xywh = w[:, None] * fwd.boxes_xywh + (1 - w[:, None]) * bwd.boxes_xywh
         out.confidence = np.clip(w * cf + (1 - w) * cb, 0.0, 1.0)
         out.signals = np.where((w >= 0.5)[:, None], fwd.signals, bwd.signals)
+    if chooser is not None:
+        _choose_where_passes_disagree(out, fwd, bwd, model, ends)
     return out
+
+
+def pass_p_fail(result: PassResult, model: FailureModel, *, backward: bool) -> np.ndarray:
+    """Each row's failure probability along its own pass, which starts at a human box (a keyframe row).
+
+    ``result``'s rows are in position order; a backward pass is scored in the order it ran.
+    """
+    rows = result.signals[::-1] if backward else result.signals
+    signals = np.vstack([np.full((1, len(SIGNALS)), np.nan), rows])
+    keyframe = np.zeros(len(signals), bool)
+    keyframe[0] = True
+    p_fail, _ = score_track(filled_signals({name: signals[:, k] for k, name in enumerate(SIGNALS)}), keyframe,
+                            np.zeros(len(signals), bool), model)
+    return p_fail[1:][::-1] if backward else p_fail[1:]
+
+
+def pass_choice_features(p_forward: np.ndarray, p_backward: np.ndarray, forward_boxes: np.ndarray,
+                         backward_boxes: np.ndarray, ends: tuple[Box, Box], max_gap: int | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """``(features, interpolation)`` of the rows strictly between two human boxes ``ends``.
+
+    ``features`` are :data:`~annotator.failure.model.PASS_CHOICE_FEATURES` per row; ``interpolation`` the
+    linear interpolation of the two boxes. The ``gap`` feature (frames from box to box) is read as at most
+    ``max_gap``, the longest the chooser was fitted on.
+    """
+    n = len(p_forward)
+    gap = n + 1
+    t = np.arange(1, n + 1) / gap
+    start, stop = (np.asarray(b, dtype=np.float64) for b in ends)
+    interpolation = (1.0 - t)[:, None] * start + t[:, None] * stop
+    overlap = lambda a, b: np.nan_to_num(iou_xywh(a, b), nan=0.0)  # noqa: E731 (a missing box overlaps nothing)
+    columns = {
+        "logit_p_forward": logit(p_forward), "logit_p_backward": logit(p_backward),
+        "forward_iou_interpolation": overlap(forward_boxes, interpolation),
+        "backward_iou_interpolation": overlap(backward_boxes, interpolation),
+        "pass_iou": overlap(forward_boxes, backward_boxes), "position": t, "edge_distance": np.minimum(t, 1.0 - t),
+        "gap": np.full(n, float(gap if max_gap is None else min(gap, max_gap))),
+    }
+    return np.stack([columns[name] for name in PASS_CHOICE_FEATURES], axis=1), interpolation
+
+
+def _choose_where_passes_disagree(out: PassResult, fwd: PassResult, bwd: PassResult, model: FailureModel,
+                                  ends: tuple[Box, Box]) -> None:
+    """The ``chosen`` merge's rows where the passes disagree, written into ``out`` (see :data:`MERGES`)."""
+    chooser = model.pass_choice
+    both = np.isfinite(fwd.boxes_xywh).all(axis=1) & np.isfinite(bwd.boxes_xywh).all(axis=1)
+    disagree = both & (out.pass_iou < chooser.disagree_below)
+    if not disagree.any():
+        return
+    p_fwd, p_bwd = pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True)
+    features, interpolation = pass_choice_features(p_fwd, p_bwd, fwd.boxes_xywh, bwd.boxes_xywh, ends,
+                                                   chooser.max_gap)
+    can_interpolate = len(out.confidence) + 1 <= chooser.max_gap
+    rows = np.flatnonzero(disagree)
+    picks = chooser.choose(features[rows], np.full(len(rows), can_interpolate))
+    forward, backward, _ = range(len(PASS_OPTIONS))
+    for row, pick in zip(rows, picks):
+        # An interpolated row keeps the other fields of the pass that doubts itself less: its p_fail stays that
+        # of a tracked box, a cautious reading, as nothing measured the interpolation itself.
+        source = fwd if pick == forward or (pick != backward and p_fwd[row] <= p_bwd[row]) else bwd
+        out.boxes_xywh[row] = interpolation[row] if pick not in (forward, backward) else source.boxes_xywh[row]
+        out.confidence[row], out.log_likelihood[row] = source.confidence[row], source.log_likelihood[row]
+        out.accepted[row], out.scoring[row] = source.accepted[row], source.scoring[row]
+        out.signals[row] = source.signals[row]
+        out.choice[row] = pick
 
 def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray, model: FailureModel,
                  pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:

@@ -60,8 +60,9 @@ from typing import Callable, Mapping
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.failure import SIGNALS
-from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PASS_IOU, PassResult, merge_passes, reflag
+from annotator.failure import SIGNALS, load_model
+from annotator.review.merge import (DEFAULT_MERGE, MERGES, NO_SCORING, PASS_CHOICE, PASS_IOU, PassResult, merge_passes,
+                                    reflag)
 from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
 from annotator.review.segments import (
     AnchorChange,
@@ -226,6 +227,7 @@ def retrack_tracks(
                 progress(sum(r.calls for r in runs), planned)
 
     # Assemble the new rows.
+    model = load_model(config.failure_model)
     results: list[TrackResult] = []
     scorings: dict[int, np.ndarray] = {}
     changes: list[SegmentChange] = []
@@ -246,6 +248,7 @@ def retrack_tracks(
             signals = np.stack([np.asarray(t.signals.get(name, np.full(n, np.nan)), dtype=np.float64)
                                 for name in SIGNALS], axis=1)
             pass_iou = np.array(t.signals.get(PASS_IOU, np.full(n, np.nan)), dtype=np.float64)
+            choice = np.array(t.signals.get(PASS_CHOICE, np.full(n, np.nan)), dtype=np.float64)
         else:
             boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
             accepted, seconds = np.zeros(n, bool), np.zeros(n)
@@ -255,6 +258,7 @@ def retrack_tracks(
             label = (labels or {}).get(tid, "object")
             signals = np.full((n, len(SIGNALS)), np.nan)
             pass_iou = np.full(n, np.nan)
+            choice = np.full(n, np.nan)
         for change in anchor_changes:
             if change.track_id == tid:
                 sources[change.position] = change.where or KEYFRAME_GIVEN
@@ -268,7 +272,7 @@ def retrack_tracks(
                 keyframe[seg.start] = True
                 occluded[seg.start] = False
                 signals[seg.start] = np.nan  # a person's box: nothing measured, nothing doubtful
-                pass_iou[seg.start] = np.nan
+                pass_iou[seg.start] = choice[seg.start] = np.nan
                 if box is None:
                     boxes[seg.start], conf[seg.start], ll[seg.start] = np.nan, 0.0, np.nan
                     accepted[seg.start], seconds[seg.start] = False, 0.0
@@ -283,17 +287,18 @@ def retrack_tracks(
             sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
             occluded[rows] = False
             if seg.forward:
-                merged = merge_passes(run.fwd, run.bwd, merge)
+                merged = merge_passes(run.fwd, run.bwd, merge, model=model,
+                                      ends=(current[seg.start], current.get(seg.stop)) if run.bwd is not None else None)
                 boxes[rows], conf[rows], ll[rows] = merged.boxes_xywh, merged.confidence, merged.log_likelihood
                 accepted[rows], scoring[rows], seconds[rows] = merged.accepted, merged.scoring, merged.seconds
                 signals[rows] = merged.signals
-                pass_iou[rows] = merged.pass_iou
+                pass_iou[rows], choice[rows] = merged.pass_iou, merged.choice
                 outside[rows] = False
             else:
                 boxes[rows], conf[rows], ll[rows] = np.nan, 0.0, np.nan
                 accepted[rows], scoring[rows], seconds[rows] = False, NO_SCORING, 0.0
                 signals[rows] = np.nan
-                pass_iou[rows] = np.nan
+                pass_iou[rows] = choice[rows] = np.nan
                 outside[rows] = True
         # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
         by_name = {name: signals[:, k] for k, name in enumerate(SIGNALS)}
@@ -301,6 +306,8 @@ def retrack_tracks(
         conf = np.where(outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
         # Only a track with rows merged from two passes carries the column: a run nobody corrected keeps its files.
         passes = {PASS_IOU: pass_iou} if np.any(~np.isnan(pass_iou)) else {}
+        if np.any(~np.isnan(choice)):
+            passes[PASS_CHOICE] = choice
         track = TrackResult(
             track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
             log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,

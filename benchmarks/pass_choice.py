@@ -1,0 +1,256 @@
+"""Fit and measure which box a frame between two human boxes takes where the two passes disagree.
+
+    python benchmarks/pass_choice.py --generate             # track (14 min), then fit and measure (RESULTS.md)
+    python benchmarks/pass_choice.py --write                # refit on the stored data; write the package's model
+    python benchmarks/pass_choice.py --generate --seeds 0 --sequences Deer,Diving --no-record
+
+Re-tracking runs every frame between two anchors twice, forward from the
+earlier human box and backward from the later one. Where the two boxes
+differ (IoU < 0.5) one pass, or both, lost the object. The ``anchored``
+merge then keeps the more confident pass, and ``chosen`` keeps the forward
+box, the backward box or the linear interpolation of the two human boxes,
+whichever the failure model's ``pass_choice`` section
+(:class:`annotator.failure.model.PassChoice`) finds most probably right.
+
+1. **Data** (``--generate``): for every sequence of ``../shared/otb`` (first
+   ``--stop`` frames), every seed and every anchor interval of ``--every``,
+   the tool's own re-tracking (:func:`annotator.review.retrack_tracks`, merge
+   ``anchored``) from ground-truth boxes every M frames. Per frame strictly
+   between two anchors: whether the ``anchored`` box, the forward box, the
+   backward box and the interpolation were right (IoU >= 0.5 with the ground
+   truth), and the frame's :data:`~annotator.failure.model.PASS_CHOICE_FEATURES`
+   (each pass's own ``p_fail`` under the installed main model). Stored in
+   ``--data``, one ``.npz`` per sequence, seed and M.
+2. **Held out**: the sequences are split into folds by video (Jogging.1 and
+   Jogging.2 are one video). A fold's frames are chosen by a section fitted on
+   the other folds' disagreeing frames. Per seed: the share of frames between
+   anchors whose box is right with ``anchored`` and with ``chosen``.
+3. ``--write``: the section fitted on every sequence goes into the package's
+   ``annotator/data/failure_model.json`` (the rest of the file unchanged),
+   and one model file per sequence (that fold's section) into
+   ``--data``/folds, for ``benchmarks/simulated_reviewer.py --fold-models``.
+
+The main model is the installed one throughout: it was fitted on these
+sequences (``benchmarks/failure_model.py``), so the per-pass probabilities
+the section reads are not themselves held out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT))
+
+from _anchor_runs import mean_std, parse_seeds_and_intervals, stored_runs, track_jobs, video  # noqa: E402
+from _results import machine_line, update_section  # noqa: E402
+from _sequences import SequenceError, select_sequences  # noqa: E402
+
+from annotator.atomic import write_text_atomic  # noqa: E402
+from annotator.config import RunConfig  # noqa: E402
+from annotator.failure import load_model  # noqa: E402
+from annotator.failure.fit import fit_pass_choice  # noqa: E402
+from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS  # noqa: E402
+from annotator.flagging import FlagParams  # noqa: E402
+from annotator.frames import open_frames  # noqa: E402
+from annotator.otb import read_otb_boxes  # noqa: E402
+from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402
+from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail  # noqa: E402
+from sptpt.boxes import iou_xywh  # noqa: E402
+
+PRESET = "robust"
+#: Rows whose passes' IoU is below this are chosen for (the failure model's own line between right and wrong).
+DISAGREE_BELOW = 0.5
+
+
+def generate(job: dict) -> str:
+    """Re-track one sequence from ground-truth anchors every ``every`` frames; store the rows between anchors."""
+    import numba
+
+    from sptpt.params import get_preset
+
+    if job.get("threads"):
+        numba.set_num_threads(job["threads"])
+    seq_dir = Path(job["seq_dir"])
+    frames = [frame for _, frame in open_frames(seq_dir, stop=job["stop"])]
+    n = len(frames)
+    gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")[:n]
+    anchors = {p: tuple(gt[p]) for p in sorted(set(range(0, n, job["every"])) | {n - 1})}
+    config = RunConfig(preset=PRESET, tracker=get_preset(PRESET), flags=FlagParams(), seed=job["seed"],
+                       failure_model=None)
+    result = retrack_tracks(ArrayFrames(frames), np.arange(n), {1: anchors}, config, merge="anchored")
+    model = load_model(None)
+    parts = []
+    for (_, start, stop), (fwd, bwd) in sorted(result.passes.items()):
+        if bwd is None or stop - start < 2:
+            continue
+        truth = gt[start + 1: stop]
+        right = lambda boxes: np.nan_to_num(iou_xywh(boxes, truth), nan=0.0) >= 0.5  # noqa: E731
+        features, interpolation = pass_choice_features(
+            pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True), fwd.boxes_xywh,
+            bwd.boxes_xywh, (gt[start], gt[stop]))
+        parts.append(dict(features=features, anchored=right(merge_passes(fwd, bwd, "anchored").boxes_xywh),
+                          options=np.stack([right(fwd.boxes_xywh), right(bwd.boxes_xywh), right(interpolation)], 1)))
+    out = Path(job["out"])
+    np.savez(out, stop=job["stop"], feature_names=np.array(PASS_CHOICE_FEATURES),
+             **{k: np.concatenate([p[k] for p in parts]) for k in ("features", "anchored", "options")})
+    print(f"{seq_dir.name} seed {job['seed']} every {job['every']}: {sum(len(p['anchored']) for p in parts)} frames",
+          file=sys.stderr, flush=True)
+    return str(out)
+
+
+def load_data(folder: Path, sequences: set[str], seeds, everies, stop: int) -> dict[str, np.ndarray]:
+    """The stored rows of the given sequences, seeds and intervals, tracked with ``stop``."""
+    parts = []
+    for path, name, seed, every in stored_runs(folder, sequences, seeds, everies):
+        with np.load(path) as d:
+            if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES:
+                raise SystemExit(f"{path} was generated with another --stop or for other features: run with "
+                                 "--generate again")
+            k = len(d["anchored"])
+            parts.append(dict(sequence=np.full(k, name), seed=np.full(k, seed), every=np.full(k, every),
+                              features=d["features"], anchored=d["anchored"], options=d["options"]))
+    if not parts:
+        raise SystemExit(f"no data in {folder} for these sequences, seeds and intervals: run with --generate first")
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def chosen_right(data: dict[str, np.ndarray], section, rows: np.ndarray) -> np.ndarray:
+    """Whether the ``chosen`` merge's box is right on ``rows`` (a boolean mask) with ``section``."""
+    right = data["anchored"][rows].copy()
+    disagree = data["features"][rows, PASS_CHOICE_FEATURES.index("pass_iou")] < section.disagree_below
+    gap = data["features"][rows, PASS_CHOICE_FEATURES.index("gap")]
+    features = data["features"][rows].copy()
+    features[:, PASS_CHOICE_FEATURES.index("gap")] = np.minimum(gap, section.max_gap)
+    picks = section.choose(features[disagree], gap[disagree] <= section.max_gap)
+    right[disagree] = data["options"][rows][disagree, picks]
+    return right
+
+
+def fit_section(data: dict[str, np.ndarray], rows: np.ndarray, max_gap: int, info: dict):
+    disagree = rows & (data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW)
+    return fit_pass_choice(data["features"][disagree], data["options"][disagree], disagree_below=DISAGREE_BELOW,
+                           max_gap=max_gap, info=info)
+
+
+def held_out(data: dict[str, np.ndarray], max_gap: int) -> tuple[np.ndarray, dict]:
+    """Per row, whether the ``chosen`` box is right with a section fitted without the row's video; and each
+    sequence's fold section."""
+    right = np.zeros(len(data["anchored"]), bool)
+    folds = {}
+    fold_of = np.array([video(name) for name in data["sequence"]])
+    for fold in sorted(set(fold_of)):
+        test = fold_of == fold
+        section = fit_section(data, ~test, max_gap, {"held_out": fold})
+        right[test] = chosen_right(data, section, test)
+        for name in set(data["sequence"][test]):
+            folds[name] = dataclasses.replace(section, info={"held_out": name, "fold": fold})
+    return right, folds
+
+
+def markdown(data, chosen, command, seconds, shipped, generated: bool) -> str:
+    seeds = sorted(set(data["seed"].tolist()))
+    everies = sorted(set(data["every"].tolist()))
+    names = sorted(set(data["sequence"]))
+    disagree = data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW
+    anchored = data["anchored"]
+
+    def share(right, rows):
+        return [right[rows & (data["seed"] == s)].mean() for s in seeds]
+
+    everywhere = np.ones(len(anchored), bool)
+    taken = np.zeros((len(anchored), 3), bool)
+    lines = ["## Which box between two human boxes: the passes' choice (issue #9, held out)", "",
+             f"Command: `{command}`  ",
+             f"Machine: {machine_line()}; wall time {seconds / 60:.1f} min"
+             + ("." if generated else ", fitting only: the rows were tracked before by the same command with "
+                "`--generate`.") + "  ",
+             f"Data: {len(names)} sequences of `../shared/otb`, preset `{PRESET}`, seeds "
+             f"{', '.join(map(str, seeds))}, ground-truth anchors every {' and every '.join(map(str, everies))} "
+             f"frames, re-tracked by the tool (`retrack_tracks`); {len(anchored)} frames strictly between two "
+             f"anchors, {int(disagree.sum())} of them ({100 * disagree.mean():.1f}%) where the passes disagree "
+             f"(IoU < {DISAGREE_BELOW}). Held out by video (Jogging.1 and Jogging.2 one fold): each fold's frames "
+             "are chosen by a section fitted on the other folds. Share of frames whose box is right (IoU >= 0.5), "
+             "mean ± std over seeds:", "",
+             "| merge | all frames between anchors | where the passes disagree |", "|---|---:|---:|"]
+    for label, right in (("`anchored` (before)", anchored), ("`chosen` (held out)", chosen)):
+        lines.append(f"| {label} | {mean_std(share(right, everywhere))} | {mean_std(share(right, disagree))} |")
+    for k, option in enumerate(PASS_OPTIONS):
+        taken[:, k] = data["options"][:, k]
+    lines.append("| always forward / backward / interpolation, where they disagree | | "
+                 + " / ".join(mean_std(share(taken[:, k], disagree)) for k in range(3)) + " |")
+    lines.append(f"| either pass right (no rule can beat it without the interpolation) | | "
+                 f"{mean_std(share(taken[:, 0] | taken[:, 1], disagree))} |")
+    lines += ["", "Per sequence (all seeds pooled), frames right between anchors, `anchored` → `chosen`: " + "; ".join(
+        f"{name} {anchored[data['sequence'] == name].mean():.3f} → {chosen[data['sequence'] == name].mean():.3f}"
+        for name in names) + ".",
+        "", f"Shipped section (fitted on every sequence, max_gap {shipped.max_gap}): coefficients per option on the "
+        "standardised features " + "; ".join(
+            f"{option}: " + ", ".join(f"{f} {c:+.2f}" for f, c in zip(PASS_CHOICE_FEATURES, shipped.coef[k]))
+            + f", intercept {shipped.intercept[k]:+.2f}" for k, option in enumerate(PASS_OPTIONS)) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
+    parser.add_argument("--sequences", default="all", help="comma-separated names, or 'all'")
+    parser.add_argument("--stop", type=int, default=200, help="first N frames of each sequence (default 200)")
+    parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument("--every", default="10", help="anchor intervals M, comma-separated (default 10: the "
+                        "interval of the tool's keyframe request; with several, the interpolation is an option up "
+                        "to the longest)")
+    parser.add_argument("--data", type=Path, default=HERE / "_runs" / "pass_choice")
+    parser.add_argument("--generate", action="store_true", help="track first (else use the stored data)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--write", action="store_true",
+                        help="write the section into the package's failure model, and the fold models")
+    parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    seeds, everies = parse_seeds_and_intervals(parser, args)
+    started = time.perf_counter()
+    try:
+        sequences = select_sequences(args.otb, args.sequences)
+    except SequenceError as err:
+        parser.error(str(err))
+    if args.generate:
+        track_jobs(generate, sequences, seeds, everies, args.stop, args.data, args.workers)
+    data = load_data(args.data, {s.name for s in sequences}, seeds, everies, args.stop)
+    if len({video(name) for name in data["sequence"]}) < 2:
+        parser.error("held-out figures need the frames of at least two videos: give more --sequences")
+    max_gap = max(everies)
+    chosen, folds = held_out(data, max_gap)
+    command = "python benchmarks/pass_choice.py " + " ".join(sys.argv[1:])
+    shipped = fit_section(data, np.ones(len(chosen), bool), max_gap, {
+        "fitted_by": command.strip(), "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
+                                               "sequences": sorted(set(data["sequence"])),
+                                               "frames": int(len(chosen))}})
+    text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate)
+    print(text)
+    if args.write:
+        model = load_model(None)
+        package_file = Path(str(resources.files("annotator").joinpath(MODEL_PATH)))
+        write_text_atomic(package_file, json.dumps(dataclasses.replace(model, pass_choice=shipped).to_json(),
+                                                   indent=1) + "\n")
+        fold_dir = args.data / "folds"
+        fold_dir.mkdir(parents=True, exist_ok=True)
+        for name, section in folds.items():
+            write_text_atomic(fold_dir / f"{name}.json",
+                              json.dumps(dataclasses.replace(model, pass_choice=section).to_json(), indent=1) + "\n")
+        print(f"wrote {package_file} and {len(folds)} fold models in {fold_dir}", file=sys.stderr)
+    if not args.no_record:
+        update_section("pass-choice", text)
+
+
+if __name__ == "__main__":
+    main()
