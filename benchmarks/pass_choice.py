@@ -58,6 +58,7 @@ from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
+from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
 from annotator.failure import load_model  # noqa: E402
 from annotator.failure.fit import fit_pass_choice  # noqa: E402
 from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS  # noqa: E402
@@ -158,7 +159,32 @@ def held_out(data: dict[str, np.ndarray], max_gap: int) -> tuple[np.ndarray, dic
     return right, folds
 
 
-def markdown(data, chosen, command, seconds, shipped, generated: bool) -> str:
+def held_out_doubt(data: dict[str, np.ndarray], max_gap: int) -> dict[str, np.ndarray]:
+    """On the rows where the passes disagree, held out by video: whether the chosen box is wrong, the section's
+    probability that it is (1 - the chosen option's probability of being right), and the p_fail the row keeps in
+    the tool (its source pass's own; for an interpolated row, the pass that doubts itself less)."""
+    disagree = data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW
+    fold_of = np.array([video(name) for name in data["sequence"]])
+    out = {k: np.zeros(len(disagree)) for k in ("wrong", "section", "kept")}
+    for fold in sorted(set(fold_of)):
+        rows = (fold_of == fold) & disagree
+        if not rows.any():
+            continue
+        section = fit_section(data, fold_of != fold, max_gap, {})
+        features = data["features"][rows].copy()
+        gap = features[:, PASS_CHOICE_FEATURES.index("gap")].copy()
+        features[:, PASS_CHOICE_FEATURES.index("gap")] = np.minimum(gap, section.max_gap)
+        picks = section.choose(features, gap <= section.max_gap)
+        index = np.arange(len(picks))
+        p_forward, p_backward = (1.0 / (1.0 + np.exp(-features[:, PASS_CHOICE_FEATURES.index(name)]))
+                                 for name in ("logit_p_forward", "logit_p_backward"))
+        out["wrong"][rows] = ~data["options"][rows][index, picks]
+        out["section"][rows] = 1.0 - section.p_right(features)[index, picks]
+        out["kept"][rows] = np.choose(picks, [p_forward, p_backward, np.minimum(p_forward, p_backward)])
+    return {k: v[disagree] for k, v in out.items()}
+
+
+def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: dict[str, np.ndarray]) -> str:
     seeds = sorted(set(data["seed"].tolist()))
     everies = sorted(set(data["every"].tolist()))
     names = sorted(set(data["sequence"]))
@@ -191,6 +217,16 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool) -> str:
                  + " / ".join(mean_std(share(taken[:, k], disagree)) for k in range(3)) + " |")
     lines.append(f"| either pass right (no rule can beat it without the interpolation) | | "
                  f"{mean_std(share(taken[:, 0] | taken[:, 1], disagree))} |")
+    wrong = doubt["wrong"].astype(bool)
+    lines += ["", f"How doubtful the chosen box is, on the {len(wrong)} frames where the passes disagree (held out; "
+              f"{wrong.mean():.3f} of them wrong): the section's own probability that the chosen box is wrong ranks "
+              f"those failures at AUROC {auroc(doubt['section'], wrong):.3f} (ECE "
+              f"{expected_calibration_error(doubt['section'], wrong):.3f}); the p_fail such a frame keeps in the tool, "
+              f"its source pass's own (for an interpolated frame, that of the pass that doubts itself less), at AUROC "
+              f"{auroc(doubt['kept'], wrong):.3f} (ECE {expected_calibration_error(doubt['kept'], wrong):.3f}); "
+              f"above the flag threshold 0.9: {int((doubt['section'] > 0.9).sum())} and "
+              f"{int((doubt['kept'] > 0.9).sum())} frames. (Each pass's p_fail here is scored along the pass alone; "
+              "the tool scores the merged track.)"]
     lines += ["", "Per sequence (all seeds pooled), frames right between anchors, `anchored` → `chosen`: " + "; ".join(
         f"{name} {anchored[data['sequence'] == name].mean():.3f} → {chosen[data['sequence'] == name].mean():.3f}"
         for name in names) + ".",
@@ -235,7 +271,8 @@ def main() -> None:
         "fitted_by": command.strip(), "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
                                                "sequences": sorted(set(data["sequence"])),
                                                "frames": int(len(chosen))}})
-    text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate)
+    text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate,
+                    held_out_doubt(data, max_gap))
     print(text)
     if args.write:
         model = load_model(None)
