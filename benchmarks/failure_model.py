@@ -344,7 +344,8 @@ def main() -> int:
     write_text_atomic(MODEL_FILE, json.dumps(model.to_json(), indent=1) + "\n")
     # The pass_choice section reads each pass's probability under the main model: refitted with it, not kept.
     print(f"wrote {MODEL_FILE.relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
-          "until it is refitted): run python benchmarks/pass_choice.py --write", file=sys.stderr)
+          "until it is refitted): run python benchmarks/pass_choice.py --generate --write (the rows it stored hold "
+          "the old model's per-pass probabilities, so they are tracked again)", file=sys.stderr)
     PLOTS.mkdir(exist_ok=True)
     plot_calibration(PLOTS / "calibration.png", {"p_fail (held-out folds)": (pooled_p, pooled_y)})
 

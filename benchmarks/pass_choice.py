@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import sys
 import time
@@ -101,26 +102,40 @@ def generate(job: dict) -> str:
             pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True), fwd.boxes_xywh,
             bwd.boxes_xywh, (gt[start], gt[stop]))
         parts.append(dict(features=features, anchored=right(merge_passes(fwd, bwd, "anchored").boxes_xywh),
-                          options=np.stack([right(fwd.boxes_xywh), right(bwd.boxes_xywh), right(interpolation)], 1)))
+                          options=np.stack([right(fwd.boxes_xywh), right(bwd.boxes_xywh), right(interpolation)], 1),
+                          gap=np.full(len(features), stop - start)))
     out = Path(job["out"])
-    np.savez(out, stop=job["stop"], feature_names=np.array(PASS_CHOICE_FEATURES),
-             **{k: np.concatenate([p[k] for p in parts]) for k in ("features", "anchored", "options")})
+    np.savez(out, stop=job["stop"], feature_names=np.array(PASS_CHOICE_FEATURES), main_model=main_model_digest(model),
+             **{k: np.concatenate([p[k] for p in parts]) for k in ("features", "anchored", "options", "gap")})
     print(f"{seq_dir.name} seed {job['seed']} every {job['every']}: {sum(len(p['anchored']) for p in parts)} frames",
           file=sys.stderr, flush=True)
     return str(out)
 
 
+def main_model_digest(model) -> str:
+    """sha256 of the main part of a failure model (its optional sections left out): the per-pass probabilities
+    stored with the rows are this part's, so rows stored under another main part are stale."""
+    main = dataclasses.replace(model, between_anchors=None, pass_choice=None)
+    return hashlib.sha256(json.dumps(main.to_json(), sort_keys=True).encode()).hexdigest()
+
+
 def load_data(folder: Path, sequences: set[str], seeds, everies, stop: int) -> dict[str, np.ndarray]:
-    """The stored rows of the given sequences, seeds and intervals, tracked with ``stop``."""
+    """The stored rows of the given sequences, seeds and intervals, tracked with ``stop`` and scored by the
+    installed main failure model."""
+    digest = main_model_digest(load_model(None))
     parts = []
     for path, name, seed, every in stored_runs(folder, sequences, seeds, everies):
         with np.load(path) as d:
-            if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES:
-                raise SystemExit(f"{path} was generated with another --stop or for other features: run with "
-                                 "--generate again")
+            if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES or "gap" not in d:
+                raise SystemExit(f"{path} was generated with another --stop, for other features or by an older "
+                                 "version of this script: run with --generate again")
+            if "main_model" not in d or str(d["main_model"]) != digest:
+                raise SystemExit(f"{path} holds per-pass probabilities of another main failure model than the "
+                                 "installed one: run with --generate again")
             k = len(d["anchored"])
             parts.append(dict(sequence=np.full(k, name), seed=np.full(k, seed), every=np.full(k, every),
-                              features=d["features"], anchored=d["anchored"], options=d["options"]))
+                              features=d["features"], anchored=d["anchored"], options=d["options"],
+                              gap=d["gap"]))
     if not parts:
         raise SystemExit(f"no data in {folder} for these sequences, seeds and intervals: run with --generate first")
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
@@ -130,18 +145,15 @@ def chosen_right(data: dict[str, np.ndarray], section, rows: np.ndarray) -> np.n
     """Whether the ``chosen`` merge's box is right on ``rows`` (a boolean mask) with ``section``."""
     right = data["anchored"][rows].copy()
     disagree = data["features"][rows, PASS_CHOICE_FEATURES.index("pass_iou")] < section.disagree_below
-    gap = data["features"][rows, PASS_CHOICE_FEATURES.index("gap")]
-    features = data["features"][rows].copy()
-    features[:, PASS_CHOICE_FEATURES.index("gap")] = np.minimum(gap, section.max_gap)
-    picks = section.choose(features[disagree], gap[disagree] <= section.max_gap)
+    picks = section.choose(data["features"][rows][disagree], data["gap"][rows][disagree] <= section.max_gap)
     right[disagree] = data["options"][rows][disagree, picks]
     return right
 
 
 def fit_section(data: dict[str, np.ndarray], rows: np.ndarray, max_gap: int, info: dict):
     disagree = rows & (data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW)
-    return fit_pass_choice(data["features"][disagree], data["options"][disagree], disagree_below=DISAGREE_BELOW,
-                           max_gap=max_gap, info=info)
+    return fit_pass_choice(data["features"][disagree], data["options"][disagree], data["gap"][disagree],
+                           disagree_below=DISAGREE_BELOW, max_gap=max_gap, info=info)
 
 
 def held_out(data: dict[str, np.ndarray], max_gap: int) -> tuple[np.ndarray, dict]:
@@ -171,10 +183,8 @@ def held_out_doubt(data: dict[str, np.ndarray], max_gap: int) -> dict[str, np.nd
         if not rows.any():
             continue
         section = fit_section(data, fold_of != fold, max_gap, {})
-        features = data["features"][rows].copy()
-        gap = features[:, PASS_CHOICE_FEATURES.index("gap")].copy()
-        features[:, PASS_CHOICE_FEATURES.index("gap")] = np.minimum(gap, section.max_gap)
-        picks = section.choose(features, gap <= section.max_gap)
+        features = data["features"][rows]
+        picks = section.choose(features, data["gap"][rows] <= section.max_gap)
         index = np.arange(len(picks))
         p_forward, p_backward = (1.0 / (1.0 + np.exp(-features[:, PASS_CHOICE_FEATURES.index(name)]))
                                  for name in ("logit_p_forward", "logit_p_backward"))

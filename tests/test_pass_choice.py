@@ -70,9 +70,6 @@ def test_features_of_rows_between_two_human_boxes_are_exact():
     np.testing.assert_allclose(column["pass_iou"], [1.0, 0.0, 0.0, 2 / 3])
     np.testing.assert_allclose(column["position"], [0.2, 0.4, 0.6, 0.8])
     np.testing.assert_allclose(column["edge_distance"], [0.2, 0.4, 0.4, 0.2])
-    np.testing.assert_allclose(column["gap"], 5.0)
-    capped, _ = pass_choice_features(p_f, p_b, fwd.boxes_xywh, bwd.boxes_xywh, ENDS, max_gap=3)
-    np.testing.assert_allclose(capped[:, PASS_CHOICE_FEATURES.index("gap")], 3.0)  # read as the longest fitted
 
 
 def test_a_pass_is_scored_from_the_human_box_it_started_at_in_the_order_it_ran():
@@ -181,7 +178,7 @@ def test_the_section_round_trips_through_the_file_and_is_optional(tmp_path):
     (lambda s: s.pop("coef"), "pass_choice section lacks or garbles"),
     (lambda s: s.update(features=s["features"][:-1]), "pass_choice section is for features"),
     (lambda s: s.update(options=["forward", "backward"]), "pass_choice section is for features"),
-    (lambda s: s.update(coef=s["coef"][:2]), "pass_choice coef must be 3 x 8 finite numbers"),
+    (lambda s: s.update(coef=s["coef"][:2]), "pass_choice coef must be 3 x 7 finite numbers"),
     (lambda s: s.update(intercept=[0.0, float("nan"), 0.0]), "pass_choice intercept must be 3 finite numbers"),
     (lambda s: s.update(scale=[0.0] * K), "scales must be > 0"),
     (lambda s: s.update(max_gap=True), "max_gap an integer >= 2"),
@@ -199,22 +196,22 @@ def test_a_damaged_section_is_refused_in_one_line(tmp_path, edit, fragment):
     assert fragment in str(info.value) and "pass_choice.py" in str(info.value) and "\n" not in str(info.value)
 
 
-def _choice_data(n: int = 3000, seed: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def _choice_data(n: int = 3000, seed: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows where forward is right when its p_fail is low, backward likewise, and the interpolation when both
-    passes doubt themselves."""
+    passes doubt themselves; human boxes 10 or 20 frames apart."""
     rng = np.random.default_rng(seed)
     features = rng.normal(0, 1, (n, K))
-    features[:, PASS_CHOICE_FEATURES.index("gap")] = rng.choice([10.0, 20.0], n)
+    gaps = rng.choice([10, 20], n)
     z_f, z_b = features[:, 0], features[:, 1]
     right = np.stack([rng.uniform(size=n) < 1 / (1 + np.exp(2 * z_f)), rng.uniform(size=n) < 1 / (1 + np.exp(2 * z_b)),
                       rng.uniform(size=n) < 1 / (1 + np.exp(-(z_f + z_b)))], axis=1)
-    return features, right
+    return features, right, gaps
 
 
 def test_fitting_the_section_recovers_a_known_choice_and_is_reproducible():
-    features, right = _choice_data()
-    first = fit_pass_choice(features, right, disagree_below=0.5, max_gap=20, info={"data": "fixed"})
-    again = fit_pass_choice(features, right, disagree_below=0.5, max_gap=20, info={"data": "fixed"})
+    features, right, gaps = _choice_data()
+    first = fit_pass_choice(features, right, gaps, disagree_below=0.5, max_gap=20, info={"data": "fixed"})
+    again = fit_pass_choice(features, right, gaps, disagree_below=0.5, max_gap=20, info={"data": "fixed"})
     assert json.dumps(first.to_json()) == json.dumps(again.to_json())
     assert first.coef[FORWARD, 0] < -1 and first.coef[BACKWARD, 1] < -1
     assert first.coef[INTERPOLATION, 0] > 0.5 and first.coef[INTERPOLATION, 1] > 0.5
@@ -222,22 +219,24 @@ def test_fitting_the_section_recovers_a_known_choice_and_is_reproducible():
                          np.ones(3, bool))
     assert picks.tolist() == [FORWARD, BACKWARD, INTERPOLATION]
     # Interpolation rows are fitted only where the boxes are at most max_gap apart: with 10, half the rows.
-    only_ten = fit_pass_choice(features, right, disagree_below=0.5, max_gap=10)
+    only_ten = fit_pass_choice(features, right, gaps, disagree_below=0.5, max_gap=10)
     assert not np.allclose(only_ten.coef[INTERPOLATION], first.coef[INTERPOLATION])
     np.testing.assert_array_equal(only_ten.coef[FORWARD], first.coef[FORWARD])
 
 
 def test_fitting_refuses_rows_that_cannot_teach_an_option():
-    features, right = _choice_data(200)
+    features, right, gaps = _choice_data(200)
     right[:, BACKWARD] = True
     with pytest.raises(ValueError, match="the backward option needs frames where it was right and frames where it "
                                          "was wrong"):
-        fit_pass_choice(features, right, disagree_below=0.5, max_gap=20)
-    with pytest.raises(ValueError, match=r"features must be \(n, 8\)"):
-        fit_pass_choice(features[:, :3], right, disagree_below=0.5, max_gap=20)
+        fit_pass_choice(features, right, gaps, disagree_below=0.5, max_gap=20)
+    with pytest.raises(ValueError, match=r"features must be \(n, 7\), right \(n, 3\) and gaps \(n,\)"):
+        fit_pass_choice(features[:, :3], right, gaps, disagree_below=0.5, max_gap=20)
+    with pytest.raises(ValueError, match=r"gaps \(n,\)"):
+        fit_pass_choice(features, right, gaps[:-1], disagree_below=0.5, max_gap=20)
     features[0, 0] = np.nan
     with pytest.raises(ValueError, match="finite"):
-        fit_pass_choice(features, _choice_data(200)[1], disagree_below=0.5, max_gap=20)
+        fit_pass_choice(features, _choice_data(200)[1], gaps, disagree_below=0.5, max_gap=20)
 
 
 # --------------------------------------------------------------------------- re-tracking with a section
@@ -315,14 +314,13 @@ def test_the_benchmark_chooses_each_videos_frames_with_a_section_fitted_without_
     sequence = np.repeat(["A", "B.1", "B.2", "C"], [100, 150, 150, 200])
     features = rng.normal(0, 1, (n, K))
     features[:, PASS_CHOICE_FEATURES.index("pass_iou")] = rng.uniform(0, 0.4, n)  # every row disagrees
-    features[:, PASS_CHOICE_FEATURES.index("gap")] = 10.0
     z = features[:, 0]
     # Video A's forward pass is right where the others' is wrong, and the other way round: held out, A is
     # chosen badly, and B and C, whose rows outnumber A's in each other's folds, well.
     forward_right = np.where(sequence == "A", z < 0, z > 0)
     options = np.stack([forward_right, ~forward_right, rng.uniform(size=n) < 0.1], axis=1)
     data = dict(sequence=sequence, seed=np.zeros(n, int), every=np.full(n, 10), features=features,
-                anchored=options[:, 0].copy(), options=options)
+                anchored=options[:, 0].copy(), options=options, gap=np.full(n, 10))
     right, folds = script.held_out(data, max_gap=10)
     in_a = sequence == "A"
     without_a = script.fit_section(data, ~in_a, 10, {})
@@ -332,3 +330,19 @@ def test_the_benchmark_chooses_each_videos_frames_with_a_section_fitted_without_
     assert folds["B.1"].info == {"held_out": "B.1", "fold": "B"} and folds["A"].info["fold"] == "A"
     np.testing.assert_array_equal(folds["B.1"].coef, folds["B.2"].coef)
     assert not np.allclose(folds["A"].coef, folds["B.1"].coef)
+
+
+def test_the_benchmark_refuses_rows_scored_by_another_main_model(tmp_path):
+    from _benchmark_scripts import load_script
+
+    script = load_script("pass_choice")
+    rows = dict(stop=200, feature_names=np.array(PASS_CHOICE_FEATURES), features=np.zeros((2, K)),
+                anchored=np.ones(2, bool), options=np.ones((2, 3), bool), gap=np.full(2, 10))
+    np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(load_model()), **rows)
+    assert len(script.load_data(tmp_path, {"Seq"}, [0], [10], 200)["gap"]) == 2
+    # The installed main part with its pass_choice section is the same main part; another threshold is not.
+    assert script.main_model_digest(model_with(section())) == script.main_model_digest(load_model())
+    other = dataclasses.replace(load_model(), threshold=0.5)
+    np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(other), **rows)
+    with pytest.raises(SystemExit, match="another main failure model than the installed one"):
+        script.load_data(tmp_path, {"Seq"}, [0], [10], 200)

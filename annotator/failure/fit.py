@@ -251,28 +251,30 @@ def fit_pass_agreement(p_track: np.ndarray, pass_iou: np.ndarray, failed: np.nda
                          intercept=float(fit.intercept_[0]), info=dict(info or {}))
 
 
-def fit_pass_choice(features: np.ndarray, right: np.ndarray, *, disagree_below: float, max_gap: int, C: float = 1.0,
-                    info: Mapping[str, Any] | None = None) -> PassChoice:
+def fit_pass_choice(features: np.ndarray, right: np.ndarray, gaps: np.ndarray, *, disagree_below: float,
+                    max_gap: int, C: float = 1.0, info: Mapping[str, Any] | None = None) -> PassChoice:
     """The ``pass_choice`` section from frames where two passes disagreed (``benchmarks/pass_choice.py``).
 
     ``features``: ``(n, len(PASS_CHOICE_FEATURES))`` rows; ``right``: ``(n, 3)`` whether the forward box, the
-    backward box and the interpolation were right (IoU >= 0.5). One logistic regression per option on the
-    standardised features, each fitted on the rows where that option was possible (the interpolation only on
-    rows whose two human boxes are at most ``max_gap`` frames apart).
+    backward box and the interpolation were right (IoU >= 0.5); ``gaps``: ``(n,)`` frames from one human box to
+    the other. One logistic regression per option on the standardised features, each fitted on the rows where
+    that option was possible (the interpolation only on rows whose two human boxes are at most ``max_gap``
+    frames apart).
     """
     from sklearn.linear_model import LogisticRegression
 
     features = np.asarray(features, dtype=np.float64)
     right = np.asarray(right, dtype=bool)
-    if features.ndim != 2 or features.shape[1] != len(PASS_CHOICE_FEATURES) or right.shape != (len(features), 3):
-        raise ValueError(f"features must be (n, {len(PASS_CHOICE_FEATURES)}) and right (n, 3)")
+    gaps = np.asarray(gaps)
+    if features.ndim != 2 or features.shape[1] != len(PASS_CHOICE_FEATURES) or right.shape != (len(features), 3) \
+            or gaps.shape != (len(features),):
+        raise ValueError(f"features must be (n, {len(PASS_CHOICE_FEATURES)}), right (n, 3) and gaps (n,)")
     if not np.all(np.isfinite(features)):
         raise ValueError("every pass-choice feature must be finite")
     mean, scale = features.mean(axis=0), features.std(axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     z = (features - mean) / scale
-    allowed = [np.ones(len(z), bool), np.ones(len(z), bool),
-               features[:, PASS_CHOICE_FEATURES.index("gap")] <= max_gap]
+    allowed = [np.ones(len(z), bool), np.ones(len(z), bool), gaps <= max_gap]
     coef, intercept = np.zeros((3, z.shape[1])), np.zeros(3)
     for k in range(3):
         y = right[allowed[k], k]

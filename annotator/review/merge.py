@@ -164,13 +164,11 @@ def pass_p_fail(result: PassResult, model: FailureModel, *, backward: bool) -> n
 
 
 def pass_choice_features(p_forward: np.ndarray, p_backward: np.ndarray, forward_boxes: np.ndarray,
-                         backward_boxes: np.ndarray, ends: tuple[Box, Box], max_gap: int | None = None
-                         ) -> tuple[np.ndarray, np.ndarray]:
+                         backward_boxes: np.ndarray, ends: tuple[Box, Box]) -> tuple[np.ndarray, np.ndarray]:
     """``(features, interpolation)`` of the rows strictly between two human boxes ``ends``.
 
     ``features`` are :data:`~annotator.failure.model.PASS_CHOICE_FEATURES` per row; ``interpolation`` the
-    linear interpolation of the two boxes. The ``gap`` feature (frames from box to box) is read as at most
-    ``max_gap``, the longest the chooser was fitted on.
+    linear interpolation of the two boxes.
     """
     n = len(p_forward)
     gap = n + 1
@@ -183,7 +181,6 @@ def pass_choice_features(p_forward: np.ndarray, p_backward: np.ndarray, forward_
         "forward_iou_interpolation": overlap(forward_boxes, interpolation),
         "backward_iou_interpolation": overlap(backward_boxes, interpolation),
         "pass_iou": overlap(forward_boxes, backward_boxes), "position": t, "edge_distance": np.minimum(t, 1.0 - t),
-        "gap": np.full(n, float(gap if max_gap is None else min(gap, max_gap))),
     }
     return np.stack([columns[name] for name in PASS_CHOICE_FEATURES], axis=1), interpolation
 
@@ -197,8 +194,7 @@ def _choose_where_passes_disagree(out: PassResult, fwd: PassResult, bwd: PassRes
     if not disagree.any():
         return
     p_fwd, p_bwd = pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True)
-    features, interpolation = pass_choice_features(p_fwd, p_bwd, fwd.boxes_xywh, bwd.boxes_xywh, ends,
-                                                   chooser.max_gap)
+    features, interpolation = pass_choice_features(p_fwd, p_bwd, fwd.boxes_xywh, bwd.boxes_xywh, ends)
     can_interpolate = len(out.confidence) + 1 <= chooser.max_gap
     rows = np.flatnonzero(disagree)
     picks = chooser.choose(features[rows], np.full(len(rows), can_interpolate))
