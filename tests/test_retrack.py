@@ -492,6 +492,24 @@ def test_a_hand_edited_run_json_is_refused_in_one_line(out, edit):
     assert "\n" not in str(caught.value)
 
 
+@pytest.mark.parametrize("damage, code", [("{", EXIT_VALUE), (None, EXIT_INPUT)])
+def test_a_failure_model_damaged_or_gone_since_the_run_is_refused_before_tracking(out, tmp_path, damage, code):
+    model = tmp_path / "model.json"
+    model.write_text(json.dumps(load_model().to_json()))
+    info = json.loads((out / "run.json").read_text())
+    info["config"]["failure_model"] = str(model)
+    (out / "run.json").write_text(json.dumps(info))
+    assert load_run(out).config.failure_model == str(model)
+    if damage is None:
+        model.unlink()
+    else:
+        model.write_text(damage)
+    with pytest.raises(ToolError) as caught:
+        load_run(out)
+    assert caught.value.exit_code == code and str(model) in str(caught.value) and "\n" not in str(caught.value)
+    assert "run.json names" in str(caught.value)
+
+
 def test_a_video_given_as_the_run_folder_is_named_as_a_file(run_dir, tmp_path):
     video = tmp_path / "clip.mp4"
     video.write_bytes(b"\x00" * 10)

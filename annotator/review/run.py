@@ -72,8 +72,9 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
     ToolError
         Exit code 3 when run.json or the store is missing, damaged or of
         another version (a folder written before track stores existed is
-        rejected with how to redo it), 4 when the configuration in run.json
-        is not valid for this version.
+        rejected with how to redo it, or the failure-model file run.json
+        names is gone), 4 when the configuration in run.json is not valid
+        for this version or that failure-model file is damaged.
     """
     out_dir = Path(out_dir)
     if out_dir.is_file():
@@ -101,6 +102,14 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
     except (KeyError, TypeError, ValueError) as exc:
         raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
                         "or edited - re-run the annotation", EXIT_VALUE) from None
+    if config.failure_model is not None:
+        from annotator.failure.model import FailureModelError, load_model
+
+        try:
+            load_model(config.failure_model)  # a file damaged or moved since the run fails now, not after tracking
+        except FailureModelError as exc:
+            raise ToolError(f"{exc} (the failure model {run_path} names)",
+                            EXIT_INPUT if not Path(config.failure_model).is_file() else EXIT_VALUE) from None
     store_path = out_dir / STORE_NAME
     if not store_path.exists():
         raise ToolError(f"{out_dir} holds no {STORE_NAME}: it was written by sptpt-annotate "
