@@ -235,6 +235,17 @@ def wait_until(condition, proc: subprocess.Popen, timeout: float = 60.0):
     pytest.fail("the batch never reached the moment to kill it")
 
 
+def wait_for_group_to_exit(group: int, timeout: float = 10.0) -> None:
+    """Wait until no process of the process group is left (an unreaped orphan counts as left: then the timeout)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(group, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.02)
+
+
 def check_every_output_parses(out: Path) -> None:
     assert not list(out.rglob(".*.tmp*")), "temporary files left behind"
     for path in out.rglob("*.json"):
@@ -266,6 +277,9 @@ def test_kill_9_mid_item_then_rerun_finishes_the_rest_without_redoing(dataset, l
     wait_until(lambda: all(in_progress(out)), proc)
     os.killpg(proc.pid, signal.SIGKILL)  # the parent, its fork server and its worker, all at once
     proc.wait(10)
+    # The worker dies a moment after its parent: until then it holds its item folder's lock, and a rerun started
+    # at once finds that item "in use by another run" (a person reruns after the kill, not during it).
+    wait_for_group_to_exit(proc.pid)
     finished, running = in_progress(out)
     assert finished and running
     kept = {d.name: ((d / "run.json").read_bytes(), (d / "run.json").stat().st_mtime_ns) for d in finished}
