@@ -53,9 +53,8 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT))
 
-from _anchor_runs import mean_std, parse_seeds_and_intervals, stored_runs, track_jobs, video  # noqa: E402
+from _anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video  # noqa: E402
 from _results import machine_line, update_section  # noqa: E402
-from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
@@ -123,31 +122,25 @@ def load_data(folder: Path, sequences: set[str], seeds, everies, stop: int) -> d
     """The stored rows of the given sequences, seeds and intervals, tracked with ``stop`` and scored by the
     installed main failure model."""
     digest = main_model_digest(load_model(None))
-    parts = []
-    for path, name, seed, every in stored_runs(folder, sequences, seeds, everies):
-        with np.load(path) as d:
-            if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES or "gap" not in d:
-                raise SystemExit(f"{path} was generated with another --stop, for other features or by an older "
-                                 "version of this script: run with --generate again")
-            if "main_model" not in d or str(d["main_model"]) != digest:
-                raise SystemExit(f"{path} holds per-pass probabilities of another main failure model than the "
-                                 "installed one: run with --generate again")
-            k = len(d["anchored"])
-            parts.append(dict(sequence=np.full(k, name), seed=np.full(k, seed), every=np.full(k, every),
-                              features=d["features"], anchored=d["anchored"], options=d["options"],
-                              gap=d["gap"]))
-    if not parts:
-        raise SystemExit(f"no data in {folder} for these sequences, seeds and intervals: run with --generate first")
-    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+    def check(path: Path, d) -> None:
+        if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES or "gap" not in d:
+            raise SystemExit(f"{path} was generated with another --stop, for other features or by an older "
+                             "version of this script: run with --generate again")
+        if "main_model" not in d or str(d["main_model"]) != digest:
+            raise SystemExit(f"{path} holds per-pass probabilities of another main failure model than the "
+                             "installed one: run with --generate again")
+
+    return stored_rows(folder, sequences, seeds, everies, ("anchored", "features", "options", "gap"), check)
 
 
-def chosen_right(data: dict[str, np.ndarray], section, rows: np.ndarray) -> np.ndarray:
-    """Whether the ``chosen`` merge's box is right on ``rows`` (a boolean mask) with ``section``."""
-    right = data["anchored"][rows].copy()
+def _choose(data: dict[str, np.ndarray], section, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(disagree, picks, p_right)`` on ``rows`` (a boolean mask): which of them the ``chosen`` merge chooses on,
+    its pick there, and each option's probability of being right there."""
     disagree = data["features"][rows, PASS_CHOICE_FEATURES.index("pass_iou")] < section.disagree_below
-    picks = section.choose(data["features"][rows][disagree], data["gap"][rows][disagree] <= section.max_gap)
-    right[disagree] = data["options"][rows][disagree, picks]
-    return right
+    features = data["features"][rows][disagree]
+    return disagree, section.choose(features, data["gap"][rows][disagree] <= section.max_gap), \
+        section.p_right(features)
 
 
 def fit_section(data: dict[str, np.ndarray], rows: np.ndarray, max_gap: int, info: dict):
@@ -156,42 +149,34 @@ def fit_section(data: dict[str, np.ndarray], rows: np.ndarray, max_gap: int, inf
                            disagree_below=DISAGREE_BELOW, max_gap=max_gap, info=info)
 
 
-def held_out(data: dict[str, np.ndarray], max_gap: int) -> tuple[np.ndarray, dict]:
-    """Per row, whether the ``chosen`` box is right with a section fitted without the row's video; and each
-    sequence's fold section."""
+def held_out(data: dict[str, np.ndarray], max_gap: int) -> tuple[np.ndarray, dict, dict[str, np.ndarray]]:
+    """Each video's rows chosen by a section fitted without that video: per row, whether the ``chosen`` box is
+    right; each sequence's fold section; and on the rows where the passes disagree, how doubtful the chosen box
+    is: whether it is wrong, the section's probability that it is (1 - the chosen option's probability of being
+    right), and the p_fail the row keeps in the tool (its source pass's own; for an interpolated row, that of the
+    pass that doubts itself less)."""
     right = np.zeros(len(data["anchored"]), bool)
     folds = {}
+    doubt: dict[str, list[np.ndarray]] = {"wrong": [], "section": [], "kept": []}
     fold_of = np.array([video(name) for name in data["sequence"]])
     for fold in sorted(set(fold_of)):
         test = fold_of == fold
         section = fit_section(data, ~test, max_gap, {"held_out": fold})
-        right[test] = chosen_right(data, section, test)
-        for name in set(data["sequence"][test]):
-            folds[name] = dataclasses.replace(section, info={"held_out": name, "fold": fold})
-    return right, folds
-
-
-def held_out_doubt(data: dict[str, np.ndarray], max_gap: int) -> dict[str, np.ndarray]:
-    """On the rows where the passes disagree, held out by video: whether the chosen box is wrong, the section's
-    probability that it is (1 - the chosen option's probability of being right), and the p_fail the row keeps in
-    the tool (its source pass's own; for an interpolated row, the pass that doubts itself less)."""
-    disagree = data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW
-    fold_of = np.array([video(name) for name in data["sequence"]])
-    out = {k: np.zeros(len(disagree)) for k in ("wrong", "section", "kept")}
-    for fold in sorted(set(fold_of)):
-        rows = (fold_of == fold) & disagree
-        if not rows.any():
-            continue
-        section = fit_section(data, fold_of != fold, max_gap, {})
-        features = data["features"][rows]
-        picks = section.choose(features, data["gap"][rows] <= section.max_gap)
-        index = np.arange(len(picks))
+        disagree, picks, p_right = _choose(data, section, test)
+        taken_right = data["options"][test][disagree][np.arange(len(picks)), picks]
+        fold_right = data["anchored"][test].copy()
+        fold_right[disagree] = taken_right
+        right[test] = fold_right
+        features = data["features"][test][disagree]
         p_forward, p_backward = (1.0 / (1.0 + np.exp(-features[:, PASS_CHOICE_FEATURES.index(name)]))
                                  for name in ("logit_p_forward", "logit_p_backward"))
-        out["wrong"][rows] = ~data["options"][rows][index, picks]
-        out["section"][rows] = 1.0 - section.p_right(features)[index, picks]
-        out["kept"][rows] = np.choose(picks, [p_forward, p_backward, np.minimum(p_forward, p_backward)])
-    return {k: v[disagree] for k, v in out.items()}
+        index = np.arange(len(picks))
+        doubt["wrong"].append(~taken_right)
+        doubt["section"].append(1.0 - p_right[index, picks])
+        doubt["kept"].append(np.choose(picks, [p_forward, p_backward, np.minimum(p_forward, p_backward)]))
+        for name in set(data["sequence"][test]):
+            folds[name] = dataclasses.replace(section, info={"held_out": name, "fold": fold})
+    return right, folds, {k: np.concatenate(v) for k, v in doubt.items()}
 
 
 def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: dict[str, np.ndarray]) -> str:
@@ -249,40 +234,24 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
-    parser.add_argument("--sequences", default="all", help="comma-separated names, or 'all'")
-    parser.add_argument("--stop", type=int, default=200, help="first N frames of each sequence (default 200)")
-    parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--every", default="10", help="anchor intervals M, comma-separated (default 10: the "
-                        "interval of the tool's keyframe request; with several, the interpolation is an option up "
-                        "to the longest)")
-    parser.add_argument("--data", type=Path, default=HERE / "_runs" / "pass_choice")
-    parser.add_argument("--generate", action="store_true", help="track first (else use the stored data)")
-    parser.add_argument("--workers", type=int, default=2)
+    add_arguments(parser, otb=ROOT.parent / "shared" / "otb", stop=200, every="10",
+                  every_help="anchor intervals M, comma-separated (default 10: the interval of the tool's keyframe "
+                             "request; with several, the interpolation is an option up to the longest)",
+                  data=HERE / "_runs" / "pass_choice")
     parser.add_argument("--write", action="store_true",
                         help="write the section into the package's failure model, and the fold models")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = parser.parse_args()
-    seeds, everies = parse_seeds_and_intervals(parser, args)
     started = time.perf_counter()
-    try:
-        sequences = select_sequences(args.otb, args.sequences)
-    except SequenceError as err:
-        parser.error(str(err))
-    if args.generate:
-        track_jobs(generate, sequences, seeds, everies, args.stop, args.data, args.workers)
-    data = load_data(args.data, {s.name for s in sequences}, seeds, everies, args.stop)
-    if len({video(name) for name in data["sequence"]}) < 2:
-        parser.error("held-out figures need the frames of at least two videos: give more --sequences")
+    seeds, everies, data = stored_data(parser, args, generate, load_data)
     max_gap = max(everies)
-    chosen, folds = held_out(data, max_gap)
+    chosen, folds, doubt = held_out(data, max_gap)
     command = "python benchmarks/pass_choice.py " + " ".join(sys.argv[1:])
     shipped = fit_section(data, np.ones(len(chosen), bool), max_gap, {
         "fitted_by": command.strip(), "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
                                                "sequences": sorted(set(data["sequence"])),
                                                "frames": int(len(chosen))}})
-    text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate,
-                    held_out_doubt(data, max_gap))
+    text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate, doubt)
     print(text)
     if args.write:
         model = load_model(None)
