@@ -601,13 +601,13 @@ def main() -> None:
                 fold = load_model(path)
             except FailureModelError as exc:
                 parser.error(f"{exc} (--fold-models needs one model file per sequence)")
-            sections = [part for part in (fold.between_anchors, fold.pass_choice) if part is not None]
-            if not sections or any(part.info.get("held_out") != s.name for part in sections):
+            sections = {name: part for name, part in (("between_anchors", fold.between_anchors),
+                                                      ("pass_choice", fold.pass_choice)) if part is not None}
+            if not sections or any(part.info.get("held_out") != s.name for part in sections.values()):
                 parser.error(f"{path} is not the fold model of {s.name}: its between_anchors or pass_choice "
                              "section must be fitted without that sequence (benchmarks/anchored_failure.py or "
                              "benchmarks/pass_choice.py --write)")
-            held_out_parts |= {"between_anchors" if fold.between_anchors is not None else "",
-                               "pass_choice" if fold.pass_choice is not None else ""} - {""}
+            held_out_parts |= sections.keys()
             sequence_models[s.name] = str(path)
             model_record.setdefault("fold_sha256", {})[s.name] = hashlib.sha256(
                 json.dumps(fold.to_json(), sort_keys=True).encode()).hexdigest()
