@@ -148,16 +148,21 @@ def resolve_config(
         raise ConfigError(f"{source}: {exc}") from None
     model_path = failure_model if failure_model is not None else file_values.get("failure_model")
     if model_path is not None:
-        from annotator.failure.model import FailureModelError, load_model
-
         model_path = str(Path(model_path).resolve())
-        try:
-            load_model(model_path)  # a bad file fails now, not after tracking
-        except FailureModelError as exc:
-            missing = not Path(model_path).is_file()
-            raise ConfigError(str(exc), EXIT_INPUT if missing else EXIT_VALUE) from None
+        check_failure_model(model_path)
     return RunConfig(preset=str(preset_name), tracker=tracker, flags=flags, seed=int(seed_value),
                      failure_model=model_path)
+
+
+def check_failure_model(path: str) -> None:
+    """Load a failure-model file once, so that a bad one fails before any tracking, not after it: a
+    :class:`ConfigError` naming it, exit 3 when it is missing, 4 when it cannot be used."""
+    from annotator.failure.model import FailureModelError, load_model
+
+    try:
+        load_model(path)
+    except FailureModelError as exc:
+        raise ConfigError(str(exc), EXIT_INPUT if not Path(path).is_file() else EXIT_VALUE) from None
 
 
 def _check_tracker_accepts(params: TrackerParams) -> None:

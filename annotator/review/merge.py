@@ -200,8 +200,9 @@ def _choose_where_passes_disagree(out: PassResult, fwd: PassResult, bwd: PassRes
     picks = chooser.choose(features[rows], np.full(len(rows), can_interpolate))
     forward, backward, _ = range(len(PASS_OPTIONS))
     for row, pick in zip(rows, picks):
-        # An interpolated row keeps the other fields of the pass that doubts itself less: its p_fail stays that
-        # of a tracked box, a cautious reading, as nothing measured the interpolation itself.
+        # An interpolated row keeps the other fields of the pass that doubts itself less, so its p_fail is that of
+        # a tracked box: no signal measures the interpolation itself. Measured, that ranks these rows' failures
+        # worse than the section's own probability would (RESULTS.md, "pass-choice").
         source = fwd if pick == forward or (pick != backward and p_fwd[row] <= p_bwd[row]) else bwd
         out.boxes_xywh[row] = interpolation[row] if pick not in (forward, backward) else source.boxes_xywh[row]
         out.confidence[row], out.log_likelihood[row] = source.confidence[row], source.log_likelihood[row]
@@ -226,7 +227,8 @@ def filled_signals(signals: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
-           config: RunConfig, pass_iou: np.ndarray | None = None) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+           config: RunConfig, pass_iou: np.ndarray | None = None, *, model: FailureModel | None = None
+           ) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
     """Failure probabilities and flags of a whole track from its signals: ``(flagged, reasons, p_fail)``.
 
     Anchors are never flagged and have ``p_fail`` 0; ``outside`` rows are
@@ -234,10 +236,11 @@ def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.
     flags file), have no ``p_fail`` (NaN), and neither hold a span open nor
     bridge two flagged stretches. ``pass_iou`` (NaN where a row was not
     merged from two passes) lets the model's ``between_anchors`` section
-    correct the rows between two anchors.
+    correct the rows between two anchors. ``model``: ``config``'s failure
+    model, where the caller has it loaded already.
     """
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
-    model = load_model(config.failure_model)
+    model = load_model(config.failure_model) if model is None else model
     p_fail, groups = track_p_fail(signals, keyframe, outside, model, pass_iou=pass_iou)
     threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
     result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)

@@ -302,7 +302,7 @@ def retrack_tracks(
                 outside[rows] = True
         # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
         by_name = {name: signals[:, k] for k, name in enumerate(SIGNALS)}
-        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config, pass_iou=pass_iou)
+        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config, pass_iou=pass_iou, model=model)
         conf = np.where(outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
         # Only a track with rows merged from two passes carries the column: a run nobody corrected keeps its files.
         passes = {PASS_IOU: pass_iou} if np.any(~np.isnan(pass_iou)) else {}

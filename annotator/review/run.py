@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from annotator.config import RunConfig
+from annotator.config import ConfigError, RunConfig, check_failure_model
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.flagging import FlagParams
 from annotator.review.segments import PreviousTrack
@@ -103,13 +103,10 @@ def load_run(out_dir: str | os.PathLike) -> LoadedRun:
         raise ToolError(f"{run_path}: cannot use its configuration ({exc}); it was written by another version "
                         "or edited - re-run the annotation", EXIT_VALUE) from None
     if config.failure_model is not None:
-        from annotator.failure.model import FailureModelError, load_model
-
         try:
-            load_model(config.failure_model)  # a file damaged or moved since the run fails now, not after tracking
-        except FailureModelError as exc:
-            raise ToolError(f"{exc} (the failure model {run_path} names)",
-                            EXIT_INPUT if not Path(config.failure_model).is_file() else EXIT_VALUE) from None
+            check_failure_model(config.failure_model)  # damaged or moved since the run
+        except ConfigError as exc:
+            raise ToolError(f"{exc} (the failure model {run_path} names)", exc.exit_code) from None
     store_path = out_dir / STORE_NAME
     if not store_path.exists():
         raise ToolError(f"{out_dir} holds no {STORE_NAME}: it was written by sptpt-annotate "
