@@ -27,7 +27,7 @@ import numpy as np
 from sptpt._kernels.lasso import nonnegative_lasso
 from sptpt._validation import positive_int as _positive_int
 
-__all__ = ["learn_dictionary", "encode_nonnegative", "kkt_residual"]
+__all__ = ["learn_dictionary", "encode_nonnegative", "encode_tensors", "kkt_residual"]
 
 # Stopping tolerance of the active set on the gradient D^T (a - D h) - lam,
 # relative to the signal's largest |D^T a| (or lam): far below the 1e-6 KKT residual
@@ -170,6 +170,49 @@ def encode_nonnegative(
     fails, the code is finished by at most 1000 sweeps of projected
     coordinate descent from the current feasible iterate.
     """
+    codes = _encode(signals, dictionary, lam, group=1)
+    return codes.reshape(codes.shape[:2])
+
+
+def encode_tensors(
+    features: np.ndarray,
+    dictionary: np.ndarray,
+    *,
+    lam: float = 0.01,
+) -> np.ndarray:
+    """Code tensors: the non-negative LASSO code of every superpixel, pooled per template.
+
+    Tensor pooling is arrangement (spec 2.7): the codes of a template's ``s``
+    superpixels are the columns of its ``z x s`` tensor. Same codes, to the
+    bit, as :func:`encode_nonnegative` of the ``(n s, B)`` features
+    transposed per template, written in place by the kernel.
+
+    Parameters
+    ----------
+    features : (n, s, B) array_like of float
+        The superpixel features of ``n`` templates.
+    dictionary : (B, z) array_like of float
+    lam : float, optional
+        L1 weight ``lambda`` >= 0.
+
+    Returns
+    -------
+    tensors : (n, z, s) float64 ndarray
+
+    Raises
+    ------
+    ValueError
+        As :func:`encode_nonnegative`, or if ``features`` is not 3-D.
+    """
+    features = np.asarray(features)
+    if features.ndim != 3:
+        raise ValueError(f"features must be an (n, s, B) array, got shape {features.shape}")
+    n, s, b = features.shape
+    return _encode(features.reshape(n * s, b), dictionary, lam, group=s)
+
+
+def _encode(signals: np.ndarray, dictionary: np.ndarray, lam: float, *, group: int) -> np.ndarray:
+    """Validated arguments into the kernel; (M / group, z, group) codes."""
     signals = _as_matrix(signals, "signals")
     dictionary = _as_matrix(dictionary, "dictionary")
     lam = _nonnegative_float(lam, "lam")
@@ -179,8 +222,8 @@ def encode_nonnegative(
             f"{dictionary.shape[0]} rows; dictionary must be (B, z) with atoms as columns"
         )
     n_atoms = dictionary.shape[1]
-    if signals.shape[0] == 0 or n_atoms == 0:
-        return np.zeros((signals.shape[0], n_atoms), dtype=np.float64)
+    if signals.shape[0] == 0 or n_atoms == 0 or group == 0:
+        return np.zeros((signals.shape[0] // max(group, 1), n_atoms, group), dtype=np.float64)
     gram = dictionary.T @ dictionary
     # Exact symmetry: the kernel reads G by rows where the maths uses columns.
     gram = np.ascontiguousarray(0.5 * (gram + gram.T))
@@ -189,7 +232,7 @@ def encode_nonnegative(
         ridge = np.finfo(np.float64).tiny
     max_iter = _ITER_PER_ATOM * n_atoms + _ITER_EXTRA
     return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, _MAX_SWEEPS,
-                             numba.get_num_threads())
+                             numba.get_num_threads(), group)
 
 
 def kkt_residual(

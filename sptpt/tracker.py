@@ -17,12 +17,14 @@ import contextlib
 import dataclasses
 from typing import Callable, ContextManager
 
+import numba
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from sptpt._kernels import run_in_chunks
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh
-from sptpt.coding import encode_nonnegative, learn_dictionary
+from sptpt.coding import encode_tensors, learn_dictionary
 from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
 from sptpt.params import TrackerParams, get_preset
@@ -368,19 +370,30 @@ class _Run:
 
     def _code(self, features: np.ndarray) -> np.ndarray:
         """(N, s, B) features -> (N, z, s) code tensors (tensor pooling is arrangement)."""
-        n, s, b = features.shape
         with self._time("coding"):
-            codes = encode_nonnegative(features.reshape(n * s, b), self._dictionary, lam=self.params.lasso_lambda)
-        return np.ascontiguousarray(codes.reshape(n, s, -1).transpose(0, 2, 1))
+            return encode_tensors(features, self._dictionary, lam=self.params.lasso_lambda)
 
     def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
+        """``RE- - RE+`` of each code tensor, candidate ranges scored on the kernel threads.
+
+        Scoring is single-threaded BLAS work that left the second core idle; the candidates are
+        independent and each row of a matrix product is computed alike whatever rows come with
+        it, so the split gives the same scores to the bit.
+        """
         p = self.params
         negative_model = self._negative
         if p.negative_rank_matched:
             negative_model = negative_model.truncated(self._positive.ranks)
-        positive = reconstruction_error(self._positive, codes, gamma=p.gamma, mode=p.re_mode)
-        negative = reconstruction_error(negative_model, codes, gamma=p.gamma, mode=p.re_mode)
-        return negative - positive
+        scores = np.empty(len(codes), dtype=np.float64)
+
+        def score_range(start: int, stop: int) -> None:
+            chunk = codes[start:stop]
+            positive = reconstruction_error(self._positive, chunk, gamma=p.gamma, mode=p.re_mode)
+            negative = reconstruction_error(negative_model, chunk, gamma=p.gamma, mode=p.re_mode)
+            scores[start:stop] = negative - positive
+
+        run_in_chunks(score_range, len(codes), numba.get_num_threads())
+        return scores
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
         """Step 9 then step 10 of the per-frame schedule (TPT order)."""

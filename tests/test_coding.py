@@ -13,7 +13,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import nnls
 from sklearn.decomposition import sparse_encode
 
-from sptpt.coding import encode_nonnegative, kkt_residual, learn_dictionary
+from sptpt.coding import encode_nonnegative, encode_tensors, kkt_residual, learn_dictionary
 
 LAM = 0.01
 
@@ -118,6 +118,30 @@ def test_deterministic_and_thread_count_independent(problem) -> None:
         numba.set_num_threads(previous)
     assert np.array_equal(first, encode_nonnegative(signals, dictionary))
     assert np.array_equal(first, single)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_code_tensors_are_the_codes_of_each_template_as_columns(problem, threads: int) -> None:
+    """Tensor pooling is arrangement: tensor n's column j is superpixel j's code, to the bit."""
+    signals, dictionary = problem
+    n, s = 7, 25
+    features = signals[: n * s].reshape(n, s, -1)
+    want = encode_nonnegative(signals[: n * s], dictionary).reshape(n, s, -1).transpose(0, 2, 1)
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        tensors = encode_tensors(features, dictionary)
+    finally:
+        numba.set_num_threads(previous)
+    assert tensors.shape == (n, dictionary.shape[1], s) and tensors.flags.c_contiguous
+    assert np.array_equal(tensors, want)
+
+
+def test_code_tensors_need_three_axes(problem) -> None:
+    signals, dictionary = problem
+    with pytest.raises(ValueError, match=r"features must be an \(n, s, B\) array"):
+        encode_tensors(signals[:10], dictionary)
+    assert encode_tensors(np.zeros((0, 25, 64)), dictionary).shape == (0, dictionary.shape[1], 25)
 
 
 # ---------------------------------------------------------------------------
@@ -342,7 +366,7 @@ def test_coordinate_descent_fallback_reaches_the_optimum(max_iter: int) -> None:
     dictionary = histogram_features(8, rng).T.copy()
     signals = histogram_features(50, rng)
     gram = dictionary.T @ dictionary
-    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 1e-12, 1e-12, max_iter, 100_000, 2)
+    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 1e-12, 1e-12, max_iter, 100_000, 2)[:, :, 0]
     np.testing.assert_allclose(codes, reference_nnls(signals, dictionary, LAM), rtol=0, atol=1e-8)
 
 
@@ -353,5 +377,5 @@ def test_fallback_sweep_cap_terminates_feasible() -> None:
     dictionary = histogram_features(30, rng).T.copy()
     signals = histogram_features(20, rng)
     gram = dictionary.T @ dictionary
-    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 0.0, 1e-12, 0, 1, 2)
+    codes = nonnegative_lasso(gram, dictionary, signals, LAM, 0.0, 1e-12, 0, 1, 2)[:, :, 0]
     assert np.all(codes >= 0.0) and np.all(np.isfinite(codes))

@@ -12,7 +12,7 @@ parallel batches.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba
 
@@ -32,9 +32,11 @@ def run_in_chunks(kernel, n_items: int, n_chunks: int, *args) -> None:
     """Call ``kernel(*args, start, stop)`` on ``n_chunks`` contiguous ranges of ``range(n_items)`` in parallel.
 
     The calling thread runs the first range and pool threads the others. The
-    kernel must be compiled with ``nogil=True`` and write only to item
+    kernel must release the GIL for most of its work (a ``nogil=True`` numba
+    kernel, or NumPy and BLAS calls on large arrays) and write only to item
     ``start:stop`` of its outputs, so the result does not depend on
-    ``n_chunks``. ``n_chunks`` is clipped to ``[1, n_items]``.
+    ``n_chunks``. ``n_chunks`` is clipped to ``[1, n_items]``. The first
+    exception of a range is raised once every range has finished.
     """
     global _POOL
     n_chunks = max(1, min(n_chunks, n_items))
@@ -48,6 +50,10 @@ def run_in_chunks(kernel, n_items: int, n_chunks: int, *args) -> None:
         _POOL = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
                                    thread_name_prefix="sptpt-kernel")
     futures = [_POOL.submit(kernel, *args, bounds[c], bounds[c + 1]) for c in range(1, n_chunks)]
-    kernel(*args, bounds[0], bounds[1])
+    try:
+        kernel(*args, bounds[0], bounds[1])
+    finally:
+        # Also when the first range raised: no range may still be writing once the caller goes on.
+        wait(futures)
     for future in futures:
         future.result()
