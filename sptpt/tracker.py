@@ -152,11 +152,36 @@ class Tracker:
         """
         with _single_threaded_blas():
             # Each run checks the frame (and that init came first) itself.
-            results = [run.update(frame, details=details) for run in self._runs]
+            results = self._update_runs(frame, details)
         chosen = _more_confident(results)
         if len(results) > 1 and self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, _as_rgb(frame), chosen)
         return _reported(results, chosen)
+
+
+    def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
+        """Every run's update; several runs side by side, one kernel thread each.
+
+        A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
+        side, one run's serial work overlaps the other's kernels. Runs share nothing, so their results are
+        the same as one after the other.
+        """
+        threads = numba.get_num_threads()
+        if len(self._runs) == 1 or threads == 1:
+            return [run.update(frame, details=details) for run in self._runs]
+        results: list[FrameResult | None] = [None] * len(self._runs)
+
+        def update_range(start: int, stop: int) -> None:
+            own = numba.get_num_threads()  # thread-local in numba
+            numba.set_num_threads(1)
+            try:
+                for index in range(start, stop):
+                    results[index] = self._runs[index].update(frame, details=details)
+            finally:
+                numba.set_num_threads(own)
+
+        run_in_chunks(update_range, len(self._runs), threads)
+        return results
 
 
 class _Run:

@@ -58,6 +58,25 @@ def test_same_seed_same_boxes_and_different_seed_different_particles(clip, paper
     assert not np.array_equal(other[1].box_xywh, paper_run[1].box_xywh)
 
 
+@pytest.mark.parametrize("preset", ["paper", "robust"])
+def test_one_thread_or_two_give_the_same_boxes_to_the_bit(clip, preset):
+    """Scoring, the subspace fits and a preset's runs are split over the kernel threads; nothing may move."""
+    import numba
+
+    params = get_preset(preset)
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        alone = run(clip, 11, params, n=16)
+    finally:
+        numba.set_num_threads(previous)
+    assert previous > 1  # else this compares one thread with itself
+    together = run(clip, 11, params, n=16)
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
+        assert a.log_likelihood == b.log_likelihood and a.accepted == b.accepted
+
+
 def test_details_carry_particles_and_superpixels(clip, paper_run):
     detailed = paper_run[7]
     n = get_preset("paper").n_particles
