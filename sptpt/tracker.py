@@ -417,7 +417,8 @@ class _Run:
             negative = reconstruction_error(negative_model, chunk, gamma=p.gamma, mode=p.re_mode)
             scores[start:stop] = negative - positive
 
-        run_in_chunks(score_range, len(codes), numba.get_num_threads())
+        # Blocks of at least 128 candidates: smaller matrix products lose more to overhead than to waiting.
+        run_in_chunks(score_range, len(codes), numba.get_num_threads(), min_block=128)
         return scores
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:

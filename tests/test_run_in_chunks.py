@@ -12,28 +12,50 @@ from sptpt._kernels import run_in_chunks
 
 
 def test_every_item_is_done_once_whatever_the_chunk_count() -> None:
-    for n_chunks in (1, 2, 3, 7, 50):
+    for n_threads in (1, 2, 3, 7, 50):
         done = np.zeros(10, dtype=int)
 
         def work(start: int, stop: int) -> None:
             done[start:stop] += 1
 
-        run_in_chunks(work, 10, n_chunks)
+        run_in_chunks(work, 10, n_threads)
         np.testing.assert_array_equal(done, np.ones(10, dtype=int))
 
 
-def test_an_error_in_the_first_range_is_raised_after_the_other_ranges_finished() -> None:
-    finished = threading.Event()
+def test_an_error_is_raised_once_no_block_is_running_and_stops_the_rest() -> None:
+    running = []
+    started = []
+    lock = threading.Lock()
 
     def work(start: int, stop: int) -> None:
+        with lock:
+            running.append(start)
+            started.append(start)
+        time.sleep(0.01)
+        with lock:
+            running.remove(start)
         if start == 0:
-            raise ValueError("first range failed")
-        time.sleep(0.2)
-        finished.set()
+            raise ValueError("first block failed")
 
-    with pytest.raises(ValueError, match="first range failed"):
-        run_in_chunks(work, 2, 2)
-    assert finished.is_set()  # nothing still writes once the caller sees the error
+    with pytest.raises(ValueError, match="first block failed"):
+        run_in_chunks(work, 1000, 2)
+    assert running == []  # nothing still writes once the caller sees the error
+    assert len(started) < 1000 and 0 in started  # the blocks after the error were not started
+
+
+def test_blocks_are_contiguous_disjoint_and_no_smaller_than_asked() -> None:
+    blocks = []
+    lock = threading.Lock()
+
+    def work(start: int, stop: int) -> None:
+        with lock:
+            blocks.append((start, stop))
+
+    run_in_chunks(work, 1000, 2, min_block=64)
+    blocks.sort()
+    assert blocks[0][0] == 0 and blocks[-1][1] == 1000
+    assert all(a[1] == b[0] for a, b in zip(blocks, blocks[1:]))
+    assert all(stop - start >= 64 for start, stop in blocks[:-1])
 
 
 def test_an_error_in_a_pool_range_reaches_the_caller() -> None:
