@@ -25,11 +25,23 @@ def warp_affine_batch(frame, q, offsets, n_chunks):
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
 def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - compiled
-    """Candidates ``start:stop`` of :func:`warp_affine_batch` into ``out`` (zero-filled)."""
+    """Candidates ``start:stop`` of :func:`warp_affine_batch` into ``out`` (zero-filled).
+
+    Pixels are addressed in the flattened frame and template with unsigned
+    indices (a floor of a coordinate already tested >= 0), which spares numba
+    the negative-index wraparound and the three-axis address of every read:
+    about 10% of the warp. The arithmetic is the same, operation for operation.
+    """
     height, width = frame.shape[0], frame.shape[1]
     size = offsets.shape[0]
+    flat = frame.reshape(height * width * 3)
+    row_stride = np.uint64(width * 3)
+    three = np.uint64(3)
+    last_col = np.uint64(width - 1)
+    last_row = np.uint64(height - 1)
     for i in range(start, stop):
         cx, cy, a11, a12, a21, a22 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4], q[i, 5]
+        template = out[i].reshape(size * size * 3)
         for r in range(size):
             y = offsets[r]
             for c in range(size):
@@ -38,14 +50,22 @@ def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - comp
                 py = cy + a21 * x + a22 * y
                 if not (px >= 0.0 and px <= width - 1 and py >= 0.0 and py <= height - 1):
                     continue
-                x0 = int(np.floor(px))
-                y0 = int(np.floor(py))
-                fx = px - x0
-                fy = py - y0
-                x1 = min(x0 + 1, width - 1)
-                y1 = min(y0 + 1, height - 1)
+                fx0 = np.floor(px)
+                fy0 = np.floor(py)
+                fx = px - fx0
+                fy = py - fy0
+                x0 = np.uint64(fx0)
+                y0 = np.uint64(fy0)
+                x1 = min(x0 + np.uint64(1), last_col)
+                y1 = min(y0 + np.uint64(1), last_row)
+                p00 = y0 * row_stride + x0 * three
+                p01 = y0 * row_stride + x1 * three
+                p10 = y1 * row_stride + x0 * three
+                p11 = y1 * row_stride + x1 * three
+                o = np.uint64((r * size + c) * 3)
                 for ch in range(3):
-                    top = frame[y0, x0, ch] * (1.0 - fx) + frame[y0, x1, ch] * fx
-                    bottom = frame[y1, x0, ch] * (1.0 - fx) + frame[y1, x1, ch] * fx
+                    k = np.uint64(ch)
+                    top = flat[p00 + k] * (1.0 - fx) + flat[p01 + k] * fx
+                    bottom = flat[p10 + k] * (1.0 - fx) + flat[p11 + k] * fx
                     value = top * (1.0 - fy) + bottom * fy
-                    out[i, r, c, ch] = np.uint8(min(max(np.rint(value), 0.0), 255.0))
+                    template[o + k] = np.uint8(min(max(np.rint(value), 0.0), 255.0))
