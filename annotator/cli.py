@@ -14,6 +14,7 @@ import traceback
 import typer
 
 from annotator import __version__
+from annotator.allocator import keep_freed_memory
 from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 
 app = typer.Typer(
@@ -80,6 +81,7 @@ def main(argv: list[str] | None = None) -> None:
     no_args_is_help = getattr(click_errors, "NoArgsIsHelpError", ())
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    keep_freed_memory()
     if argv[:1] == ["--version"]:
         print(f"sptpt-annotate {__version__}")
         raise SystemExit(EXIT_OK)
