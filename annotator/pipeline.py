@@ -20,6 +20,7 @@ import contextlib
 import signal
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -270,7 +271,33 @@ def track_source(
             keyframe_source=KEYFRAME_GIVEN if first else "", signals=signals)
         settle(tid, flaggers[tid].push(signals, keyframe=first))
 
+    def after_update(position: int, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult],
+                     times: dict[int, float], writer: OverlayWriter | None) -> None:
+        """A tracked frame's signals, flags and overlay, in frame order on the one follow-up thread."""
+        for tid, result in results.items():
+            record(frame_index, frame, tid, result, times[tid])
+        if writer is not None:
+            pending.append((position, frame_index, frame, results))
+            drain(writer)
+        if progress is not None:
+            progress.advance()
+
     def run(writer: OverlayWriter | None) -> int:
+        # The follow-up of frame t (failure signals, flags, overlay drawing and encoding: 3-4 ms a frame) runs on
+        # a thread of its own while frame t + 1 is tracked: the tracker's kernels keep both cores busy, but between
+        # them it leaves one idle for several ms a frame, and the follow-up fills that time. One thread, fed in
+        # frame order, so every signal, flag and overlay frame is what it was when the loop did it all in turn.
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as follow_up:
+            submitted: collections.deque = collections.deque()
+            try:
+                return track_frames(writer, follow_up, submitted)
+            finally:
+                # Every frame tracked is followed up before the results are read (or an error is raised).
+                wait(submitted)
+                for future in submitted:
+                    future.result()
+
+    def track_frames(writer: OverlayWriter | None, follow_up: ThreadPoolExecutor, submitted: collections.deque) -> int:
         nonlocal tracking_seconds, decode_error, interrupted
         position = -1
         frames = iter(source)
@@ -301,14 +328,14 @@ def track_source(
                 interrupted = True
                 break
             position += 1
-            for tid, result in results.items():
-                tracking_seconds += times[tid]
-                record(frame_index, frame, tid, result, times[tid])
-            if writer is not None:
-                pending.append((position, frame_index, frame, results))
-                drain(writer)
-            if progress is not None:
-                progress.advance()
+            tracking_seconds += sum(times.values())
+            submitted.append(follow_up.submit(after_update, position, frame_index, frame, results, times, writer))
+            # At most two frames behind: an error there stops tracking soon, and few frames wait in memory.
+            while len(submitted) > 2 or (submitted and submitted[0].done()):
+                submitted.popleft().result()
+        wait(submitted)
+        while submitted:
+            submitted.popleft().result()
         for tid, flagger in flaggers.items():
             settle(tid, flagger.finish())
         if writer is not None:

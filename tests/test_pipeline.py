@@ -351,6 +351,26 @@ def test_a_failure_mid_run_leaves_no_half_written_file(scripted, clip, tmp_path)
     assert list(out.iterdir()) == []  # not even the overlay, which is written while tracking
 
 
+def test_a_failure_following_up_a_frame_stops_tracking_soon_and_leaves_no_file(scripted, clip, tmp_path,
+                                                                               monkeypatch):
+    """Signals, flags and the overlay of frame t are made on a thread of their own while t + 1 is tracked."""
+    real_next = pipeline_module.SignalMeter.next
+
+    def failing_next(self, frame_rgb, box_xywh, **kwargs):
+        if read_index(frame_rgb) == 9:
+            raise RuntimeError("signal failure")
+        return real_next(self, frame_rgb, box_xywh, **kwargs)
+
+    monkeypatch.setattr(pipeline_module.SignalMeter, "next", failing_next)
+    out = tmp_path / "out"
+    start = len(scripted.log)
+    with pytest.raises(RuntimeError, match="signal failure"):
+        annotate(clip, TARGETS[:1], CONFIG, out_dir=out, show_progress=False)
+    tracked = [k for _, call, k in scripted.log[start:] if call == "update"]
+    assert 9 in tracked and max(tracked) <= 12  # tracking stops a few frames after the failure, not at 29
+    assert list(out.iterdir()) == []
+
+
 def test_force_removes_only_the_earlier_runs_own_files(scripted, clip, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
