@@ -112,6 +112,21 @@ def test_pixels_outside_the_frame_are_zero():
     assert (template[:, 17:] == 200).all()
 
 
+def test_the_kernel_writes_every_pixel_whatever_its_output_held():
+    """The output is not zero-filled beforehand: pixels outside the frame must be written as 0."""
+    from sptpt._kernels.warp import _warp_range
+    from sptpt.affine import affine_matrices, template_offsets
+
+    frame = np.full((40, 40, 3), 200, np.uint8)
+    state = state_from_box_xywh(np.array([-16.0, 0.0, 32.0, 32.0]), 32)
+    q = affine_matrices(state[None])
+    q[:, :2] -= 1.0
+    out = np.full((1, 32, 32, 3), 77, np.uint8)
+    _warp_range(frame, np.ascontiguousarray(q), template_offsets(32), out, 0, 1)
+    np.testing.assert_array_equal(out[0], warp_candidates(frame, state[None], 32)[0])
+    assert not (out == 77).any()
+
+
 def test_labels_map_back_to_the_box_area():
     labels = np.repeat(np.arange(32, dtype=np.int32)[None, :], 32, axis=0)  # label = template column
     state = state_from_box_xywh(np.array([10.0, 20.0, 64.0, 32.0]), 32)

@@ -241,6 +241,19 @@ def test_empty_superpixel_gives_zero_row() -> None:
     np.testing.assert_allclose(np.linalg.norm(features[:, [0, 2]], axis=-1), 1.0, atol=1e-15)
 
 
+def test_the_kernel_clears_rows_whatever_its_output_held() -> None:
+    """The output is not zero-filled beforehand: each template's rows, empty superpixels' too, start at 0."""
+    from sptpt._kernels.histograms import _cue_features_range
+
+    templates = np.full((2, 8, 8, 3), 90, dtype=np.uint8)
+    labels = np.zeros((2, 8, 8), dtype=np.int32)
+    labels[:, 4:] = 2  # label 1 never used
+    out = np.full((2, 3, 8 * 8), 7.0)
+    _cue_features_range(templates, labels, 8, out, 0, 2)
+    np.testing.assert_array_equal(out, superpixel_features(templates, labels, 3))
+    assert np.all(out[:, 1] == 0.0)
+
+
 def test_accepts_views_and_other_integer_labels() -> None:
     rng = np.random.default_rng(5)
     templates = rng.integers(0, 256, (3, 16, 16, 3), dtype=np.uint8)

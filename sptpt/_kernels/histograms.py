@@ -121,14 +121,16 @@ def cue_features(templates, labels, n_superpixels, n_bins, n_chunks):
     then normalised in place.
     """
     n_templates = labels.shape[0]
-    out = np.zeros((n_templates, n_superpixels, 8 * n_bins), dtype=np.float64)
+    # Not zero-filled here: each thread clears its templates' rows just before counting into them, in cache,
+    # instead of one thread writing 10 MiB of zeros first.
+    out = np.empty((n_templates, n_superpixels, 8 * n_bins), dtype=np.float64)
     run_in_chunks(_cue_features_range, n_templates, n_chunks, templates, labels, n_bins, out)
     return out
 
 
 @numba.njit(cache=True, nogil=True)
 def _cue_features_range(templates, labels, n_bins, out, start, stop):  # pragma: no cover - compiled
-    """Templates ``start:stop`` of :func:`cue_features` into ``out`` (zero-filled)."""
+    """Templates ``start:stop`` of :func:`cue_features` into ``out`` (contents ignored)."""
     n_templates, height, width = labels.shape
     n_superpixels = out.shape[1]
     width_features = 8 * n_bins
@@ -143,6 +145,7 @@ def _cue_features_range(templates, labels, n_bins, out, start, stop):  # pragma:
     unit = np.arange(256) / 255.0
     for t in range(start, stop):
         hist = out[t]
+        hist[:, :] = 0.0
         for row in range(height):
             y_bin = y_bins[row]
             for col in range(width):

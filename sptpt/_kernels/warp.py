@@ -18,14 +18,14 @@ def warp_affine_batch(frame, q, offsets, n_chunks):
     and ``warpimg`` replaces NaN by 0.
     """
     size = offsets.shape[0]
-    out = np.zeros((q.shape[0], size, size, 3), dtype=np.uint8)
+    out = np.empty((q.shape[0], size, size, 3), dtype=np.uint8)  # every pixel is written, 0 outside the frame
     run_in_chunks(_warp_range, q.shape[0], n_chunks, frame, q, offsets, out)
     return out
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
 def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - compiled
-    """Candidates ``start:stop`` of :func:`warp_affine_batch` into ``out`` (zero-filled).
+    """Candidates ``start:stop`` of :func:`warp_affine_batch` into ``out`` (contents ignored).
 
     Pixels are addressed in the flattened frame and template with unsigned
     indices (a floor of a coordinate already tested >= 0), which spares numba
@@ -48,7 +48,11 @@ def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - comp
                 x = offsets[c]
                 px = cx + a11 * x + a12 * y
                 py = cy + a21 * x + a22 * y
+                o = np.uint64((r * size + c) * 3)
                 if not (px >= 0.0 and px <= width - 1 and py >= 0.0 and py <= height - 1):
+                    template[o] = 0
+                    template[o + np.uint64(1)] = 0
+                    template[o + np.uint64(2)] = 0
                     continue
                 fx0 = np.floor(px)
                 fy0 = np.floor(py)
@@ -62,7 +66,6 @@ def _warp_range(frame, q, offsets, out, start, stop):  # pragma: no cover - comp
                 p01 = y0 * row_stride + x1 * three
                 p10 = y1 * row_stride + x0 * three
                 p11 = y1 * row_stride + x1 * three
-                o = np.uint64((r * size + c) * 3)
                 for ch in range(3):
                     k = np.uint64(ch)
                     top = flat[p00 + k] * (1.0 - fx) + flat[p01 + k] * fx
