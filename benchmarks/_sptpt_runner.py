@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
+import threading
 import time
 from pathlib import Path
 
@@ -39,12 +40,14 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
     gt = read_otb_boxes(next(seq_dir.glob("groundtruth_rect*.txt")) if not (seq_dir / "groundtruth_rect.txt").exists()
                         else seq_dir / "groundtruth_rect.txt")
     stages: dict[str, float] = collections.defaultdict(float)
+    lock = threading.Lock()  # several runs (robust) time their stages from their own threads
 
     @contextlib.contextmanager
     def timer(stage: str):
         tic = time.perf_counter()
         yield
-        stages[stage] += time.perf_counter() - tic
+        with lock:
+            stages[stage] += time.perf_counter() - tic
 
     tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)])),
                       stage_timer=timer)

@@ -20,6 +20,7 @@ import argparse
 import collections
 import contextlib
 import sys
+import threading
 import time
 import zlib
 from pathlib import Path
@@ -40,12 +41,15 @@ def track(seq_dir: Path, preset: str, seed: int, frames: int) -> tuple[dict, dic
     stages: dict[str, float] = collections.defaultdict(float)
     counting = [False]
 
+    lock = threading.Lock()  # several runs (robust) time their stages from their own threads
+
     @contextlib.contextmanager
     def timer(stage: str):
         tic = time.perf_counter()
         yield
         if counting[0]:
-            stages[stage] += time.perf_counter() - tic
+            with lock:
+                stages[stage] += time.perf_counter() - tic
 
     rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())]))
     tracker = Tracker(get_preset(preset), seed=rng, stage_timer=timer)

@@ -79,7 +79,9 @@ class Tracker:
     stage_timer : callable, optional
         ``stage_timer(name)`` returns a context manager wrapped around each
         stage of :data:`STAGES`; benchmarks use it to time stages without the
-        tracker measuring anything itself.
+        tracker measuring anything itself. With several runs it is entered
+        from their threads at the same time, so what it records must be
+        thread-safe; the stages of the runs then overlap in time.
 
     With ``params.independent_runs`` R > 1 the tracker follows the object with R
     independent runs and reports, each frame, the one ``params.run_choice``
