@@ -31,8 +31,10 @@ _done = False
 def keep_freed_memory() -> bool:
     """Raise glibc's mmap and trim thresholds once per process; False where malloc is not glibc's.
 
-    Safe to call from every entry point (the command line, batch and Dask
-    workers): only the first call acts.
+    Called where the process is the tool's own (the command line, batch pool
+    workers, the benchmark runner), not in Dask tasks, whose worker processes
+    are shared and long-lived and have memory limits of their own. Only the
+    first call acts.
     """
     global _done
     if _done:

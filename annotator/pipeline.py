@@ -291,11 +291,13 @@ def track_source(
             submitted: collections.deque = collections.deque()
             try:
                 return track_frames(writer, follow_up, submitted)
-            finally:
-                # Every frame tracked is followed up before the results are read (or an error is raised).
-                wait(submitted)
+            except BaseException:
+                # The first error is the one raised: the follow-ups queued behind it are dropped (they would run on
+                # the state it left), and the one running is waited for, its own error ignored.
                 for future in submitted:
-                    future.result()
+                    future.cancel()
+                wait(submitted)
+                raise
 
     def track_frames(writer: OverlayWriter | None, follow_up: ThreadPoolExecutor, submitted: collections.deque) -> int:
         nonlocal tracking_seconds, decode_error, interrupted
@@ -330,10 +332,16 @@ def track_source(
             position += 1
             tracking_seconds += sum(times.values())
             submitted.append(follow_up.submit(after_update, position, frame_index, frame, results, times, writer))
-            # At most two frames behind: an error there stops tracking soon, and few frames wait in memory.
-            while len(submitted) > 2 or (submitted and submitted[0].done()):
-                submitted.popleft().result()
-        wait(submitted)
+            try:
+                # At most two frames behind: an error there stops tracking soon, and few frames wait in memory.
+                while len(submitted) > 2 or (submitted and submitted[0].done()):
+                    submitted[0].result()  # raises the follow-up's error; removed only once it is done
+                    submitted.popleft()
+            except KeyboardInterrupt:
+                # A second Ctrl-C while waiting: keep every frame tracked so far, as during tracking.
+                interrupted = True
+                break
+        wait(submitted)  # every frame is followed up before the flags are finished
         while submitted:
             submitted.popleft().result()
         for tid, flagger in flaggers.items():

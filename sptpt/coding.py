@@ -208,6 +208,8 @@ def encode_tensors(
     if features.ndim != 3:
         raise ValueError(f"features must be an (n, s, B) array, got shape {features.shape}")
     n, s, b = features.shape
+    if s == 0:  # no superpixels: n empty tensors (the signals alone cannot tell n)
+        return np.zeros((n, np.shape(dictionary)[-1], 0), dtype=np.float64)
     return _encode(features.reshape(n * s, b), dictionary, lam, group=s)
 
 
@@ -222,8 +224,8 @@ def _encode(signals: np.ndarray, dictionary: np.ndarray, lam: float, *, group: i
             f"{dictionary.shape[0]} rows; dictionary must be (B, z) with atoms as columns"
         )
     n_atoms = dictionary.shape[1]
-    if signals.shape[0] == 0 or n_atoms == 0 or group == 0:
-        return np.zeros((signals.shape[0] // max(group, 1), n_atoms, group), dtype=np.float64)
+    if signals.shape[0] == 0 or n_atoms == 0:
+        return np.zeros((signals.shape[0] // group, n_atoms, group), dtype=np.float64)
     gram = dictionary.T @ dictionary
     # Exact symmetry: the kernel reads G by rows where the maths uses columns.
     gram = np.ascontiguousarray(0.5 * (gram + gram.T))

@@ -401,27 +401,26 @@ class _Run:
             return encode_tensors(features, self._dictionary, lam=self.params.lasso_lambda)
 
     def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
-        """``RE- - RE+`` of each code tensor, candidate ranges scored on the kernel threads.
+        """``RE- - RE+`` of each code tensor, the two models' errors computed on the kernel threads at once.
 
-        Scoring is single-threaded BLAS work that left the second core idle; the candidates are
-        independent and each row of a matrix product is computed alike whatever rows come with
-        it, so the split gives the same scores to the bit.
+        Scoring is single-threaded BLAS work that left the second core idle. Each model scores all the
+        candidates in one call, as before: splitting the candidates instead would change the shapes of the
+        matrix products, and with them OpenBLAS's kernel (its small-matrix path on AVX-512 machines) and the
+        last bits of the scores.
         """
         p = self.params
         negative_model = self._negative
         if p.negative_rank_matched:
             negative_model = negative_model.truncated(self._positive.ranks)
-        scores = np.empty(len(codes), dtype=np.float64)
+        models = (self._positive, negative_model)
+        errors: list[np.ndarray | None] = [None, None]
 
-        def score_range(start: int, stop: int) -> None:
-            chunk = codes[start:stop]
-            positive = reconstruction_error(self._positive, chunk, gamma=p.gamma, mode=p.re_mode)
-            negative = reconstruction_error(negative_model, chunk, gamma=p.gamma, mode=p.re_mode)
-            scores[start:stop] = negative - positive
+        def score(start: int, stop: int) -> None:
+            for which in range(start, stop):
+                errors[which] = reconstruction_error(models[which], codes, gamma=p.gamma, mode=p.re_mode)
 
-        # Blocks of at least 128 candidates: smaller matrix products lose more to overhead than to waiting.
-        run_in_chunks(score_range, len(codes), numba.get_num_threads(), min_block=128)
-        return scores
+        run_in_chunks(score, len(models), numba.get_num_threads())
+        return errors[1] - errors[0]
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
         """Step 9 then step 10 of the per-frame schedule (TPT order)."""

@@ -142,6 +142,7 @@ def test_code_tensors_need_three_axes(problem) -> None:
     with pytest.raises(ValueError, match=r"features must be an \(n, s, B\) array"):
         encode_tensors(signals[:10], dictionary)
     assert encode_tensors(np.zeros((0, 25, 64)), dictionary).shape == (0, dictionary.shape[1], 25)
+    assert encode_tensors(np.zeros((3, 0, 64)), dictionary).shape == (3, dictionary.shape[1], 0)
 
 
 # ---------------------------------------------------------------------------

@@ -55,13 +55,36 @@ def test_blocks_are_contiguous_disjoint_and_no_smaller_than_asked() -> None:
     blocks.sort()
     assert blocks[0][0] == 0 and blocks[-1][1] == 1000
     assert all(a[1] == b[0] for a, b in zip(blocks, blocks[1:]))
-    assert all(stop - start >= 64 for start, stop in blocks[:-1])
+    assert all(stop - start >= 64 for start, stop in blocks)
 
 
-def test_an_error_in_a_pool_range_reaches_the_caller() -> None:
+def test_an_error_in_a_pool_thread_reaches_the_caller() -> None:
+    pool_started = threading.Event()
+    failed_on = []
+
     def work(start: int, stop: int) -> None:
-        if start > 0:
-            raise RuntimeError("pool range failed")
+        if threading.current_thread() is threading.main_thread():
+            # Hold the calling thread's first block until a pool thread has taken one, so that one fails there.
+            assert pool_started.wait(timeout=30)
+            return
+        pool_started.set()
+        failed_on.append(threading.current_thread().name)
+        raise RuntimeError("pool block failed")
 
-    with pytest.raises(RuntimeError, match="pool range failed"):
-        run_in_chunks(work, 2, 2)
+    with pytest.raises(RuntimeError, match="pool block failed"):
+        run_in_chunks(work, 100, 2)
+    assert failed_on and failed_on[0].startswith("sptpt-kernel")
+
+
+def test_no_tail_block_is_smaller_than_min_block() -> None:
+    for n_items in (129, 257, 385, 513, 683, 910):
+        blocks = []
+        lock = threading.Lock()
+
+        def work(start: int, stop: int) -> None:
+            with lock:
+                blocks.append((start, stop))
+
+        run_in_chunks(work, n_items, 2, min_block=128)
+        assert min(stop - start for start, stop in blocks) >= 128, (n_items, sorted(blocks))
+        assert sum(stop - start for start, stop in blocks) == n_items

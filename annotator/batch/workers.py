@@ -231,7 +231,7 @@ def pool_initializer(events: Any, main_alive: Any = None) -> None:
 
     global _POOL_EVENTS
     _POOL_EVENTS = events
-    keep_freed_memory()
+    keep_freed_memory()  # a process of the tool's own (not in Dask tasks: a Dask worker is shared and long-lived)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # imageio-ffmpeg puts each ffmpeg in a process group of its own (to spare it a terminal's Ctrl-C); in a
     # worker it stays in the run's group instead, so that a signal to the whole run (kill -9 -PGID) reaches
@@ -306,7 +306,6 @@ def dask_run_item(job: ItemJob, queue_name: str) -> ItemOutcome:
     """A Dask task: one item, its progress sent to the run's ``distributed.Queue`` named ``queue_name``."""
     from distributed import Queue, get_client
 
-    keep_freed_memory()
     try:
         events = Queue(queue_name, client=get_client())
         send = events.put

@@ -18,15 +18,30 @@ from concurrent.futures import ThreadPoolExecutor, wait
 import numba
 
 _POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
 
 
 def _forget_pool() -> None:
-    # A forked child inherits the pool object but not its threads; it would wait forever on them.
-    global _POOL
+    # A forked child inherits the pool object but not its threads; it would wait forever on them (nor the
+    # lock's state, if another thread held it at the fork).
+    global _POOL, _POOL_LOCK
     _POOL = None
+    _POOL_LOCK = threading.Lock()
 
 
 os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The process's kernel thread pool, created on first use (once, also when two threads ask at once)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            # As many workers as numba would start threads; a smaller thread
+            # count (numba.set_num_threads) simply uses fewer of them.
+            _POOL = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
+                                       thread_name_prefix="sptpt-kernel")
+        return _POOL
 
 
 def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 1) -> None:
@@ -43,16 +58,11 @@ def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 
     ``n_threads`` is clipped to ``[1, n_items]``. The first exception of a
     block is raised once every thread has stopped.
     """
-    global _POOL
     n_threads = max(1, min(n_threads, n_items))
     if n_threads == 1:
         kernel(*args, 0, n_items)
         return
-    if _POOL is None:
-        # As many workers as numba would start threads; a smaller thread
-        # count (numba.set_num_threads) simply uses fewer of them.
-        _POOL = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
-                                   thread_name_prefix="sptpt-kernel")
+    pool = _pool()
     lock = threading.Lock()
     taken = [0]
     failed = threading.Event()
@@ -64,6 +74,8 @@ def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 
                 if start >= n_items:
                     return
                 stop = min(n_items, start + max(min_block, (n_items - start) // (2 * n_threads)))
+                if n_items - stop < min_block:
+                    stop = n_items  # no tail block smaller than min_block
                 taken[0] = stop
             try:
                 kernel(*args, start, stop)
@@ -71,7 +83,7 @@ def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 
                 failed.set()  # the other threads stop after their current block
                 raise
 
-    futures = [_POOL.submit(take_blocks) for _ in range(n_threads - 1)]
+    futures = [pool.submit(take_blocks) for _ in range(n_threads - 1)]
     try:
         take_blocks()
     finally:
