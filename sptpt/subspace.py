@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from sptpt._kernels import run_in_chunks
+from sptpt._kernels import map_on_threads
 
 __all__ = ["IncrementalSVD", "TensorSubspace", "reconstruction_error", "RE_MODES"]
 
@@ -150,7 +150,7 @@ def _unfold_sample(stack: np.ndarray) -> np.ndarray:
 
 _UNFOLDINGS = (_unfold_codeword, _unfold_superpixel, _unfold_sample)
 # The sample mode first: its fit (a 200 x 200 Gram matrix from 1250-long columns, for the negatives) takes
-# about as long as the other two together, so it gets one thread and they the other.
+# about as long as the other two together, so it is taken first and the other thread fits those two meanwhile.
 _MODE_ORDER = (2, 0, 1)
 
 
@@ -160,14 +160,8 @@ def _per_mode(solve) -> list:
     Each mode's result is computed exactly as alone; only the single-threaded BLAS work of two
     modes overlaps.
     """
-    results: list = [None, None, None]
-
-    def solve_range(start: int, stop: int) -> None:
-        for mode in _MODE_ORDER[start:stop]:
-            results[mode] = solve(mode)
-
-    run_in_chunks(solve_range, len(_MODE_ORDER), numba.get_num_threads())
-    return results
+    by_mode = dict(zip(_MODE_ORDER, map_on_threads(solve, _MODE_ORDER, numba.get_num_threads())))
+    return [by_mode[mode] for mode in range(len(_MODE_ORDER))]
 
 
 @dataclass(frozen=True)

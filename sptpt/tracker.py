@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from sptpt._kernels import run_in_chunks
+from sptpt._kernels import map_on_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh
 from sptpt.coding import encode_tensors, learn_dictionary
@@ -160,7 +160,6 @@ class Tracker:
             chosen = _most_contrasted(results, _as_rgb(frame), chosen)
         return _reported(results, chosen)
 
-
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
         """Every run's update; several runs side by side, one kernel thread each.
 
@@ -171,19 +170,16 @@ class Tracker:
         threads = numba.get_num_threads()
         if len(self._runs) == 1 or threads == 1:
             return [run.update(frame, details=details) for run in self._runs]
-        results: list[FrameResult | None] = [None] * len(self._runs)
 
-        def update_range(start: int, stop: int) -> None:
+        def update_alone(run: _Run) -> FrameResult:
             own = numba.get_num_threads()  # thread-local in numba
             numba.set_num_threads(1)
             try:
-                for index in range(start, stop):
-                    results[index] = self._runs[index].update(frame, details=details)
+                return run.update(frame, details=details)
             finally:
                 numba.set_num_threads(own)
 
-        run_in_chunks(update_range, len(self._runs), threads)
-        return results
+        return map_on_threads(update_alone, self._runs, threads)
 
 
 class _Run:
@@ -412,15 +408,10 @@ class _Run:
         negative_model = self._negative
         if p.negative_rank_matched:
             negative_model = negative_model.truncated(self._positive.ranks)
-        models = (self._positive, negative_model)
-        errors: list[np.ndarray | None] = [None, None]
-
-        def score(start: int, stop: int) -> None:
-            for which in range(start, stop):
-                errors[which] = reconstruction_error(models[which], codes, gamma=p.gamma, mode=p.re_mode)
-
-        run_in_chunks(score, len(models), numba.get_num_threads())
-        return errors[1] - errors[0]
+        positive, negative = map_on_threads(
+            lambda model: reconstruction_error(model, codes, gamma=p.gamma, mode=p.re_mode),
+            (self._positive, negative_model), numba.get_num_threads())
+        return negative - positive
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
         """Step 9 then step 10 of the per-frame schedule (TPT order)."""

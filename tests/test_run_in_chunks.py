@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from sptpt._kernels import run_in_chunks
+from sptpt._kernels import map_on_threads, run_in_chunks
 
 
 def test_every_item_is_done_once_whatever_the_chunk_count() -> None:
@@ -88,3 +88,10 @@ def test_no_tail_block_is_smaller_than_min_block() -> None:
         run_in_chunks(work, n_items, 2, min_block=128)
         assert min(stop - start for start, stop in blocks) >= 128, (n_items, sorted(blocks))
         assert sum(stop - start for start, stop in blocks) == n_items
+
+
+def test_map_on_threads_returns_the_results_in_item_order_from_both_threads() -> None:
+    names = map_on_threads(lambda item: (item, threading.current_thread().name), range(6), 2)
+    assert [item for item, _ in names] == list(range(6))
+    assert map_on_threads(lambda item: item * item, [3, 1, 2], 1) == [9, 1, 4]
+    assert map_on_threads(lambda item: item, [], 2) == []

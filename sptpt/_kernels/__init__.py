@@ -2,7 +2,8 @@
 
 The batch kernels are serial ``nogil`` loops over an item range ``start:stop``
 writing into a preallocated output; :func:`run_in_chunks` runs contiguous
-ranges of a batch on threads. numba's ``parallel=True`` (``prange``) would do
+blocks of a batch on threads (:func:`map_on_threads` runs a few independent
+Python calls there). numba's ``parallel=True`` (``prange``) would do
 the same, but its parallel lowering added about 2 s of compilation per kernel
 on a fresh install (``cue_features``: 3.9 s parallel, 1.6 s serial), most of
 the quick start's first run, for no speed gain on these embarrassingly
@@ -91,3 +92,20 @@ def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 
         wait(futures)
     for future in futures:
         future.result()
+
+
+def map_on_threads(function, items, n_threads: int) -> list:
+    """``[function(item) for item in items]``, the calls made on ``n_threads`` kernel threads (one item a block).
+
+    For a few independent calls whose work is mostly NumPy or BLAS (GIL released): each result is computed
+    exactly as it would be alone.
+    """
+    items = list(items)
+    results: list = [None] * len(items)
+
+    def call_range(start: int, stop: int) -> None:
+        for index in range(start, stop):
+            results[index] = function(items[index])
+
+    run_in_chunks(call_range, len(items), n_threads)
+    return results

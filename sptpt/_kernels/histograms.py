@@ -106,12 +106,12 @@ def hsi_bins(red, green, blue, n_bins, edge_cosines, unit):  # pragma: no cover 
     return h_bin, s_bin, i_bin
 
 
-def cue_features(templates, labels, n_superpixels, n_bins, n_chunks):
+def cue_features(templates, labels, n_superpixels, n_bins, n_threads):
     """Normalised, concatenated cue histograms of every superpixel of every template.
 
     templates: (N, H, W, 3) uint8 RGB, C-contiguous. labels: (N, H, W) int32
-    in ``0..n_superpixels-1`` (not checked). n_chunks: template ranges run in
-    parallel. Returns (N, n_superpixels, 8 * n_bins) float64, cue-major in
+    in ``0..n_superpixels-1`` (not checked). n_threads: threads that take
+    blocks of templates in turn. Returns (N, n_superpixels, 8 * n_bins) float64, cue-major in
     the order H, S, I, R, G, B, x, y; each cue block is ``counts /
     pixel_count`` and the whole row is then divided by its L2 norm. Rows of
     empty superpixels stay zero.
@@ -124,7 +124,7 @@ def cue_features(templates, labels, n_superpixels, n_bins, n_chunks):
     # Not zero-filled here: each thread clears its templates' rows just before counting into them, in cache,
     # instead of one thread writing 10 MiB of zeros first.
     out = np.empty((n_templates, n_superpixels, 8 * n_bins), dtype=np.float64)
-    run_in_chunks(_cue_features_range, n_templates, n_chunks, templates, labels, n_bins, out)
+    run_in_chunks(_cue_features_range, n_templates, n_threads, templates, labels, n_bins, out)
     return out
 
 

@@ -250,7 +250,7 @@ def _linear_term(dictionary, signal, lam, rel_tol, c):  # pragma: no cover
     return rel_tol * scale
 
 
-def nonnegative_lasso(gram, dictionary, signals, lam, rel_tol, ridge, max_iter, max_sweeps, n_chunks, group=1):
+def nonnegative_lasso(gram, dictionary, signals, lam, rel_tol, ridge, max_iter, max_sweeps, n_threads, group=1):
     """Non-negative LASSO codes of every row of ``signals``.
 
     gram: (z, z) float64, ``D^T D``, exactly symmetric, C-contiguous.
@@ -259,12 +259,12 @@ def nonnegative_lasso(gram, dictionary, signals, lam, rel_tol, ridge, max_iter, 
     ``w = c - G h`` relative to ``max(max_j |d_j^T a|, lam)`` per signal.
     ridge: added to the diagonal of every passive-set factorisation (> 0).
     max_iter: active-set solves per signal before handing over to at most
-    max_sweeps coordinate-descent sweeps. n_chunks: signal ranges solved in
-    parallel. group: signals per code tensor, a divisor of M. Returns
+    max_sweeps coordinate-descent sweeps. n_threads: threads that solve blocks
+    of signals in turn. group: signals per code tensor, a divisor of M. Returns
     (M / group, z, group) float64 codes, all >= 0: signal ``m``'s code is
     column ``m % group`` of tensor ``m // group`` (with ``group = 1``, reshape
     to (M, z) for free). Signals are independent, so the result does not
-    depend on ``n_chunks``.
+    depend on ``n_threads`` or the blocks.
 
     ``D^T a`` is formed per signal inside the parallel ranges rather than as
     one BLAS product beforehand: that product ran on one thread (BLAS is
@@ -273,7 +273,7 @@ def nonnegative_lasso(gram, dictionary, signals, lam, rel_tol, ridge, max_iter, 
     afterwards was a single-threaded copy of about 1.5 ms a frame.
     """
     codes = np.empty((signals.shape[0] // group, gram.shape[0], group), dtype=np.float64)
-    run_in_chunks(_lasso_range, signals.shape[0], n_chunks, gram, dictionary, signals, lam, rel_tol, ridge,
+    run_in_chunks(_lasso_range, signals.shape[0], n_threads, gram, dictionary, signals, lam, rel_tol, ridge,
                   max_iter, max_sweeps, codes)
     return codes
 

@@ -354,17 +354,16 @@ def snic_image(lab, seeds, spatial_weight):  # pragma: no cover - compiled
     return labels[0]
 
 
-def snic_batch(lab, seeds, spatial_weight, n_chunks):
+def snic_batch(lab, seeds, spatial_weight, n_threads):
     """SNIC labels of a batch of same-size images sharing one seed grid.
 
     lab: (B, H, W, 3) float64, C-contiguous. seeds: (s, 2) int64 (row, col).
-    spatial_weight: ``M**2 * s / N``. n_chunks: number of contiguous image
-    ranges run in parallel (the thread count; more chunks balance load
-    better when threads are unequal). Returns (B, H, W) int32.
+    spatial_weight: ``M**2 * s / N``. n_threads: threads that grow blocks
+    of images in turn (:func:`run_in_chunks`). Returns (B, H, W) int32.
     """
     n_images, height, width = lab.shape[0], lab.shape[1], lab.shape[2]
     labels = np.empty((n_images, height, width), dtype=np.int32)
-    run_in_chunks(_grow_range, n_images, n_chunks, lab, seeds, spatial_weight, labels)
+    run_in_chunks(_grow_range, n_images, n_threads, lab, seeds, spatial_weight, labels)
     return labels
 
 
@@ -390,21 +389,20 @@ def _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, w
 _THREAD = threading.local()
 
 
-def _thread_lab_memo(linear, rgb_to_xyz, white):
-    """The calling thread's colour memo for these conversion constants, kept across batches.
+def _thread_lab_memo(key):
+    """The calling thread's colour memo for the conversion constants ``key`` stands for, kept across batches.
 
     A memo entry is a pure function of the colour and the constants, so it
     stays valid from one batch (and frame) to the next; keeping it spares each
     block the 2 MiB allocation (about 20 us) and the misses of a cold memo.
     """
-    key = (linear.tobytes(), rgb_to_xyz.tobytes(), white.tobytes())
     if getattr(_THREAD, "lab_memo_key", None) != key:
         _THREAD.lab_memo = new_lab_memo()
         _THREAD.lab_memo_key = key
     return _THREAD.lab_memo
 
 
-def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, white):
+def snic_batch_rgb(images, seeds, spatial_weight, n_threads, linear, rgb_to_xyz, white):
     """``snic_batch`` of uint8 RGB images: Lab conversion fused into the growth.
 
     images: (B, H, W, 3) uint8, C-contiguous. linear, rgb_to_xyz, white: the
@@ -413,10 +411,11 @@ def snic_batch_rgb(images, seeds, spatial_weight, n_chunks, linear, rgb_to_xyz, 
     """
     n_images, height, width = images.shape[0], images.shape[1], images.shape[2]
     labels = np.empty((n_images, height, width), dtype=np.int32)
+    constants = (linear.tobytes(), rgb_to_xyz.tobytes(), white.tobytes())  # the key of a thread's memo
 
     def grow(start, stop):
         _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, white,
-                        _thread_lab_memo(linear, rgb_to_xyz, white), start, stop)
+                        _thread_lab_memo(constants), start, stop)
 
-    run_in_chunks(grow, n_images, n_chunks)
+    run_in_chunks(grow, n_images, n_threads)
     return labels

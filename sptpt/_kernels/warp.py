@@ -8,18 +8,18 @@ import numpy as np
 from sptpt._kernels import run_in_chunks
 
 
-def warp_affine_batch(frame, q, offsets, n_chunks):
+def warp_affine_batch(frame, q, offsets, n_threads):
     """Sample ``frame`` at ``(cx + A11 x + A12 y, cy + A21 x + A22 y)`` for every template pixel.
 
     frame: (H, W, 3) uint8. q: (N, 6) float64, 0-based centre and the 2x2
-    linear part. offsets: (T,) template offsets. n_chunks: candidate ranges
-    warped in parallel. Returns (N, T, T, 3) uint8. Positions outside
+    linear part. offsets: (T,) template offsets. n_threads: threads that warp
+    blocks of candidates in turn. Returns (N, T, T, 3) uint8. Positions outside
     ``[0, W-1] x [0, H-1]`` give 0, as MATLAB ``interp2`` returns NaN there
     and ``warpimg`` replaces NaN by 0.
     """
     size = offsets.shape[0]
     out = np.empty((q.shape[0], size, size, 3), dtype=np.uint8)  # every pixel is written, 0 outside the frame
-    run_in_chunks(_warp_range, q.shape[0], n_chunks, frame, q, offsets, out)
+    run_in_chunks(_warp_range, q.shape[0], n_threads, frame, q, offsets, out)
     return out
 
 
