@@ -10,14 +10,12 @@ scored alone (``benchmarks/paired_runs.py``) without re-tracking.
 
 from __future__ import annotations
 
-import collections
-import contextlib
 import json
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
+from _stage_clock import StageClock
 
 from annotator.allocator import keep_freed_memory
 from annotator.atomic import atomic_path
@@ -39,18 +37,9 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
     tracker_params: TrackerParams = params_from_mapping(params)
     gt = read_otb_boxes(next(seq_dir.glob("groundtruth_rect*.txt")) if not (seq_dir / "groundtruth_rect.txt").exists()
                         else seq_dir / "groundtruth_rect.txt")
-    stages: dict[str, float] = collections.defaultdict(float)
-    lock = threading.Lock()  # several runs (robust) time their stages from their own threads
-
-    @contextlib.contextmanager
-    def timer(stage: str):
-        tic = time.perf_counter()
-        yield
-        with lock:
-            stages[stage] += time.perf_counter() - tic
-
+    clock = StageClock()
     tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)])),
-                      stage_timer=timer)
+                      stage_timer=clock)
     boxes, seconds, loglik, conf, accepted, scoring, run_boxes = [], [], [], [], [], [], []
     source = open_frames(seq_dir, stop=stop)
     for position, (_, frame) in enumerate(source):
@@ -77,7 +66,7 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
         "frames": len(boxes),
         "seconds": float(np.sum(seconds)),
         "seconds_after_first": float(np.sum(seconds[1:])),
-        "stages": dict(stages),
+        "stages": dict(clock.seconds),
         "numba_threads": numba.get_num_threads(),
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }

@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import argparse
 import collections
-import contextlib
 import sys
-import threading
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
+from _stage_clock import StageClock
 
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
@@ -38,26 +37,14 @@ DEFAULT_SEQUENCES = ("Deer", "Crossing", "Coke", "Dog1")
 def track(seq_dir: Path, preset: str, seed: int, frames: int) -> tuple[dict, dict, float, int]:
     """Boxes and per-frame results of the first ``frames`` frames; per-stage seconds, total s, frames."""
     gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")
-    stages: dict[str, float] = collections.defaultdict(float)
-    counting = [False]
-
-    lock = threading.Lock()  # several runs (robust) time their stages from their own threads
-
-    @contextlib.contextmanager
-    def timer(stage: str):
-        tic = time.perf_counter()
-        yield
-        if counting[0]:
-            with lock:
-                stages[stage] += time.perf_counter() - tic
-
+    clock = StageClock()
     rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())]))
-    tracker = Tracker(get_preset(preset), seed=rng, stage_timer=timer)
+    tracker = Tracker(get_preset(preset), seed=rng, stage_timer=clock)
     boxes, loglik, accepted = [], [], []
     total = 0.0
     n = 0
     for position, (_, frame) in enumerate(open_frames(seq_dir, stop=frames)):
-        counting[0] = position > 0
+        clock.counting = position > 0  # the first frame's initialisation is not a stage of tracking
         tic = time.perf_counter()
         result = tracker.init(frame, gt[0]) if position == 0 else tracker.update(frame)
         if position > 0:
@@ -67,7 +54,7 @@ def track(seq_dir: Path, preset: str, seed: int, frames: int) -> tuple[dict, dic
         loglik.append(result.log_likelihood)
         accepted.append(result.accepted)
     out = dict(boxes=np.array(boxes), log_likelihood=np.array(loglik), accepted=np.array(accepted))
-    return out, dict(stages), total, n
+    return out, dict(clock.seconds), total, n
 
 
 def main(argv: list[str] | None = None) -> int:
