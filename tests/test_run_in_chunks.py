@@ -43,19 +43,20 @@ def test_an_error_is_raised_once_no_block_is_running_and_stops_the_rest() -> Non
     assert len(started) < 1000 and 0 in started  # the blocks after the error were not started
 
 
-def test_blocks_are_contiguous_disjoint_and_no_smaller_than_asked() -> None:
-    blocks = []
-    lock = threading.Lock()
+def test_blocks_are_contiguous_disjoint_and_cover_every_item() -> None:
+    for n_items in (1, 2, 3, 129, 1000):
+        blocks = []
+        lock = threading.Lock()
 
-    def work(start: int, stop: int) -> None:
-        with lock:
-            blocks.append((start, stop))
+        def work(start: int, stop: int) -> None:
+            with lock:
+                blocks.append((start, stop))
 
-    run_in_chunks(work, 1000, 2, min_block=64)
-    blocks.sort()
-    assert blocks[0][0] == 0 and blocks[-1][1] == 1000
-    assert all(a[1] == b[0] for a, b in zip(blocks, blocks[1:]))
-    assert all(stop - start >= 64 for start, stop in blocks)
+        run_in_chunks(work, n_items, 2)
+        blocks.sort()
+        assert blocks[0][0] == 0 and blocks[-1][1] == n_items, (n_items, blocks)
+        assert all(a[1] == b[0] for a, b in zip(blocks, blocks[1:]))
+        assert all(stop > start for start, stop in blocks)
 
 
 def test_an_error_in_a_pool_thread_reaches_the_caller() -> None:
@@ -74,20 +75,6 @@ def test_an_error_in_a_pool_thread_reaches_the_caller() -> None:
     with pytest.raises(RuntimeError, match="pool block failed"):
         run_in_chunks(work, 100, 2)
     assert failed_on and failed_on[0].startswith("sptpt-kernel")
-
-
-def test_no_tail_block_is_smaller_than_min_block() -> None:
-    for n_items in (129, 257, 385, 513, 683, 910):
-        blocks = []
-        lock = threading.Lock()
-
-        def work(start: int, stop: int) -> None:
-            with lock:
-                blocks.append((start, stop))
-
-        run_in_chunks(work, n_items, 2, min_block=128)
-        assert min(stop - start for start, stop in blocks) >= 128, (n_items, sorted(blocks))
-        assert sum(stop - start for start, stop in blocks) == n_items
 
 
 def test_map_on_threads_returns_the_results_in_item_order_from_both_threads() -> None:

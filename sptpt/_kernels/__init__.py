@@ -45,12 +45,12 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL
 
 
-def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 1) -> None:
+def run_in_chunks(kernel, n_items: int, n_threads: int, *args) -> None:
     """Call ``kernel(*args, start, stop)`` on contiguous blocks covering ``range(n_items)``, on ``n_threads`` threads.
 
     The calling thread and pool threads take blocks in turn until none is left
-    (guided scheduling: each block is a share of what remains, at least
-    ``min_block`` items), so a thread that finishes early takes more instead
+    (guided scheduling: each block is a share of what remains, at least one
+    item), so a thread that finishes early takes more instead
     of waiting: with one fixed range per thread, the two threads of a frame's
     LASSO finished about 3 ms apart on Deer. The kernel must release the GIL
     for most of its work (a ``nogil=True`` numba kernel, or NumPy and BLAS
@@ -74,9 +74,7 @@ def run_in_chunks(kernel, n_items: int, n_threads: int, *args, min_block: int = 
                 start = taken[0]
                 if start >= n_items:
                     return
-                stop = min(n_items, start + max(min_block, (n_items - start) // (2 * n_threads)))
-                if n_items - stop < min_block:
-                    stop = n_items  # no tail block smaller than min_block
+                stop = min(n_items, start + max(1, (n_items - start) // (2 * n_threads)))
                 taken[0] = stop
             try:
                 kernel(*args, start, stop)
