@@ -36,7 +36,7 @@ from sptpt.superpixels import seed_grid, snic
 
 __all__ = ["STAGES", "Tracker"]
 
-#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter``).
+#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``).
 STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale")
 
 StageTimer = Callable[[str], ContextManager]
@@ -224,10 +224,12 @@ class _Run:
         self._misses = 0
         self._anchor = self._state.copy()
         self._scale_filter: ScaleFilter | None = None
-        if p.scale_filter:
+        if p.scale_filter or p.reported_scale_filter:
             with self._time("scale"):
                 self._scale_filter = ScaleFilter(p.template_size)
                 self._scale_filter.init(rgb, self._state)
+        # The reported box's scale under ``reported_scale_filter``: the filter's own, apart from the state's.
+        self._reported_scale = float(self._state[2])
         return FrameResult(
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
@@ -263,7 +265,7 @@ class _Run:
                 best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
                                                   p.template_size)
         self._state = states[best].copy()
-        if self._scale_filter is not None:
+        if p.scale_filter:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
             # its own template, up to 1.02**16 = 1.37x larger or smaller than the returned box: the switch was
@@ -281,11 +283,21 @@ class _Run:
                 median, spread = level
                 accepted = accepted or log_likelihood >= median - p.accept_drop * spread
             self._misses = 0 if accepted else self._misses + 1
+        reported_state = self._state
+        if p.reported_scale_filter:
+            # SPTPT's state keeps its own scale, so its search and models are the filter-free run's; the box
+            # reported takes the filter's scale at the state's centre.
+            reported_state = self._state.copy()
+            reported_state[2] = self._reported_scale
+            with self._time("scale"):
+                self._reported_scale = max(self._reported_scale * self._scale_filter.factor(rgb, reported_state),
+                                           1.0 / p.template_size)
+            reported_state[2] = self._reported_scale
         if accepted:
             self._anchor = self._state.copy()
             if self._scale_filter is not None:
                 with self._time("scale"):
-                    self._scale_filter.update(rgb, self._state)
+                    self._scale_filter.update(rgb, reported_state)
             if scoring == "subspace" and p.level_window > 0:
                 self._levels.append(log_likelihood)
                 del self._levels[: -p.level_window]
@@ -307,7 +319,7 @@ class _Run:
                 superpixel_origin_xy=origin,
             )
         return FrameResult(
-            box_xywh=box_xywh_from_states(self._state, p.template_size),
+            box_xywh=box_xywh_from_states(reported_state, p.template_size),
             log_likelihood=log_likelihood,
             confidence=confidence,
             accepted=accepted,

@@ -124,7 +124,7 @@ def test_tracker_with_the_scale_filter_follows_a_growing_object():
     import dataclasses
 
     frames, boxes = growing_clip()
-    params = dataclasses.replace(get_preset("robust"), scale_filter=True)
+    params = dataclasses.replace(get_preset("robust"), scale_filter=True, reported_scale_filter=False)
     tracker = Tracker(params, seed=0)
     tracker.init(frames[0], boxes[0])
     tracked = np.array([tracker.update(frame).box_xywh for frame in frames[1:]])
@@ -133,3 +133,40 @@ def test_tracker_with_the_scale_filter_follows_a_growing_object():
     again = Tracker(params, seed=0)
     again.init(frames[0], boxes[0])
     np.testing.assert_array_equal(tracked, [again.update(frame).box_xywh for frame in frames[1:]])
+
+
+def test_the_reported_scale_filter_sizes_the_box_and_leaves_the_search_alone():
+    import dataclasses
+
+    frames, boxes = growing_clip()
+    one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_scale_filter=False)
+
+    def track(params):
+        tracker = Tracker(params, seed=0)
+        tracker.init(frames[0], boxes[0])
+        return [tracker.update(frame) for frame in frames[1:]]
+
+    plain = track(one_run)
+    sized = track(dataclasses.replace(one_run, reported_scale_filter=True))
+    # SPTPT's own run is untouched: the same scores, acceptance and centres, frame by frame.
+    assert [r.log_likelihood for r in sized] == [r.log_likelihood for r in plain]
+    assert [r.accepted for r in sized] == [r.accepted for r in plain]
+    centre = lambda rs: np.array([[r.box_xywh[0] + r.box_xywh[2] / 2, r.box_xywh[1] + r.box_xywh[3] / 2] for r in rs])
+    np.testing.assert_allclose(centre(sized), centre(plain), atol=1e-9)
+    # Only the size differs, and it follows the object where the candidates' scale lags.
+    def side(rs):
+        b = np.array([r.box_xywh for r in rs])
+        return np.sqrt(b[:, 2] * b[:, 3] / (boxes[1:, 2] * boxes[1:, 3]))
+    assert np.all(np.abs(np.log(side(sized)[-10:])) < math.log(1.15)), side(sized).round(2)
+    assert np.mean(np.abs(np.log(side(sized)[-10:]))) < np.mean(np.abs(np.log(side(plain)[-10:]))), (
+        side(sized).round(2), side(plain).round(2))
+    # Same seed, same boxes.
+    again = track(dataclasses.replace(one_run, reported_scale_filter=True))
+    np.testing.assert_array_equal([r.box_xywh for r in again], [r.box_xywh for r in sized])
+
+
+def test_the_two_scale_filters_are_exclusive():
+    import dataclasses
+
+    with pytest.raises(ValueError, match="reported_scale_filter=True is invalid.*scale_filter"):
+        dataclasses.replace(get_preset("paper"), scale_filter=True, reported_scale_filter=True)
