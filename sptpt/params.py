@@ -255,7 +255,7 @@ PRESETS: dict[str, TrackerParams] = {
         relative_motion=True, motion_sigma=(0.15, 0.15, 0.01, 0.0, 0.0, 0.0),
         level_window=20, level_min_count=5, accept_drop=3.0,
         redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=2, run_choice="contrast",
-        contrast_candidates=5,
+        contrast_candidates=5, reported_scale_filter=True,
     ),
 }
 
