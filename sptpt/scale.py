@@ -6,6 +6,9 @@ Human9 growing to 1.8, CarDark to 2.4): SPTPT's log-likelihood is not peaked
 at the true scale on real frames, so neither random scale particles nor a
 deterministic scale search over it hold the size (``benchmarks/RESULTS.md``,
 "robust development"). A scale cue from outside the subspace model is needed.
+Fed back into SPTPT's state (``TrackerParams.scale_filter``) a wrong size
+loses the centre too, so ``robust`` uses the filter only for the size of the
+box it reports (``TrackerParams.reported_scale_filter``).
 
 Danelljan et al., "Accurate Scale Estimation for Robust Visual Tracking"
 (BMVC 2014; the scale part of OpenCV's CSRT): samples of the box at
