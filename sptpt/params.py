@@ -83,6 +83,13 @@ class TrackerParams:
     (+0.022 paired; David +0.09, Jogging.1 +0.08, Human9 +0.05), for 6.6 ms a frame with two runs (7%). True in
     ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
 
+    reported_translation_filter: bool = False
+    """When True, a DSST translation filter (:mod:`sptpt.translation`) moves the reported box's centre to where the
+    filter finds the object, near the centre SPTPT chose. The filter learns from SPTPT's box (its centre, and the
+    reported size) on accepted frames, never from the box it moved, and the run's state, search, models, scores,
+    acceptance and size are exactly those without it: only the reported centre changes. It averages out the
+    jitter of SPTPT's winner about the object. [ours, benchmarks/RESULTS.md "robust development"]"""
+
     independent_runs: int = 1
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
     dictionary, candidates, negatives and models; each frame reports one run (``run_choice``), and

@@ -33,11 +33,13 @@ from sptpt.sampling import draw_candidates, draw_negatives
 from sptpt.scale import ScaleFilter
 from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
+from sptpt.translation import TranslationFilter
 
 __all__ = ["STAGES", "Tracker"]
 
-#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``).
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale")
+#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
+#: ``translation`` only with ``reported_translation_filter``).
+STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale", "translation")
 
 StageTimer = Callable[[str], ContextManager]
 
@@ -230,6 +232,11 @@ class _Run:
                 self._scale_filter.init(rgb, self._state)
         # The reported box's scale under ``reported_scale_filter``: the filter's own, apart from the state's.
         self._reported_scale = float(self._state[2])
+        self._translation_filter: TranslationFilter | None = None
+        if p.reported_translation_filter:
+            with self._time("translation"):
+                self._translation_filter = TranslationFilter(p.template_size)
+                self._translation_filter.init(rgb, self._state)
         return FrameResult(
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
@@ -283,21 +290,32 @@ class _Run:
                 median, spread = level
                 accepted = accepted or log_likelihood >= median - p.accept_drop * spread
             self._misses = 0 if accepted else self._misses + 1
-        reported_state = self._state
+        sized_state = self._state
         if p.reported_scale_filter:
             # SPTPT's state keeps its own scale, so its search and models are the filter-free run's; the box
             # reported takes the filter's scale at the state's centre.
-            reported_state = self._state.copy()
-            reported_state[2] = self._reported_scale
+            sized_state = self._state.copy()
+            sized_state[2] = self._reported_scale
             with self._time("scale"):
-                self._reported_scale = max(self._reported_scale * self._scale_filter.factor(rgb, reported_state),
+                self._reported_scale = max(self._reported_scale * self._scale_filter.factor(rgb, sized_state),
                                            1.0 / p.template_size)
-            reported_state[2] = self._reported_scale
+            sized_state[2] = self._reported_scale
+        reported_state = sized_state
+        if self._translation_filter is not None:
+            # Only the reported centre moves; the filters learn below from SPTPT's centre, not from this one.
+            with self._time("translation"):
+                dx, dy = self._translation_filter.shift(rgb, sized_state)
+            reported_state = sized_state.copy()
+            reported_state[0] += dx
+            reported_state[1] += dy
         if accepted:
             self._anchor = self._state.copy()
             if self._scale_filter is not None:
                 with self._time("scale"):
-                    self._scale_filter.update(rgb, reported_state)
+                    self._scale_filter.update(rgb, sized_state)
+            if self._translation_filter is not None:
+                with self._time("translation"):
+                    self._translation_filter.update(rgb, sized_state)
             if scoring == "subspace" and p.level_window > 0:
                 self._levels.append(log_likelihood)
                 del self._levels[: -p.level_window]

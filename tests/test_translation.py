@@ -1,0 +1,129 @@
+"""The DSST translation filter (``sptpt.translation``): its features against a slow reference, shifts it must find,
+and the tracker switch that moves only the reported centre."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from sptpt.affine import state_from_box_xywh
+from sptpt.params import get_preset
+from sptpt.tracker import Tracker
+from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
+from tests.test_scale import _background_and_object, _paste
+
+
+def slow_translation_features(patch: np.ndarray) -> np.ndarray:
+    """Pixel by pixel, as the docstring of translation_features says."""
+    rgb = np.asarray(patch, dtype=np.float64)
+    grey = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
+    rows, cols = grey.shape
+    split = np.zeros((BINS, rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            gx = grey[r, c + 1] - grey[r, c - 1] if 0 < c < cols - 1 else 0.0
+            gy = grey[r + 1, c] - grey[r - 1, c] if 0 < r < rows - 1 else 0.0
+            magnitude = math.hypot(gx, gy)
+            position = (math.atan2(gy, gx) % math.pi) * BINS / math.pi
+            lower = math.floor(position)
+            weight = position - lower
+            split[lower % BINS, r, c] += magnitude * (1 - weight)
+            split[(lower + 1) % BINS, r, c] += magnitude * weight
+
+    def mirror(i: int, n: int) -> int:  # reflect without repeating the edge: -1 -> 1, n -> n - 2
+        return -i if i < 0 else 2 * (n - 1) - i if i >= n else i
+
+    reach = range(-(NEIGHBOURHOOD // 2), NEIGHBOURHOOD - NEIGHBOURHOOD // 2)  # -2, -1, 0, 1
+    out = np.zeros((1 + BINS, rows, cols))
+    out[0] = grey - grey.mean()
+    for b in range(BINS):
+        for r in range(rows):
+            for c in range(cols):
+                total = sum(split[b, mirror(r + i, rows), mirror(c + j, cols)] for i in reach for j in reach)
+                out[1 + b, r, c] = ORIENTATION_WEIGHT * total / NEIGHBOURHOOD ** 2
+    return out
+
+
+@pytest.mark.parametrize("shape", [(16, 16), (12, 20)])
+def test_translation_features_match_the_slow_reference(shape):
+    rng = np.random.default_rng(0)
+    patch = rng.integers(0, 256, size=shape + (3,), dtype=np.uint8)
+    np.testing.assert_allclose(translation_features(patch), slow_translation_features(patch), rtol=1e-10, atol=1e-12)
+    flat = np.full(shape + (3,), 128, np.uint8)
+    assert not translation_features(flat).any()  # no gradient, and grey less its mean is 0
+
+
+def _scene(dx: float, dy: float, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A 48x40 textured object with its top-left corner at (136 + dx, 100 + dy) on a textured background."""
+    background, pattern = _background_and_object(np.random.default_rng(seed), 48, 40, 6)
+    x, y = 136 + dx, 100 + dy
+    frame = np.clip(np.rint(_paste(background, pattern, 1.0, x, y)), 0, 255).astype(np.uint8)
+    return frame, np.array([x, y, 48.0, 40.0])
+
+
+@pytest.mark.parametrize("dx, dy", [(0.0, 0.0), (3.0, -2.0), (-6.5, 4.25), (10.0, 9.0)])
+def test_translation_filter_finds_a_known_shift(dx, dy):
+    first, box = _scene(0.0, 0.0)
+    later, _ = _scene(dx, dy)
+    translation_filter = TranslationFilter(32)
+    state = state_from_box_xywh(box, 32)
+    translation_filter.init(first, state)
+    found = translation_filter.shift(later, state)  # asked at the old box: the object is (dx, dy) away
+    assert np.hypot(found[0] - dx, found[1] - dy) <= 0.75, found
+
+
+def test_translation_filter_answers_no_shift_on_the_frame_it_learned_and_needs_init():
+    first, box = _scene(0.0, 0.0)
+    state = state_from_box_xywh(box, 32)
+    with pytest.raises(RuntimeError, match="before init"):
+        TranslationFilter(32).shift(first, state)
+    with pytest.raises(RuntimeError, match="before init"):
+        TranslationFilter(32).update(first, state)
+    translation_filter = TranslationFilter(32)
+    translation_filter.init(first, state)
+    assert np.allclose(translation_filter.shift(first, state), 0.0, atol=1e-9)
+    translation_filter.update(first, state)
+    assert np.allclose(translation_filter.shift(first, state), 0.0, atol=1e-9)
+
+
+def moving_clip(n_frames: int = 40):
+    """The object moves 2 px right and 1 px down a frame over a textured background, with sensor noise."""
+    rng = np.random.default_rng(11)
+    background, pattern = _background_and_object(rng, 44, 36, 8)
+    frames, boxes = [], []
+    for k in range(n_frames):
+        x, y = 100 + 2 * k, 90 + k
+        image = _paste(background, pattern, 1.0, x, y) + rng.normal(0, 3.0, background.shape)
+        frames.append(np.clip(np.rint(image), 0, 255).astype(np.uint8))
+        boxes.append([x, y, 44.0, 36.0])
+    return np.array(frames), np.array(boxes)
+
+
+def test_the_reported_translation_filter_moves_only_the_reported_centre_and_brings_it_nearer():
+    frames, boxes = moving_clip()
+    one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_translation_filter=False)
+
+    def track(params):
+        tracker = Tracker(params, seed=0)
+        tracker.init(frames[0], boxes[0])
+        return [tracker.update(frame) for frame in frames[1:]]
+
+    plain = track(one_run)
+    moved = track(dataclasses.replace(one_run, reported_translation_filter=True))
+    # SPTPT's own run is untouched: the same scores and acceptance, and the same size, frame by frame.
+    assert [r.log_likelihood for r in moved] == [r.log_likelihood for r in plain]
+    assert [r.accepted for r in moved] == [r.accepted for r in plain]
+    np.testing.assert_allclose([r.box_xywh[2:] for r in moved], [r.box_xywh[2:] for r in plain], atol=1e-9)
+    # Only the centre differs, and it is nearer the object's on average.
+    def centre_error(results):
+        b = np.array([r.box_xywh for r in results])
+        return np.hypot(b[:, 0] + b[:, 2] / 2 - boxes[1:, 0] - 22, b[:, 1] + b[:, 3] / 2 - boxes[1:, 1] - 18)
+    assert not np.allclose(centre_error(moved), centre_error(plain))
+    assert centre_error(moved).mean() < centre_error(plain).mean(), (
+        centre_error(moved).round(1), centre_error(plain).round(1))
+    # Same seed, same boxes.
+    again = track(dataclasses.replace(one_run, reported_translation_filter=True))
+    np.testing.assert_array_equal([r.box_xywh for r in again], [r.box_xywh for r in moved])
