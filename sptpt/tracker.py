@@ -8,7 +8,9 @@ and score each tensor by how much better the positive subspace model
 reconstructs it than the negative one. The best candidate is the estimate
 (``robust``: of the few best near it, the one whose box stands out most from
 its surroundings); if it scores above Phi it joins the positive model, and
-the negative model is refitted from samples drawn around it.
+the negative model is refitted from samples drawn around it. (``robust``
+also reports a box sized by a scale filter and centred by a translation
+filter beside the run, which leave the run itself untouched.)
 """
 
 from __future__ import annotations
