@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from sptpt.affine import warp_candidates
+from sptpt.gradients import GREY, orientation_split
 
 __all__ = ["ScaleFilter", "orientation_histograms", "N_SCALES", "STEP"]
 
@@ -49,7 +50,6 @@ BINS = 9  # unsigned orientations over [0, pi)
 # Per-cell normalised values are clipped here (HOG's clip, without its renormalisation), so that one strong edge
 # cannot dominate a cell.
 CLIP = 0.2
-_GREY = np.array([0.299, 0.587, 0.114])  # ITU-R BT.601 luma
 
 
 def orientation_histograms(templates: np.ndarray, *, cell: int = CELL, bins: int = BINS) -> np.ndarray:
@@ -60,18 +60,9 @@ def orientation_histograms(templates: np.ndarray, *, cell: int = CELL, bins: int
     orientations, summed per ``cell x cell`` cell (pixels past the last whole
     cell join it), each cell's histogram L2-normalised and clipped at :data:`CLIP`.
     """
-    grey = np.asarray(templates, dtype=np.float64) @ _GREY
+    grey = np.asarray(templates, dtype=np.float64) @ GREY
     n, size, _ = grey.shape
-    gx = np.zeros_like(grey)
-    gy = np.zeros_like(grey)
-    gx[:, :, 1:-1] = grey[:, :, 2:] - grey[:, :, :-2]
-    gy[:, 1:-1, :] = grey[:, 2:, :] - grey[:, :-2, :]
-    magnitude = np.hypot(gx, gy)
-    position = (np.arctan2(gy, gx) % np.pi) * (bins / np.pi)
-    lower = np.floor(position)
-    upper_weight = position - lower
-    lower = lower.astype(np.int64) % bins
-    upper = (lower + 1) % bins
+    magnitude, lower, upper, upper_weight = orientation_split(grey, bins)
     cells = size // cell
     cell_of_pixel = np.minimum(np.arange(size) // cell, cells - 1)  # along either side of the square template
     cell_index = ((cell_of_pixel[:, None] * cells + cell_of_pixel[None, :])[None]

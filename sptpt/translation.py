@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, warp_candidates
+from sptpt.gradients import GREY, orientation_split
 
 __all__ = ["TranslationFilter", "translation_features", "PATCH", "PADDING", "BINS"]
 
@@ -44,7 +45,6 @@ NEIGHBOURHOOD = 4  # px of the patch over which each orientation channel is aver
 # The orientation channels hold gradient magnitudes of grey levels in [0, 1] (at most about 1.4 each); doubled,
 # they weigh about as much as the grey channel in the filter.
 ORIENTATION_WEIGHT = 2.0
-_GREY = np.array([0.299, 0.587, 0.114])  # ITU-R BT.601 luma, as sptpt.scale
 
 
 def translation_features(patch: np.ndarray) -> np.ndarray:
@@ -55,17 +55,8 @@ def translation_features(patch: np.ndarray) -> np.ndarray:
     over a :data:`NEIGHBOURHOOD`-pixel square (OpenCV's box filter: the pixel and the next 1 and previous 2
     along each axis, borders mirrored without repeating the edge) and weighted by :data:`ORIENTATION_WEIGHT`.
     """
-    grey = (np.asarray(patch, dtype=np.float64) @ _GREY) / 255.0
-    gx = np.zeros_like(grey)
-    gy = np.zeros_like(grey)
-    gx[:, 1:-1] = grey[:, 2:] - grey[:, :-2]
-    gy[1:-1, :] = grey[2:, :] - grey[:-2, :]
-    magnitude = np.hypot(gx, gy)
-    position = (np.arctan2(gy, gx) % np.pi) * (BINS / np.pi)
-    lower = np.floor(position)
-    upper_weight = position - lower
-    lower = lower.astype(np.int64) % BINS
-    upper = (lower + 1) % BINS
+    grey = (np.asarray(patch, dtype=np.float64) @ GREY) / 255.0
+    magnitude, lower, upper, upper_weight = orientation_split(grey, BINS)
     channels = np.empty((1 + BINS,) + grey.shape)
     channels[0] = grey - grey.mean()
     for b in range(BINS):
