@@ -330,7 +330,7 @@ class _Run:
         extra = {}
         if details:
             # The labels are the winner's template's, so they are placed with the winner's state (before any
-            # scale filter step).
+            # scale filter step or translation filter shift of the reported box).
             frame_labels, origin = template_labels_to_frame(labels[best], states[best], self._frame_shape)
             extra = dict(
                 particles_xywh=box_xywh_from_states(states, p.template_size),

@@ -124,7 +124,8 @@ def test_tracker_with_the_scale_filter_follows_a_growing_object():
     import dataclasses
 
     frames, boxes = growing_clip()
-    params = dataclasses.replace(get_preset("robust"), scale_filter=True, reported_scale_filter=False)
+    params = dataclasses.replace(get_preset("robust"), scale_filter=True, reported_scale_filter=False,
+                                 reported_translation_filter=False)
     tracker = Tracker(params, seed=0)
     tracker.init(frames[0], boxes[0])
     tracked = np.array([tracker.update(frame).box_xywh for frame in frames[1:]])

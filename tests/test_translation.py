@@ -127,3 +127,13 @@ def test_the_reported_translation_filter_moves_only_the_reported_centre_and_brin
     # Same seed, same boxes.
     again = track(dataclasses.replace(one_run, reported_translation_filter=True))
     np.testing.assert_array_equal([r.box_xywh for r in again], [r.box_xywh for r in moved])
+    # The filter learns from SPTPT's box, never from the box it moved: a filter replayed beside the filter-free run,
+    # shifting at its boxes and learning from them on accepted frames, moves them exactly as the tracker did.
+    replay = TranslationFilter(32)
+    replay.init(frames[0], state_from_box_xywh(boxes[0], 32))
+    for frame, own, got in zip(frames[1:], plain, moved):
+        state = state_from_box_xywh(own.box_xywh, 32)
+        dx, dy = replay.shift(frame, state)
+        np.testing.assert_allclose(got.box_xywh, own.box_xywh + np.array([dx, dy, 0.0, 0.0]), rtol=0, atol=1e-6)
+        if own.accepted:
+            replay.update(frame, state)
