@@ -15,6 +15,25 @@ from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histogr
 from sptpt.tracker import Tracker
 
 
+def slow_orientation_split(grey: np.ndarray, bins: int) -> np.ndarray:
+    """``(rows, cols)`` grey -> ``(bins, rows, cols)``: each pixel's central-difference gradient magnitude (0 on the
+    border), split linearly between its two nearest unsigned orientations; pixel by pixel, as
+    ``sptpt.gradients.orientation_split`` says."""
+    rows, cols = grey.shape
+    split = np.zeros((bins, rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            gx = grey[r, c + 1] - grey[r, c - 1] if 0 < c < cols - 1 else 0.0
+            gy = grey[r + 1, c] - grey[r - 1, c] if 0 < r < rows - 1 else 0.0
+            magnitude = math.hypot(gx, gy)
+            position = (math.atan2(gy, gx) % math.pi) * bins / math.pi
+            lower = math.floor(position)
+            weight = position - lower
+            split[lower % bins, r, c] += magnitude * (1 - weight)
+            split[(lower + 1) % bins, r, c] += magnitude * weight
+    return split
+
+
 def slow_orientation_histograms(templates: np.ndarray, cell: int = CELL, bins: int = BINS) -> np.ndarray:
     """Pixel by pixel, as the docstring of orientation_histograms says."""
     out = []
@@ -22,18 +41,11 @@ def slow_orientation_histograms(templates: np.ndarray, cell: int = CELL, bins: i
         grey = 0.299 * template[..., 0] + 0.587 * template[..., 1] + 0.114 * template[..., 2]
         size = grey.shape[0]
         cells = size // cell
+        split = slow_orientation_split(grey, bins)
         hist = np.zeros((cells, cells, bins))
         for r in range(size):
             for c in range(size):
-                gx = grey[r, c + 1] - grey[r, c - 1] if 0 < c < size - 1 else 0.0
-                gy = grey[r + 1, c] - grey[r - 1, c] if 0 < r < size - 1 else 0.0
-                magnitude = math.hypot(gx, gy)
-                position = (math.atan2(gy, gx) % math.pi) * bins / math.pi
-                lower = math.floor(position)
-                weight = position - lower
-                cr, cc = min(r // cell, cells - 1), min(c // cell, cells - 1)
-                hist[cr, cc, lower % bins] += magnitude * (1 - weight)
-                hist[cr, cc, (lower + 1) % bins] += magnitude * weight
+                hist[min(r // cell, cells - 1), min(c // cell, cells - 1)] += split[:, r, c]
         for cr in range(cells):
             for cc in range(cells):
                 norm = math.sqrt(float((hist[cr, cc] ** 2).sum())) + 1e-3
@@ -120,6 +132,13 @@ def growing_clip(n_frames: int = 50, growth: float = 1.6):
     return np.array(frames), np.array(boxes)
 
 
+def track_results(params, frames: np.ndarray, first_box: np.ndarray, seed: int = 0) -> list:
+    """Every frame's result after the first of a tracker with ``params`` and ``seed`` started at ``first_box``."""
+    tracker = Tracker(params, seed=seed)
+    tracker.init(frames[0], first_box)
+    return [tracker.update(frame) for frame in frames[1:]]
+
+
 def test_tracker_with_the_scale_filter_follows_a_growing_object():
     import dataclasses
 
@@ -143,12 +162,7 @@ def test_the_reported_scale_filter_sizes_the_box_and_leaves_the_search_alone():
     # Without the translation filter, which would move the reported centre.
     one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_scale_filter=False,
                                   reported_translation_filter=False)
-
-    def track(params):
-        tracker = Tracker(params, seed=0)
-        tracker.init(frames[0], boxes[0])
-        return [tracker.update(frame) for frame in frames[1:]]
-
+    track = lambda params: track_results(params, frames, boxes[0])
     plain = track(one_run)
     sized = track(dataclasses.replace(one_run, reported_scale_filter=True))
     # SPTPT's own run is untouched: the same scores, acceptance and centres, frame by frame.

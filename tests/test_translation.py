@@ -4,16 +4,14 @@ and the tracker switch that moves only the reported centre."""
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
 
 from sptpt.affine import state_from_box_xywh
 from sptpt.params import get_preset
-from sptpt.tracker import Tracker
 from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
-from tests.test_scale import _background_and_object, _paste
+from tests.test_scale import _background_and_object, _paste, slow_orientation_split, track_results
 
 
 def slow_translation_features(patch: np.ndarray) -> np.ndarray:
@@ -21,17 +19,7 @@ def slow_translation_features(patch: np.ndarray) -> np.ndarray:
     rgb = np.asarray(patch, dtype=np.float64)
     grey = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
     rows, cols = grey.shape
-    split = np.zeros((BINS, rows, cols))
-    for r in range(rows):
-        for c in range(cols):
-            gx = grey[r, c + 1] - grey[r, c - 1] if 0 < c < cols - 1 else 0.0
-            gy = grey[r + 1, c] - grey[r - 1, c] if 0 < r < rows - 1 else 0.0
-            magnitude = math.hypot(gx, gy)
-            position = (math.atan2(gy, gx) % math.pi) * BINS / math.pi
-            lower = math.floor(position)
-            weight = position - lower
-            split[lower % BINS, r, c] += magnitude * (1 - weight)
-            split[(lower + 1) % BINS, r, c] += magnitude * weight
+    split = slow_orientation_split(grey, BINS)
 
     def mirror(i: int, n: int) -> int:  # reflect without repeating the edge: -1 -> 1, n -> n - 2
         return -i if i < 0 else 2 * (n - 1) - i if i >= n else i
@@ -105,12 +93,7 @@ def moving_clip(n_frames: int = 40):
 def test_the_reported_translation_filter_moves_only_the_reported_centre_and_brings_it_nearer():
     frames, boxes = moving_clip()
     one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_translation_filter=False)
-
-    def track(params):
-        tracker = Tracker(params, seed=0)
-        tracker.init(frames[0], boxes[0])
-        return [tracker.update(frame) for frame in frames[1:]]
-
+    track = lambda params: track_results(params, frames, boxes[0])
     plain = track(one_run)
     moved = track(dataclasses.replace(one_run, reported_translation_filter=True))
     # SPTPT's own run is untouched: the same scores and acceptance, and the same size, frame by frame.
