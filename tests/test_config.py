@@ -103,6 +103,8 @@ BAD_VALUES = [
     ({"flags": "strict"}, "'flags' must be a mapping"),
     ({"tracker": {"n_particles": "many"}}, "n_particles='many' is invalid"),
     ({"tracker": {"n_particles": 0}}, "n_particles=0 is invalid"),
+    ({"tracker": {"reported_translation_filter": "sometimes"}},
+     "reported_translation_filter='sometimes' is invalid: expected a bool"),
     ({"tracker": {"ranks": [40, 30, 40]}}, "ranks=(40, 30, 40) is invalid: the superpixel rank 30 exceeds"),
     ({"flags": {"threshold": 1.5}}, "threshold=1.5 is invalid"),
     ({"flags": {"review_budget": 0}}, "review_budget=0.0 is invalid: expected a percentage in (0, 100]"),
