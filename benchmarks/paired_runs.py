@@ -7,7 +7,8 @@
 A tracker with ``independent_runs`` R > 1 (``robust``) tracks R one-run
 trackers side by side and reports, each frame, one run's box
 (``TrackerParams.run_choice``: the more confident run, or the one whose box
-stands out most from its surroundings).
+stands out most from its surroundings) or the mean box of the runs that
+agree (``"consensus"``).
 The runs never see each other's results, so each run's boxes are exactly what
 that run would have given alone (``tests/test_independent_runs.py`` checks
 this). ``benchmarks/_sptpt_runner.py`` stores them (``run_boxes`` in

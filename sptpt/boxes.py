@@ -1,4 +1,4 @@
-"""The overlap of two boxes: the one IoU of the tracker, the tool and its benchmarks.
+"""The overlap of two boxes (the one IoU of the tracker, the tool and its benchmarks), and the mean of several.
 
 A box ``(x, y, w, h)`` covers ``[x, x + w) x [y, y + h)`` with continuous areas, as got10k ``rect_iou`` and
 pysot ``overlap_ratio`` score it (and OTB's ``calcRectInt``, see ``annotator.evaluation.metrics``). It lives here,
@@ -33,3 +33,17 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
     iou = np.clip(iou, 0.0, 1.0)  # rounding can leave 1 + 1 ulp
     return np.where(np.isnan(a).any(axis=-1) | np.isnan(b).any(axis=-1), np.nan, iou)
+
+
+def mean_box(boxes_xywh) -> np.ndarray:
+    """The ``xywh`` box whose centre is the mean of the boxes' centres and whose width and height are the geometric
+    means of theirs: sizes combine as ratios (a box twice as large and one half as large average to the same size).
+
+    ``boxes_xywh`` is ``(N, 4)`` with ``N >= 1`` and positive widths and heights; one box is returned as it is.
+    """
+    boxes = np.asarray(boxes_xywh, dtype=np.float64).reshape(-1, 4)
+    if len(boxes) == 1:
+        return boxes[0].copy()
+    centre = (boxes[:, :2] + boxes[:, 2:] / 2).mean(axis=0)
+    size = np.exp(np.log(boxes[:, 2:]).mean(axis=0))
+    return np.concatenate([centre - size / 2, size])

@@ -10,7 +10,8 @@ reconstructs it than the negative one. The best candidate is the estimate
 its surroundings); if it scores above Phi it joins the positive model, and
 the negative model is refitted from samples drawn around it. (``robust``
 also reports a box sized by a scale filter and centred by a translation
-filter beside the run, which leave the run itself untouched.)
+filter beside the run, which leave the run itself untouched; and it tracks
+three independent runs and reports the mean box of those that agree.)
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from threadpoolctl import ThreadpoolController
 
 from sptpt._kernels import map_on_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
-from sptpt.boxes import iou_xywh
+from sptpt.boxes import iou_xywh, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
 from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
@@ -162,17 +163,24 @@ class Tracker:
         chosen = _more_confident(results)
         if len(results) > 1 and self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, _as_rgb(frame), chosen)
+        if len(results) > 1 and self.params.run_choice == "consensus":
+            chosen, agreeing = _consensus(results, _as_rgb(frame), chosen)
+            return dataclasses.replace(_reported(results, chosen),
+                                       box_xywh=mean_box([results[i].box_xywh for i in agreeing]))
         return _reported(results, chosen)
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update; several runs side by side, one kernel thread each.
+        """Every run's update; runs side by side, one kernel thread each, up to as many as there are threads.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
-        side, one run's serial work overlaps the other's kernels. Runs share nothing, so their results are
-        the same as one after the other.
+        side, one run's serial work overlaps the other's kernels. Runs beyond a multiple of the threads (the
+        third of three on two threads) run after the others, each with every thread, rather than two on one
+        thread while the other waits. Runs share nothing, so their results are the same as one after the other.
         """
         threads = numba.get_num_threads()
-        if len(self._runs) == 1 or threads == 1:
+        runs = len(self._runs)
+        side_by_side = 0 if threads == 1 else runs if runs <= threads else runs - runs % threads
+        if side_by_side < 2:
             return [run.update(frame, details=details) for run in self._runs]
 
         def update_alone(run: _Run) -> FrameResult:
@@ -183,7 +191,8 @@ class Tracker:
             finally:
                 numba.set_num_threads(own)
 
-        return map_on_threads(update_alone, self._runs, threads)
+        together = map_on_threads(update_alone, self._runs[:side_by_side], threads)
+        return together + [run.update(frame, details=details) for run in self._runs[side_by_side:]]
 
 
 class _Run:
@@ -496,6 +505,28 @@ def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int
     """Index of the run whose box stands out most from its surroundings; the ``confident`` run on ties (see
     :func:`sptpt.contrast.most_contrasted`)."""
     return most_contrasted(rgb, [r.box_xywh for r in results], confident)
+
+
+#: Two runs whose boxes overlap at least this much agree (``run_choice="consensus"``): the usual IoU for "the same
+#: object" in tracking benchmarks.
+_AGREE_IOU = 0.5
+
+
+def _consensus(results: list[FrameResult], rgb: np.ndarray, confident: int) -> tuple[int, list[int]]:
+    """The run whose box the most other runs agree with (IoU >= :data:`_AGREE_IOU`), and it with those runs.
+
+    Among runs with as many agreeing runs, the box that stands out most (``confident`` on ties); a run no other
+    agrees with is reported alone. With three runs: all agree, all three; one pair agrees, that pair; one run
+    agrees with the two others (which do not agree), all three; none, the most contrasted run alone.
+    """
+    boxes = np.stack([r.box_xywh for r in results])
+    agree = np.stack([np.nan_to_num(iou_xywh(boxes, b), nan=0.0) >= _AGREE_IOU for b in boxes])
+    np.fill_diagonal(agree, False)
+    votes = agree.sum(axis=1)
+    tied = [i for i in range(len(results)) if votes[i] == votes.max()]
+    default = confident if confident in tied else tied[0]
+    chosen = tied[most_contrasted(rgb, boxes[tied], tied.index(default))]
+    return chosen, [chosen, *np.flatnonzero(agree[chosen]).tolist()]
 
 
 #: The candidates re-ranked by contrast overlap the best-scoring one at least this much: contrast corrects a box that

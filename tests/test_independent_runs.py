@@ -1,5 +1,5 @@
-"""``independent_runs``: several SPTPT runs side by side, each frame reported by the more confident one or by the one
-whose box stands out most from its surroundings (``run_choice``)."""
+"""``independent_runs``: several SPTPT runs side by side, each frame reported by the more confident one, by the one
+whose box stands out most from its surroundings, or by the runs that agree (``run_choice``)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.contrast import colour_contrast
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
-from sptpt.boxes import iou_xywh
-from sptpt.tracker import Tracker, _more_confident, _most_contrasted, _most_contrasted_candidate
+from sptpt.boxes import iou_xywh, mean_box
+from sptpt.tracker import Tracker, _consensus, _more_confident, _most_contrasted, _most_contrasted_candidate
 
 
 def _result(ll: float, scoring: str = "subspace", x: float = 0.0) -> FrameResult:
@@ -172,7 +172,61 @@ def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
     assert overruled > 0  # the clip has frames where contrast and confidence pick different runs
 
 
-@pytest.mark.parametrize("choice", ["confidence", "contrast"])
+def test_consensus_reports_the_runs_that_agree_and_contrast_decides_the_rest():
+    frame, on_object, on_background = _scene()
+
+    def runs(*boxes, confident_ll=(1.0,)):
+        return [FrameResult(box_xywh=np.asarray(b, float), log_likelihood=1.0, confidence=0.5, accepted=True,
+                            scoring="subspace") for b in boxes]
+
+    near = on_object + [3.0, 0.0, 0.0, 0.0]  # IoU 0.82 with on_object
+    elsewhere = np.array([5.0, 80.0, 30.0, 30.0])  # on background, away from both
+    # Two runs that agree with each other and one lost run: the pair, however much the lost one stands out.
+    assert _consensus(runs(on_background, on_object, near), frame, 0) == (1, [1, 2])
+    # All three agree: all three, reported from the one that stands out most.
+    chosen, agreeing = _consensus(runs(on_object, near, on_object + [0.0, 3.0, 0.0, 0.0]), frame, 0)
+    assert sorted(agreeing) == [0, 1, 2] and agreeing[0] == chosen
+    # A chain (the middle box agrees with both ends, which do not agree with each other): all three, from the middle.
+    chain = runs(on_object - [7.0, 0.0, 0.0, 0.0], on_object, on_object + [7.0, 0.0, 0.0, 0.0])
+    assert iou_xywh(chain[0].box_xywh, chain[2].box_xywh) < 0.5 <= iou_xywh(chain[0].box_xywh, chain[1].box_xywh)
+    assert _consensus(chain, frame, 2) == (1, [1, 0, 2])
+    # No two agree: the box that stands out most, alone, as with run_choice="contrast".
+    assert _consensus(runs(on_background, on_object, elsewhere), frame, 0) == (1, [1])
+    # Two runs: together when they agree, else the one that stands out.
+    assert _consensus(runs(near, on_object), frame, 0)[1] in ([0, 1], [1, 0])
+    assert _consensus(runs(on_background, on_object), frame, 0) == (1, [1])
+    # Ties (same contrast, same votes): the confident run.
+    assert _consensus(runs(on_object, on_object, on_background), frame, 1) == (1, [1, 0])
+
+
+def test_with_run_choice_consensus_each_frame_is_the_mean_of_the_agreeing_runs():
+    clip = make_clip(25, seed=3)
+    three = Tracker(_params(3, "consensus"), seed=11)
+    seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=3)
+    singles = [Tracker(_params(1), seed=int(s)) for s in seeds]
+    three.init(clip.frames[0], clip.boxes_xywh[0])
+    for single in singles:
+        single.init(clip.frames[0], clip.boxes_xywh[0])
+    fused = 0
+    for frame in clip.frames[1:]:
+        got = three.update(frame)
+        alone = [single.update(frame) for single in singles]
+        np.testing.assert_array_equal(got.run_boxes_xywh, np.stack([a.box_xywh for a in alone]))
+        # Slow reference of the rule: pairwise agreement, most votes, contrast among the tied, mean of the group.
+        boxes = [a.box_xywh for a in alone]
+        votes = [sum(iou_xywh(b, c) >= 0.5 for j, c in enumerate(boxes) if j != i) for i, b in enumerate(boxes)]
+        tied = [i for i in range(3) if votes[i] == max(votes)]
+        contrast = {i: colour_contrast(frame, boxes[i]) for i in tied}
+        confident = _more_confident(alone)
+        best = max(tied, key=lambda i: (contrast[i], i == confident, -i))
+        group = [best] + [j for j in range(3) if j != best and iou_xywh(boxes[best], boxes[j]) >= 0.5]
+        np.testing.assert_allclose(got.box_xywh, mean_box([boxes[i] for i in group]), rtol=0, atol=1e-9)
+        assert got.log_likelihood == alone[best].log_likelihood
+        fused += len(group) > 1
+    assert fused > 0  # the clip has frames where runs agree and are averaged
+
+
+@pytest.mark.parametrize("choice", ["confidence", "contrast", "consensus"])
 def test_same_seed_same_boxes(choice):
     clip = make_clip(15, seed=3)
 

@@ -47,7 +47,7 @@ def test_unknown_key_names_the_closest_valid_one():
         ({"re_mode": "x"}, "re_mode"),
         ({"motion_sigma": [1, 2]}, "list of 6"),
         ({"seeding": "grid"}, "official"),
-        ({"run_choice": "best"}, r"run_choice='best' is invalid: expected 'confidence' or 'contrast'"),
+        ({"run_choice": "best"}, r"run_choice='best' is invalid: expected 'confidence' or 'contrast' or 'consensus'"),
         ({"run_choice": 1}, "expected a str"),
     ],
 )

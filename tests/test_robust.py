@@ -29,7 +29,10 @@ REFIND = 10
 
 def _params(preset: str):
     # robust as it was before each of its later switches: each switch alone changes the boxes.
-    before_translation = dataclasses.replace(get_preset("robust"), reported_translation_filter=False)
+    before_consensus = dataclasses.replace(get_preset("robust"), independent_runs=2, run_choice="contrast")
+    if preset == "robust-two-runs":  # before three runs reported the box they agree on
+        return before_consensus
+    before_translation = dataclasses.replace(before_consensus, reported_translation_filter=False)
     if preset == "robust-untranslated":  # before the translation filter placed the reported box
         return before_translation
     before_filter = dataclasses.replace(before_translation, reported_scale_filter=False)
@@ -121,14 +124,14 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
 
 
 @pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust-best-score",
-                                    "robust-unfiltered", "robust-untranslated", "robust"])
+                                    "robust-unfiltered", "robust-untranslated", "robust-two-runs", "robust"])
 def test_preset_boxes_are_unchanged(preset):
     # robust's one-run boxes were recorded before the scale_filter and independent_runs switches; its two-run
     # boxes by confidence when robust became two runs (each of its runs is a one-run tracker:
     # test_independent_runs), by contrast when run_choice became "contrast", with the candidates re-ranked
     # by contrast when contrast_candidates became 5, with the reported box sized by the scale filter when
-    # reported_scale_filter became True, and placed by the translation filter when reported_translation_filter
-    # became True.
+    # reported_scale_filter became True, placed by the translation filter when reported_translation_filter
+    # became True, and the box three runs agree on when independent_runs became 3 with run_choice "consensus".
     clip = make_clip(40, seed=3)
     golden = golden_boxes_file(preset)
     boxes = track(clip.frames, clip.boxes_xywh[0], preset, 5)
