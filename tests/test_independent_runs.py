@@ -150,18 +150,22 @@ def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_se
     assert 0 < picked_second < len(clip.frames) - 1  # the clip exercises both runs
 
 
-def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
+def _beside_their_runs(runs: int, choice: str):
+    """Per frame after the first of ``make_clip(25, seed=3)``: the frame, a ``runs``-run tracker's result, and each of
+    its runs tracked alone by a one-run tracker from the same child seed."""
     clip = make_clip(25, seed=3)
-    pair = Tracker(_params(2, "contrast"), seed=11)
-    seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=2)
+    tracker = Tracker(_params(runs, choice), seed=11)
+    seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=runs)
     singles = [Tracker(_params(1), seed=int(s)) for s in seeds]
-    pair.init(clip.frames[0], clip.boxes_xywh[0])
-    for single in singles:
-        single.init(clip.frames[0], clip.boxes_xywh[0])
-    overruled = 0
+    for t in (tracker, *singles):
+        t.init(clip.frames[0], clip.boxes_xywh[0])
     for frame in clip.frames[1:]:
-        got = pair.update(frame)
-        alone = [single.update(frame) for single in singles]
+        yield frame, tracker.update(frame), [single.update(frame) for single in singles]
+
+
+def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
+    overruled = 0
+    for frame, got, alone in _beside_their_runs(2, "contrast"):
         contrast = [colour_contrast(frame, a.box_xywh) for a in alone]
         assert np.isfinite(contrast).all()  # on this clip every box is measured: the rule below needs no NaN case
         confident = _more_confident(alone)
@@ -175,7 +179,7 @@ def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
 def test_consensus_reports_the_runs_that_agree_and_contrast_decides_the_rest():
     frame, on_object, on_background = _scene()
 
-    def runs(*boxes, confident_ll=(1.0,)):
+    def runs(*boxes):
         return [FrameResult(box_xywh=np.asarray(b, float), log_likelihood=1.0, confidence=0.5, accepted=True,
                             scoring="subspace") for b in boxes]
 
@@ -200,17 +204,8 @@ def test_consensus_reports_the_runs_that_agree_and_contrast_decides_the_rest():
 
 
 def test_with_run_choice_consensus_each_frame_is_the_mean_of_the_agreeing_runs():
-    clip = make_clip(25, seed=3)
-    three = Tracker(_params(3, "consensus"), seed=11)
-    seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=3)
-    singles = [Tracker(_params(1), seed=int(s)) for s in seeds]
-    three.init(clip.frames[0], clip.boxes_xywh[0])
-    for single in singles:
-        single.init(clip.frames[0], clip.boxes_xywh[0])
     fused = 0
-    for frame in clip.frames[1:]:
-        got = three.update(frame)
-        alone = [single.update(frame) for single in singles]
+    for frame, got, alone in _beside_their_runs(3, "consensus"):
         np.testing.assert_array_equal(got.run_boxes_xywh, np.stack([a.box_xywh for a in alone]))
         # Slow reference of the rule: pairwise agreement, most votes, contrast among the tied, mean of the group.
         boxes = [a.box_xywh for a in alone]
