@@ -78,29 +78,56 @@ def test_flow_appearance_and_motion_signals_move_where_the_box_slides_onto_backg
     assert np.isnan(truth["contrast"][0])  # the given box: not measured, as re-tracking stores its anchors
 
 
-def test_run_agreement_falls_where_one_run_slides_onto_background(clip):
+def _lost_boxes(clip) -> np.ndarray:
+    """The clip's true boxes, but on background from FAIL_AT on: a run that has lost the object."""
     lost = clip.boxes_xywh.copy()
     for k in range(FAIL_AT, len(lost)):
         lost[k] = background_box(clip, k)
+    return lost
+
+
+def _run_signals(clip, run_boxes) -> dict[str, np.ndarray]:
+    """``run_iou`` and ``run_support`` of frames 1.. when the tracker reports the true box and its runs' boxes are
+    ``run_boxes`` (``(F, R, 4)``)."""
     meter = SignalMeter()
     meter.first(clip.frames[0], clip.boxes_xywh[0])
-    agreement = []
-    for k in range(1, len(clip.frames)):
-        # The tracker reports the true box (the first run) while its second run has lost the object.
-        runs = np.stack([clip.boxes_xywh[k], lost[k]])
-        agreement.append(meter.next(clip.frames[k], clip.boxes_xywh[k], log_likelihood=5.0, scoring="subspace",
-                                    accepted=True, run_boxes_xywh=runs)["run_iou"])
-    agreement = np.array(agreement)
+    rows = [meter.next(clip.frames[k], clip.boxes_xywh[k], log_likelihood=5.0, scoring="subspace", accepted=True,
+                       run_boxes_xywh=run_boxes[k]) for k in range(1, len(clip.frames))]
+    return {name: np.array([row[name] for row in rows]) for name in ("run_iou", "run_support")}
+
+
+def test_run_agreement_falls_where_one_run_slides_onto_background(clip):
+    lost = _lost_boxes(clip)
+    # The tracker reports the true box (the first run) while its second run has lost the object.
+    signals = _run_signals(clip, np.stack([clip.boxes_xywh, lost], axis=1))
+    agreement = signals["run_iou"]
     np.testing.assert_allclose(agreement[: FAIL_AT - 1], 1.0)  # both runs on the object: full agreement
     assert agreement[FAIL_AT - 1:].max() < 0.1
+    # With two runs, the second nearest run is the farthest.
+    np.testing.assert_array_equal(signals["run_support"], agreement)
     # One run: nothing to compare, not measured (NaN), and not measured on the given box either.
     assert np.isnan(measure(clip, lost)["run_iou"]).all()
-    # Three runs: the lowest agreement with any of them.
+    assert np.isnan(measure(clip, lost)["run_support"]).all()
+    # Three runs: the lowest agreement with any of them, and the second highest.
     box = np.array([0.0, 0.0, 10.0, 10.0])
+    meter = SignalMeter()
     meter.first(clip.frames[0], box)
     three = meter.next(clip.frames[1], box, log_likelihood=5.0, scoring="subspace", accepted=True,
                        run_boxes_xywh=np.array([box, [5.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 5.0]]))
     assert three["run_iou"] == pytest.approx(1 / 3)
+    assert three["run_support"] == pytest.approx(1 / 2)
+
+
+def test_run_support_stays_while_one_of_three_runs_is_lost_and_falls_when_two_are(clip):
+    truth, lost = clip.boxes_xywh, _lost_boxes(clip)
+    one_lost = _run_signals(clip, np.stack([truth, truth, lost], axis=1))
+    # The reported box stays with the one run that kept the object; the two others have left it.
+    two_lost = _run_signals(clip, np.stack([truth, lost, lost], axis=1))
+    after = slice(FAIL_AT - 1, None)
+    np.testing.assert_allclose(one_lost["run_support"], 1.0)  # a second run backs the box throughout
+    assert one_lost["run_iou"][after].max() < 0.1  # while the farthest run has gone
+    np.testing.assert_allclose(two_lost["run_support"][: FAIL_AT - 1], 1.0)
+    assert two_lost["run_support"][after].max() < 0.1  # no second run backs the box once two have gone
 
 
 def test_a_signal_not_measured_neither_raises_nor_lowers_p_fail():

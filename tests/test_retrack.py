@@ -154,7 +154,7 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
-@pytest.mark.parametrize("name", ["run_iou", "contrast"])
+@pytest.mark.parametrize("name", ["run_iou", "run_support", "contrast"])
 def test_reflag_reads_a_signal_not_measured_as_the_models_mean(name, tmp_path):
     """A one-run track, or a store from before the signal existed, has NaN there: the model neither raises nor lowers
     p_fail."""

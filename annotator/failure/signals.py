@@ -27,16 +27,19 @@ The rest come from the tracker: its log-likelihood and scoring stage, the
 gap between its best candidate and the next best ones (a flat posterior
 cannot tell the target from its surroundings), the spatial spread of its best
 candidates, jumps of position, scale and aspect ratio, and, when it tracks
-several independent runs (``robust``), how far they agree (``run_iou``):
-runs that put the box in different places have likely not all kept the
-object.
+several independent runs (``robust``), how far they agree: ``run_iou`` with
+the run farthest from the box, ``run_support`` with the second nearest (does
+another run back the box besides the one it came from?). Runs that put the
+box in different places have likely not all kept the object; with three
+runs, one lost run lowers ``run_iou`` under a right box, while a box that no
+second run backs is likely wrong.
 
 Signals are the raw material; :mod:`annotator.failure.model` turns them into
 features (running levels, short windows) and a failure probability. Where a
 signal cannot be measured on a frame (the first frame, a box outside the
 image) it takes its "nothing wrong" value, documented per name in
 :data:`SIGNALS` and :data:`NEUTRAL`, or, for ``run_iou`` and ``contrast``,
-NaN: "not measured". ``run_iou`` is NaN for a whole track when the tracker
+NaN: "not measured". ``run_iou`` and ``run_support`` are NaN for a whole track when the tracker
 has one run (``paper``, ``fast``), because "nothing to compare with" is not
 "the runs agree"; ``contrast`` is NaN on a box a person gave and where the
 box or its ring has too few pixels in the image; a store written before a
@@ -78,6 +81,8 @@ SIGNALS: Mapping[str, str] = {
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
     "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (NaN with one run: "
                "not measured)",
+    "run_support": "second highest IoU of the box with the boxes of the tracker's independent runs: how well a "
+                   "second run backs it (with two runs, the same as run_iou; NaN with one run: not measured)",
     "contrast": "1 - Bhattacharyya coefficient of the HSV colour histograms inside the box and in a ring of the "
                 "box's own area around it, in [0, 1] (NaN, not measured, on a box a person gave and where the box or "
                 "the ring has fewer than 100 pixels in the image: too few to compare histograms)",
@@ -89,7 +94,7 @@ NEUTRAL: Mapping[str, float] = {
     "scale_change": 0.0, "scale_drift": 0.0, "aspect_drift": 0.0, "flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0,
     "ncc_first": 1.0, "ncc_prev": 1.0,
     # Not measured: a given box has no runs to compare, and a one-run tracker none at all (module docstring).
-    "run_iou": math.nan,
+    "run_iou": math.nan, "run_support": math.nan,
     # Not measured on a box a person gave (as re-tracking stores its anchors), nor on rows no pass scored.
     "contrast": math.nan,
 }
@@ -178,8 +183,8 @@ class SignalMeter:
         gap, spread = particle_stats(particles_xywh, particle_scores, box)
         ll = float(log_likelihood) if np.isfinite(log_likelihood) else -50.0
         # With one run there is nothing to compare (NaN); a run without a box overlaps nothing (0).
-        run_iou = (math.nan if run_boxes_xywh is None
-                   else float(np.nan_to_num(iou_xywh(np.asarray(run_boxes_xywh), box), nan=0.0).min()))
+        runs = (None if run_boxes_xywh is None
+                else np.sort(np.nan_to_num(iou_xywh(np.asarray(run_boxes_xywh), box), nan=0.0))[::-1])
         signals = {
             "log_likelihood": float(np.clip(ll, -50.0, 50.0)),
             "bootstrap": 1.0 if scoring == "bootstrap" else 0.0,
@@ -196,7 +201,8 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
-            "run_iou": run_iou,
+            "run_iou": math.nan if runs is None else float(runs[-1]),
+            "run_support": math.nan if runs is None else float(runs[1]),
             "contrast": colour_contrast(frame_rgb, box),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
