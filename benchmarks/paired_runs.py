@@ -85,7 +85,8 @@ def contrast_choice(seq_dir: Path, runs: np.ndarray, stored: np.ndarray) -> np.n
     """Per frame, the run box :func:`most_contrasted` picks, the stored choice's run breaking ties."""
     boxes = stored.copy()
     for k, (_, frame) in enumerate(open_frames(seq_dir, stop=len(stored))):
-        # The stored text keeps 3 decimals: the stored choice is the run whose box it rounds.
+        # The stored text keeps 3 decimals: the stored choice is the run whose box it rounds (for a consensus
+        # tracker, whose reported box may be a mean, the run nearest it).
         default = int(np.argmin(np.abs(runs[k] - stored[k]).max(axis=1)))
         boxes[k] = runs[k, most_contrasted(frame, runs[k], default)]
     return boxes

@@ -39,7 +39,9 @@ def mean_box(boxes_xywh) -> np.ndarray:
     """The ``xywh`` box whose centre is the mean of the boxes' centres and whose width and height are the geometric
     means of theirs: sizes combine as ratios (a box twice as large and one half as large average to the same size).
 
-    ``boxes_xywh`` is ``(N, 4)`` with ``N >= 1`` and positive widths and heights; one box is returned as it is.
+    ``boxes_xywh`` is ``(N, 4)`` with ``N >= 1`` and positive, finite widths and heights (not checked: the tracker
+    averages only boxes that overlap); one box is returned as it is. Floating-point sums depend on the order, so a
+    caller that needs the same bits for the same set passes the boxes in a fixed order.
     """
     boxes = np.asarray(boxes_xywh, dtype=np.float64).reshape(-1, 4)
     if len(boxes) == 1:

@@ -4,8 +4,9 @@ An object stands out from its surroundings however its own look changes; a box t
 background looks like the background around it. :func:`colour_contrast` measures that as 1 - the
 Bhattacharyya coefficient of the HSV colour histograms inside the box and in a ring of the box's own area
 around it. Three uses: each run of the ``robust`` preset takes, of its best candidates near the best score, the
-one whose box stands out most (``TrackerParams.contrast_candidates``); ``robust`` reports, of its independent
-runs, the one whose box stands out most (``TrackerParams.run_choice``); and the tool reads it as a failure
+one whose box stands out most (``TrackerParams.contrast_candidates``); between independent runs it picks the
+reported run (``TrackerParams.run_choice`` ``"contrast"``; with ``"consensus"``, as ``robust`` has it, only
+among runs with as many agreeing runs, and a run no other agrees with); and the tool reads it as a failure
 signal (``annotator.failure.signals``).
 """
 

@@ -97,7 +97,8 @@ class TrackerParams:
 
     independent_runs: int = 1
     """Independent SPTPT runs tracked side by side on every frame, each with its own random stream and so its own
-    dictionary, candidates, negatives and models; each frame reports one run (``run_choice``), and
+    dictionary, candidates, negatives and models; each frame reports one run, or the mean box of those that agree
+    (``run_choice``), and
     ``FrameResult.run_boxes_xywh`` carries every run's box.
     One run of robust keeps or loses a sequence depending on the seed (Singer2 0.04 with one seed, 0.68 with
     another). On ``../shared/otb`` over six seeds two runs chosen by confidence score 0.506 ± 0.015 against

@@ -56,7 +56,8 @@ class FrameResult:
         0-based frame column and row of ``superpixel_labels[0, 0]``.
     run_boxes_xywh : (R, 4) float64 ndarray or None
         With ``independent_runs`` R > 1: every run's box this frame, in run
-        order (``box_xywh`` is one of them). Where the runs disagree, one has
+        order (``box_xywh`` is one of them, or with ``run_choice="consensus"``
+        the mean of those that agree). Where the runs disagree, one has
         likely lost the target. None for a single run.
     """
 

@@ -89,9 +89,10 @@ class Tracker:
         thread-safe; the stages of the runs then overlap in time.
 
     With ``params.independent_runs`` R > 1 the tracker follows the object with R
-    independent runs and reports, each frame, the one ``params.run_choice``
-    picks (the more confident, or the one whose box stands out most from its
-    surroundings); every run's box is in ``FrameResult.run_boxes_xywh``.
+    independent runs and reports, each frame, what ``params.run_choice``
+    picks (the more confident run, the one whose box stands out most from its
+    surroundings, or the mean box of the runs that agree); every run's box is
+    in ``FrameResult.run_boxes_xywh``.
 
     Examples
     --------
@@ -166,11 +167,12 @@ class Tracker:
         if len(results) > 1 and self.params.run_choice == "consensus":
             chosen, agreeing = _consensus(results, _as_rgb(frame), chosen)
             return dataclasses.replace(_reported(results, chosen),
-                                       box_xywh=mean_box([results[i].box_xywh for i in agreeing]))
+                                       box_xywh=mean_box([results[i].box_xywh for i in sorted(agreeing)]))
         return _reported(results, chosen)
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update; runs side by side, one kernel thread each, up to as many as there are threads.
+        """Every run's update; runs side by side, one kernel thread each: all of them when there are no more runs
+        than threads, else the largest multiple of the thread count, and the rest after them on every thread.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps the other's kernels. Runs beyond a multiple of the threads (the
@@ -515,8 +517,8 @@ _AGREE_IOU = 0.5
 def _consensus(results: list[FrameResult], rgb: np.ndarray, confident: int) -> tuple[int, list[int]]:
     """The run whose box the most other runs agree with (IoU >= :data:`_AGREE_IOU`), and it with those runs.
 
-    Among runs with as many agreeing runs, the box that stands out most (``confident`` on ties); a run no other
-    agrees with is reported alone. With three runs: all agree, all three; one pair agrees, that pair; one run
+    Among runs with as many agreeing runs, the box that stands out most (on equal contrast ``confident`` if it is
+    one of them, else the first); a run no other agrees with is reported alone. With three runs: all agree, all three; one pair agrees, that pair; one run
     agrees with the two others (which do not agree), all three; none, the most contrasted run alone.
     """
     boxes = np.stack([r.box_xywh for r in results])

@@ -57,7 +57,7 @@ def test_mean_box_averages_centres_and_sizes_as_ratios():
     # Centres (5, 10) and (25, 30) average to (15, 20); widths 4 and 16 to 8, heights 10 and 40 to 20.
     got = mean_box([[3.0, 5.0, 4.0, 10.0], [17.0, 10.0, 16.0, 40.0]])
     np.testing.assert_allclose(got, [15.0 - 4.0, 20.0 - 10.0, 8.0, 20.0])
-    # Order does not matter, and the same box twice is itself.
+    # Order does not matter, and the same box twice is itself (to rounding: sizes go through log and exp).
     boxes = np.array([[0.0, 0.0, 2.0, 3.0], [1.0, 2.0, 5.0, 1.0], [4.0, -1.0, 3.0, 3.0]])
     np.testing.assert_allclose(mean_box(boxes), mean_box(boxes[::-1]))
     np.testing.assert_allclose(mean_box([one, one]), one)

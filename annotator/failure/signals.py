@@ -38,7 +38,7 @@ Signals are the raw material; :mod:`annotator.failure.model` turns them into
 features (running levels, short windows) and a failure probability. Where a
 signal cannot be measured on a frame (the first frame, a box outside the
 image) it takes its "nothing wrong" value, documented per name in
-:data:`SIGNALS` and :data:`NEUTRAL`, or, for ``run_iou`` and ``contrast``,
+:data:`SIGNALS` and :data:`NEUTRAL`, or, for ``run_iou``, ``run_support`` and ``contrast``,
 NaN: "not measured". ``run_iou`` and ``run_support`` are NaN for a whole track when the tracker
 has one run (``paper``, ``fast``), because "nothing to compare with" is not
 "the runs agree"; ``contrast`` is NaN on a box a person gave and where the
@@ -79,7 +79,7 @@ SIGNALS: Mapping[str, str] = {
     "flow_kept": "share of flow points whose forward-backward error was small (1 when no flow)",
     "ncc_first": "normalised cross-correlation of the box's grey patch with the first frame's, in [-1, 1]",
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
-    "run_iou": "lowest IoU of the box with the boxes of the tracker's other independent runs (NaN with one run: "
+    "run_iou": "lowest IoU of the box with the boxes of the tracker's independent runs (NaN with one run: "
                "not measured)",
     "run_support": "second highest IoU of the box with the boxes of the tracker's independent runs: how well a "
                    "second run backs it (with two runs, the same as run_iou; NaN with one run: not measured)",

@@ -219,8 +219,8 @@ def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outsid
 
 def filled_signals(signals: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A track's stored :data:`SIGNALS` with every NaN ("not measured": rows no pass scored; run_iou of a one-run
-    tracker; a signal a store was written without, as before it existed) at its neutral value, which for run_iou
-    and contrast is NaN itself (the model reads it as its training mean)."""
+    tracker; a signal a store was written without, as before it existed) at its neutral value, which for run_iou,
+    run_support and contrast is NaN itself (the model reads it as its training mean)."""
     n = len(next(iter(signals.values()))) if signals else 0
     return {name: np.nan_to_num(np.asarray(signals.get(name, np.full(n, np.nan)), dtype=np.float64), nan=NEUTRAL[name])
             for name in SIGNALS}
