@@ -88,11 +88,11 @@ class TrackerParams:
     filter finds the object, near the centre SPTPT chose. The filter learns from SPTPT's box (its centre, and the
     reported size) on accepted frames, never from the box it moved, and the run's state, search, models, scores,
     acceptance and size are exactly those without it: only each run's reported centre changes (with several runs
-    and ``run_choice="contrast"`` or ``"consensus"``, the moved boxes also decide what is reported). The centre is not kept on
-    the frame: a shift is at most the box's width and height, and a box may leave the frame with its object. It
-    averages out the jitter of SPTPT's winner about the object. On ``../shared/otb`` over six seeds: 0.583 ± 0.022 against
-    0.572 ± 0.022 without it, higher in every seed (+0.011 paired; Deer +0.04, Crossing +0.02, Car4 +0.02; no
-    sequence loses more than 0.002), for 3.4 ms a frame with two runs. True in ``robust``.
+    and ``run_choice="contrast"`` or ``"consensus"``, the moved boxes also decide what is reported). The centre is
+    not kept on the frame: a shift is at most the box's width and height, and a box may leave the frame with its
+    object. It averages out the jitter of SPTPT's winner about the object. On ``../shared/otb`` over six seeds:
+    0.583 ± 0.022 against 0.572 ± 0.022 without it, higher in every seed (+0.011 paired; Deer +0.04, Crossing
+    +0.02, Car4 +0.02; no sequence loses more than 0.002), for 3.4 ms a frame with two runs. True in ``robust``.
     [ours, benchmarks/RESULTS.md "robust development"]"""
 
     independent_runs: int = 1

@@ -179,10 +179,9 @@ class Tracker:
         third of three on two threads) run after the others, each with every thread, rather than two on one
         thread while the other waits. Runs share nothing, so their results are the same as one after the other.
         """
-        threads = numba.get_num_threads()
-        runs = len(self._runs)
-        side_by_side = 0 if threads == 1 else runs if runs <= threads else runs - runs % threads
-        if side_by_side < 2:
+        threads, runs = numba.get_num_threads(), len(self._runs)
+        side_by_side = runs if runs <= threads else runs - runs % threads
+        if threads == 1 or side_by_side < 2:
             return [run.update(frame, details=details) for run in self._runs]
 
         def update_alone(run: _Run) -> FrameResult:
@@ -518,8 +517,9 @@ def _consensus(results: list[FrameResult], rgb: np.ndarray, confident: int) -> t
     """The run whose box the most other runs agree with (IoU >= :data:`_AGREE_IOU`), and it with those runs.
 
     Among runs with as many agreeing runs, the box that stands out most (on equal contrast ``confident`` if it is
-    one of them, else the first); a run no other agrees with is reported alone. With three runs: all agree, all three; one pair agrees, that pair; one run
-    agrees with the two others (which do not agree), all three; none, the most contrasted run alone.
+    one of them, else the first); a run no other agrees with is reported alone. With three runs: all agree, all
+    three; one pair agrees, that pair; one run agrees with the two others (which do not agree), all three; none,
+    the most contrasted run alone.
     """
     boxes = np.stack([r.box_xywh for r in results])
     agree = np.stack([np.nan_to_num(iou_xywh(boxes, b), nan=0.0) >= _AGREE_IOU for b in boxes])
