@@ -101,14 +101,13 @@ class ScaleFilter:
         samples = orientation_histograms(warp_candidates(rgb, states, self.template_size))
         return np.fft.fft(samples.T * self._window[None], axis=1)
 
-    def _terms(self, rgb: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The filter learned from the samples around ``state`` alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
-        spectrum = self._spectrum(rgb, state)
+    def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Learn the filter from the samples around the first state."""
-        self._numerator, self._denominator = self._terms(rgb, state)
+        self._numerator, self._denominator = self._terms(self._spectrum(rgb, state))
 
     def factor(self, rgb: np.ndarray, state: np.ndarray) -> float:
         """The scale change (a factor of ``state``'s scale) whose samples the filter answers most strongly.
@@ -117,7 +116,27 @@ class ScaleFilter:
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.factor() before init()")
+        return self._factor(self._spectrum(rgb, state))
+
+    def step(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool, min_scale: float) -> float:
+        """``state``'s scale times :meth:`factor` (at least ``min_scale``); with ``learn``, then :meth:`update` there.
+
+        The same numbers as the two calls, sampling once where the scale stays (a factor of exactly 1, on most
+        frames): the update's samples around the new state are then the factor's.
+        """
+        if self._numerator is None:
+            raise RuntimeError("ScaleFilter.step() before init()")
         spectrum = self._spectrum(rgb, state)
+        scale = max(float(state[2]) * self._factor(spectrum), min_scale)
+        if learn:
+            if scale != state[2]:
+                moved = np.array(state, dtype=np.float64)
+                moved[2] = scale
+                spectrum = self._spectrum(rgb, moved)
+            self._blend(spectrum)
+        return scale
+
+    def _factor(self, spectrum: np.ndarray) -> float:
         response = np.fft.ifft((np.conj(self._numerator) * spectrum).sum(axis=0)
                                / (self._denominator + REGULARISATION)).real
         return float(self.factors[int(np.argmax(response))])
@@ -129,6 +148,9 @@ class ScaleFilter:
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.update() before init()")
-        numerator, denominator = self._terms(rgb, state)
+        self._blend(self._spectrum(rgb, state))
+
+    def _blend(self, spectrum: np.ndarray) -> None:
+        numerator, denominator = self._terms(spectrum)
         self._numerator = (1 - LEARNING_RATE) * self._numerator + LEARNING_RATE * numerator
         self._denominator = (1 - LEARNING_RATE) * self._denominator + LEARNING_RATE * denominator

@@ -309,25 +309,23 @@ class _Run:
             sized_state = self._state.copy()
             sized_state[2] = self._reported_scale
             with self._time("scale"):
-                self._reported_scale = max(self._reported_scale * self._scale_filter.factor(rgb, sized_state),
-                                           1.0 / p.template_size)
+                # On accepted frames the filter then learns at the new scale, from the state's centre.
+                self._reported_scale = self._scale_filter.step(rgb, sized_state, learn=accepted,
+                                                               min_scale=1.0 / p.template_size)
             sized_state[2] = self._reported_scale
         reported_state = sized_state
         if self._translation_filter is not None:
-            # Only the reported centre moves; the filters learn below from SPTPT's centre, not from this one.
+            # Only the reported centre moves; on accepted frames the filter learns from SPTPT's centre, not this one.
             with self._time("translation"):
-                dx, dy = self._translation_filter.shift(rgb, sized_state)
+                dx, dy = self._translation_filter.shift(rgb, sized_state, learn=accepted)
             reported_state = sized_state.copy()
             reported_state[0] += dx
             reported_state[1] += dy
         if accepted:
             self._anchor = self._state.copy()
-            if self._scale_filter is not None:
+            if p.scale_filter:  # the reported box's filters learnt above, from the samples they had taken
                 with self._time("scale"):
-                    self._scale_filter.update(rgb, sized_state)
-            if self._translation_filter is not None:
-                with self._time("translation"):
-                    self._translation_filter.update(rgb, sized_state)
+                    self._scale_filter.update(rgb, self._state)
             if scoring == "subspace" and p.level_window > 0:
                 self._levels.append(log_likelihood)
                 del self._levels[: -p.level_window]

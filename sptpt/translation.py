@@ -87,27 +87,29 @@ class TranslationFilter:
         patch = warp_candidates(rgb, state_from_box_xywh(padded, PATCH)[None], PATCH)[0]
         return np.fft.fft2(translation_features(patch) * self._window[None])
 
-    def _terms(self, rgb: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The filter learned from the patch around ``state`` alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
-        spectrum = self._spectrum(rgb, state)
+    def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filter learned from one patch's spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Learn the filter from the patch around the first state."""
-        self._numerator, self._denominator = self._terms(rgb, state)
+        self._numerator, self._denominator = self._terms(self._spectrum(rgb, state))
 
-    def shift(self, rgb: np.ndarray, state: np.ndarray) -> tuple[float, float]:
+    def shift(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool = False) -> tuple[float, float]:
         """How far, in frame pixels (dx, dy), the object is from ``state``'s centre by the filter's answer.
 
         Response ``y = IFFT(sum conj(A) Z / (B + lambda))`` over the patch, as in DSST; its peak, refined to a
         fraction of a patch pixel by a parabola through it and its two neighbours along each axis, and scaled
-        from patch pixels to the box's.
+        from patch pixels to the box's. With ``learn``, the filter then learns from the same patch, as
+        :meth:`update` at ``state`` would, sampling it once instead of twice.
         """
         if self._numerator is None:
             raise RuntimeError("TranslationFilter.shift() before init()")
         spectrum = self._spectrum(rgb, state)
         response = np.fft.ifft2((np.conj(self._numerator) * spectrum).sum(axis=0)
                                 / (self._denominator + REGULARISATION)).real
+        if learn:
+            self._blend(spectrum)
         row, col = np.unravel_index(int(np.argmax(response)), response.shape)
         dy = row + _vertex(response[(row - 1) % PATCH, col], response[row, col], response[(row + 1) % PATCH, col])
         dx = col + _vertex(response[row, (col - 1) % PATCH], response[row, col], response[row, (col + 1) % PATCH])
@@ -120,7 +122,10 @@ class TranslationFilter:
         """Blend the patch around ``state`` into ``A`` and ``B`` by :data:`LEARNING_RATE`, as in DSST."""
         if self._numerator is None:
             raise RuntimeError("TranslationFilter.update() before init()")
-        numerator, denominator = self._terms(rgb, state)
+        self._blend(self._spectrum(rgb, state))
+
+    def _blend(self, spectrum: np.ndarray) -> None:
+        numerator, denominator = self._terms(spectrum)
         self._numerator = (1 - LEARNING_RATE) * self._numerator + LEARNING_RATE * numerator
         self._denominator = (1 - LEARNING_RATE) * self._denominator + LEARNING_RATE * denominator
 

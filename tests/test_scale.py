@@ -117,6 +117,35 @@ def test_scale_filter_answers_one_on_the_frame_it_learned_and_needs_init():
     assert scale_filter.factor(first, state) == 1.0
 
 
+@pytest.mark.parametrize("learn", [True, False])
+def test_step_equals_factor_then_update_at_the_new_scale(learn):
+    # A growing object (the scale moves on some frames and stays on others), and a frame the filter rejects
+    # below min_scale: step's one sampling must leave the same scales and the same filter, bit for bit.
+    first, box = _scene(1.0)
+    state = state_from_box_xywh(box, 32)
+    stepped, called = ScaleFilter(32), ScaleFilter(32)
+    stepped.init(first, state)
+    called.init(first, state)
+    stayed = moved = 0
+    for change, min_scale in [(1.0, 0.0), (1.06, 0.0), (1.06, 0.0), (1.12, 0.0), (1.12, 0.0), (0.95, 10.0)]:
+        frame, _ = _scene(change)
+        scale = stepped.step(frame, state, learn=learn, min_scale=min_scale)
+        expected = max(float(state[2]) * called.factor(frame, state), min_scale)
+        assert scale == expected
+        if learn:
+            new_state = state.copy()
+            new_state[2] = expected
+            called.update(frame, new_state)
+        np.testing.assert_array_equal(stepped._numerator, called._numerator)
+        np.testing.assert_array_equal(stepped._denominator, called._denominator)
+        stayed, moved = stayed + (scale == state[2]), moved + (scale != state[2])
+        state = state.copy()
+        state[2] = scale
+    assert stayed and moved  # both of step's paths were taken
+    with pytest.raises(RuntimeError, match="before init"):
+        ScaleFilter(32).step(first, state, learn=True, min_scale=0.0)
+
+
 def growing_clip(n_frames: int = 50, growth: float = 1.6):
     """The object's side grows smoothly by ``growth`` while its centre moves 1 px a frame."""
     rng = np.random.default_rng(7)

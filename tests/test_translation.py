@@ -77,6 +77,24 @@ def test_translation_filter_answers_no_shift_on_the_frame_it_learned_and_needs_i
     assert np.allclose(translation_filter.shift(first, state), 0.0, atol=1e-9)
 
 
+def test_shift_that_learns_equals_shift_then_update():
+    first, box = _scene(0.0, 0.0)
+    state = state_from_box_xywh(box, 32)
+    learning, called = TranslationFilter(32), TranslationFilter(32)
+    learning.init(first, state)
+    called.init(first, state)
+    for dx, dy in [(3.0, -2.0), (5.0, -1.0), (7.5, 0.5)]:
+        frame, _ = _scene(dx, dy)
+        assert learning.shift(frame, state, learn=True) == called.shift(frame, state)
+        called.update(frame, state)
+        np.testing.assert_array_equal(learning._numerator, called._numerator)
+        np.testing.assert_array_equal(learning._denominator, called._denominator)
+    frame, _ = _scene(9.0, 1.0)
+    before = learning._numerator.copy()
+    learning.shift(frame, state)  # learn defaults to False: the filter is left as it was
+    np.testing.assert_array_equal(learning._numerator, before)
+
+
 def moving_clip(n_frames: int = 40):
     """The object moves 2 px right and 1 px down a frame over a textured background, with sensor noise."""
     rng = np.random.default_rng(11)
