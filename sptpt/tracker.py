@@ -30,6 +30,7 @@ from sptpt.boxes import iou_xywh, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
 from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
+from sptpt.filter_tracker import FilterTracker
 from sptpt.params import TrackerParams, get_preset
 from sptpt.results import FrameResult, confidence_from_log_likelihood
 from sptpt.sampling import draw_candidates, draw_negatives
@@ -41,8 +42,9 @@ from sptpt.translation import TranslationFilter
 __all__ = ["STAGES", "Tracker"]
 
 #: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
-#: ``translation`` only with ``reported_translation_filter``).
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale", "translation")
+#: ``translation`` only with ``reported_translation_filter``, ``filter_vote`` only with ``filter_vote``).
+STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale", "translation",
+          "filter_vote")
 
 StageTimer = Callable[[str], ContextManager]
 
@@ -122,6 +124,10 @@ class Tracker:
             single = dataclasses.replace(p, independent_runs=1)
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
             self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
+        # Draws no random numbers, so the runs are the same with it and without it.
+        votes = p.filter_vote and p.run_choice == "consensus" and p.independent_runs > 1
+        self._filter_voter = FilterTracker(p.template_size) if votes else None
+        self._time = timer
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
@@ -141,6 +147,9 @@ class Tracker:
         """
         with _single_threaded_blas():
             results = [run.init(frame, box_xywh) for run in self._runs]
+        if self._filter_voter is not None:  # after the runs, which have checked the frame and the box
+            with self._time("filter_vote"):
+                self._filter_voter.init(_as_rgb(frame), results[0].box_xywh)
         return _reported(results, 0)
 
     def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
@@ -161,13 +170,17 @@ class Tracker:
         with _single_threaded_blas():
             # Each run checks the frame (and that init came first) itself.
             results = self._update_runs(frame, details)
+            voters = []
+            if self._filter_voter is not None:
+                with self._time("filter_vote"):
+                    voters.append(self._filter_voter.update(_as_rgb(frame)))
         chosen = _more_confident(results)
         if len(results) > 1 and self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, _as_rgb(frame), chosen)
         if len(results) > 1 and self.params.run_choice == "consensus":
-            chosen, agreeing = _consensus(results, _as_rgb(frame), chosen)
-            return dataclasses.replace(_reported(results, chosen),
-                                       box_xywh=mean_box([results[i].box_xywh for i in sorted(agreeing)]))
+            boxes = np.stack([r.box_xywh for r in results] + voters)
+            chosen, agreeing = _consensus(boxes, len(results), _as_rgb(frame), chosen)
+            return dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         return _reported(results, chosen)
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
@@ -511,22 +524,30 @@ def _most_contrasted(results: list[FrameResult], rgb: np.ndarray, confident: int
 _AGREE_IOU = 0.5
 
 
-def _consensus(results: list[FrameResult], rgb: np.ndarray, confident: int) -> tuple[int, list[int]]:
-    """The run whose box the most other runs agree with (IoU >= :data:`_AGREE_IOU`), and it with those runs.
+def _consensus(boxes: np.ndarray, n_runs: int, rgb: np.ndarray, confident: int) -> tuple[int, list[int]]:
+    """The run to report and the boxes to average: the box the most other boxes agree with (IoU >=
+    :data:`_AGREE_IOU`), and it with those boxes.
 
-    Among runs with as many agreeing runs, the box that stands out most (on equal contrast ``confident`` if it is
-    one of them, else the first); a run no other agrees with is reported alone. With three runs: all agree, all
-    three; one pair agrees, that pair; one run agrees with the two others (which do not agree), all three; none,
-    the most contrasted run alone.
+    ``boxes`` holds the runs' boxes, then any voters' (rows ``n_runs`` on: ``TrackerParams.filter_vote``).
+    Among boxes with as many agreeing boxes, the one that stands out most (on equal contrast ``confident`` if it
+    is one of them, else the first); a box no other agrees with is reported alone. With three runs: all agree,
+    all three; one pair agrees, that pair; one run agrees with the two others (which do not agree), all three;
+    none, the most contrasted run alone. A voter is never reported alone: where no box agrees with any other,
+    the runs decide among themselves. The run returned is the chosen box's, or where that is a voter's, the first
+    run that agrees with it.
     """
-    boxes = np.stack([r.box_xywh for r in results])
     agree = np.stack([np.nan_to_num(iou_xywh(boxes, b), nan=0.0) >= _AGREE_IOU for b in boxes])
     np.fill_diagonal(agree, False)
     votes = agree.sum(axis=1)
-    tied = [i for i in range(len(results)) if votes[i] == votes.max()]
+    tied = [i for i in range(len(boxes)) if votes[i] == votes.max()]
     default = confident if confident in tied else tied[0]
     chosen = tied[most_contrasted(rgb, boxes[tied], tied.index(default))]
-    return chosen, [chosen, *np.flatnonzero(agree[chosen]).tolist()]
+    agreeing = [chosen, *np.flatnonzero(agree[chosen]).tolist()]
+    if chosen < n_runs:
+        return chosen, agreeing
+    if len(agreeing) == 1:  # a voter alone; then no box agrees with any other
+        return _consensus(boxes[:n_runs], n_runs, rgb, confident)
+    return min(agreeing), agreeing
 
 
 #: The candidates re-ranked by contrast overlap the best-scoring one at least this much: contrast corrects a box that

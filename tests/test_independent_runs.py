@@ -14,6 +14,7 @@ from sptpt.results import FrameResult
 from sptpt.contrast import colour_contrast
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
 from sptpt.boxes import iou_xywh, mean_box
+from sptpt.filter_tracker import FilterTracker
 from sptpt.tracker import Tracker, _consensus, _more_confident, _most_contrasted, _most_contrasted_candidate
 
 
@@ -150,22 +151,25 @@ def test_each_frame_is_the_more_confident_of_two_single_runs_with_the_derived_se
     assert 0 < picked_second < len(clip.frames) - 1  # the clip exercises both runs
 
 
-def _beside_their_runs(runs: int, choice: str):
-    """Per frame after the first of ``make_clip(25, seed=3)``: the frame, a ``runs``-run tracker's result, and each of
-    its runs tracked alone by a one-run tracker from the same child seed."""
+def _beside_their_runs(runs: int, choice: str, **changes):
+    """Per frame after the first of ``make_clip(25, seed=3)``: the frame, a ``runs``-run tracker's result, each of
+    its runs tracked alone by a one-run tracker from the same child seed, and the box of a correlation-filter
+    tracker (:class:`FilterTracker`) tracking alone."""
     clip = make_clip(25, seed=3)
-    tracker = Tracker(_params(runs, choice), seed=11)
+    tracker = Tracker(dataclasses.replace(_params(runs, choice), **changes), seed=11)
     seeds = np.random.default_rng(11).integers(0, 2**63 - 1, size=runs)
     singles = [Tracker(_params(1), seed=int(s)) for s in seeds]
     for t in (tracker, *singles):
         t.init(clip.frames[0], clip.boxes_xywh[0])
+    voter = FilterTracker(32)
+    voter.init(clip.frames[0], clip.boxes_xywh[0])
     for frame in clip.frames[1:]:
-        yield frame, tracker.update(frame), [single.update(frame) for single in singles]
+        yield frame, tracker.update(frame), [single.update(frame) for single in singles], voter.update(frame)
 
 
 def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
     overruled = 0
-    for frame, got, alone in _beside_their_runs(2, "contrast"):
+    for frame, got, alone, _ in _beside_their_runs(2, "contrast"):
         contrast = [colour_contrast(frame, a.box_xywh) for a in alone]
         assert np.isfinite(contrast).all()  # on this clip every box is measured: the rule below needs no NaN case
         confident = _more_confident(alone)
@@ -176,38 +180,60 @@ def test_with_run_choice_contrast_each_frame_is_the_run_whose_box_stands_out():
     assert overruled > 0  # the clip has frames where contrast and confidence pick different runs
 
 
+def _consensus_of(*boxes, confident: int = 0, voters=()):
+    """``_consensus`` of run boxes and voter boxes (rows after the runs')."""
+    frame, _, _ = _scene()
+    return _consensus(np.array([*boxes, *voters], dtype=float), len(boxes), frame, confident)
+
+
 def test_consensus_reports_the_runs_that_agree_and_contrast_decides_the_rest():
     frame, on_object, on_background = _scene()
-
-    def runs(*boxes):
-        return [FrameResult(box_xywh=np.asarray(b, float), log_likelihood=1.0, confidence=0.5, accepted=True,
-                            scoring="subspace") for b in boxes]
-
     near = on_object + [3.0, 0.0, 0.0, 0.0]  # IoU 0.82 with on_object
     elsewhere = np.array([5.0, 80.0, 30.0, 30.0])  # on background, away from both
     # Two runs that agree with each other and one lost run: the pair, however much the lost one stands out.
-    assert _consensus(runs(on_background, on_object, near), frame, 0) == (1, [1, 2])
+    assert _consensus_of(on_background, on_object, near) == (1, [1, 2])
     # All three agree: all three, reported from the one that stands out most.
-    chosen, agreeing = _consensus(runs(on_object, near, on_object + [0.0, 3.0, 0.0, 0.0]), frame, 0)
+    chosen, agreeing = _consensus_of(on_object, near, on_object + [0.0, 3.0, 0.0, 0.0])
     assert sorted(agreeing) == [0, 1, 2] and agreeing[0] == chosen
     # A chain (the middle box agrees with both ends, which do not agree with each other): all three, from the middle.
-    chain = runs(on_object - [7.0, 0.0, 0.0, 0.0], on_object, on_object + [7.0, 0.0, 0.0, 0.0])
-    assert iou_xywh(chain[0].box_xywh, chain[2].box_xywh) < 0.5 <= iou_xywh(chain[0].box_xywh, chain[1].box_xywh)
-    assert _consensus(chain, frame, 2) == (1, [1, 0, 2])
+    chain = [on_object - [7.0, 0.0, 0.0, 0.0], on_object, on_object + [7.0, 0.0, 0.0, 0.0]]
+    assert iou_xywh(chain[0], chain[2]) < 0.5 <= iou_xywh(chain[0], chain[1])
+    assert _consensus_of(*chain, confident=2) == (1, [1, 0, 2])
     # No two agree: the box that stands out most, alone, as with run_choice="contrast".
-    assert _consensus(runs(on_background, on_object, elsewhere), frame, 0) == (1, [1])
+    assert _consensus_of(on_background, on_object, elsewhere) == (1, [1])
     # Two runs: together when they agree, else the one that stands out.
-    assert _consensus(runs(near, on_object), frame, 0)[1] in ([0, 1], [1, 0])
-    assert _consensus(runs(on_background, on_object), frame, 0) == (1, [1])
+    assert _consensus_of(near, on_object)[1] in ([0, 1], [1, 0])
+    assert _consensus_of(on_background, on_object) == (1, [1])
     # Ties (same contrast, same votes): the confident run.
-    assert _consensus(runs(on_object, on_object, on_background), frame, 1) == (1, [1, 0])
+    assert _consensus_of(on_object, on_object, on_background, confident=1) == (1, [1, 0])
     # ... and when the confident run is not among the most agreed with, the first of those.
-    assert _consensus(runs(on_object, on_object, on_background), frame, 2) == (0, [0, 1])
+    assert _consensus_of(on_object, on_object, on_background, confident=2) == (0, [0, 1])
+
+
+def test_a_voter_counts_in_the_vote_and_the_mean_but_is_never_reported_alone():
+    frame, on_object, on_background = _scene()
+    near = on_object + [3.0, 0.0, 0.0, 0.0]
+    lower = on_object + [0.0, 3.0, 0.0, 0.0]
+    elsewhere = np.array([5.0, 80.0, 30.0, 30.0])
+    beside = on_background + [3.0, 0.0, 0.0, 0.0]
+    # It joins the runs it agrees with: the mean is of the three boxes.
+    chosen, agreeing = _consensus_of(on_background, on_object, near, voters=[lower])
+    assert chosen in (1, 2) and sorted(agreeing) == [1, 2, 3]
+    # It breaks a tie: one run lost on the background with another (a pair), one on the object with the voter (a
+    # pair); of the two pairs, the one that stands out.
+    assert _consensus_of(on_background, beside, on_object, voters=[near]) == (2, [2, 3])
+    # Chosen itself (its box stands out most of a pair), the run reported is the run that agrees with it.
+    assert colour_contrast(frame, on_object) > colour_contrast(frame, near)
+    assert _consensus_of(near, on_background, elsewhere, voters=[on_object]) == (0, [3, 0])
+    # Alone, however much it stands out: the runs decide as without it.
+    assert _consensus_of(on_background, elsewhere, voters=[on_object]) == _consensus_of(on_background, elsewhere)
+    chosen, agreeing = _consensus_of(on_background, elsewhere, voters=[on_object])
+    assert chosen < 2 and agreeing == [chosen]
 
 
 def test_with_run_choice_consensus_each_frame_is_the_mean_of_the_agreeing_runs():
     fused = 0
-    for frame, got, alone in _beside_their_runs(3, "consensus"):
+    for frame, got, alone, _ in _beside_their_runs(3, "consensus", filter_vote=False):
         np.testing.assert_array_equal(got.run_boxes_xywh, np.stack([a.box_xywh for a in alone]))
         # Slow reference of the rule: pairwise agreement, most votes, contrast among the tied, mean of the group.
         boxes = [a.box_xywh for a in alone]
@@ -224,12 +250,52 @@ def test_with_run_choice_consensus_each_frame_is_the_mean_of_the_agreeing_runs()
     assert fused > 0  # the clip has frames where runs agree and are averaged
 
 
-@pytest.mark.parametrize("choice", ["confidence", "contrast", "consensus"])
-def test_same_seed_same_boxes(choice):
+def test_with_filter_vote_the_filter_tracker_votes_and_the_runs_are_those_alone():
+    joined = 0
+    for frame, got, alone, voter in _beside_their_runs(3, "consensus", filter_vote=True):
+        np.testing.assert_array_equal(got.run_boxes_xywh, np.stack([a.box_xywh for a in alone]))
+        # Slow reference: the rule of the test above over four boxes, the voter's last, never reported alone.
+        boxes = [a.box_xywh for a in alone] + [voter]
+        confident = _more_confident(alone)
+
+        def choose(candidates):
+            votes = {i: sum(iou_xywh(boxes[i], boxes[j]) >= 0.5 for j in candidates if j != i) for i in candidates}
+            tied = [i for i in candidates if votes[i] == max(votes.values())]
+            contrast = {i: colour_contrast(frame, boxes[i]) for i in tied}
+            assert np.isfinite(list(contrast.values())).all()
+            best = max(tied, key=lambda i: (contrast[i], i == confident, -i))
+            return best, [best] + [j for j in candidates if j != best and iou_xywh(boxes[best], boxes[j]) >= 0.5]
+
+        best, group = choose([0, 1, 2, 3])
+        if group == [3]:
+            best, group = choose([0, 1, 2])
+        np.testing.assert_array_equal(got.box_xywh, mean_box([boxes[i] for i in sorted(group)]))
+        assert got.log_likelihood == alone[best if best < 3 else min(group)].log_likelihood
+        joined += 3 in group
+    assert joined > 0  # the clip has frames where the voter's box is averaged in
+
+
+@pytest.mark.parametrize("runs, choice", [(1, "consensus"), (2, "contrast")])
+def test_filter_vote_without_a_consensus_of_runs_changes_nothing(runs, choice):
+    clip = make_clip(10, seed=3)
+
+    def results(filter_vote):
+        tracker = Tracker(dataclasses.replace(_params(runs, choice), filter_vote=filter_vote), seed=4)
+        tracker.init(clip.frames[0], clip.boxes_xywh[0])
+        return [tracker.update(frame) for frame in clip.frames[1:]]
+
+    for with_it, without in zip(results(True), results(False)):
+        np.testing.assert_array_equal(with_it.box_xywh, without.box_xywh)
+        assert with_it.log_likelihood == without.log_likelihood
+
+
+@pytest.mark.parametrize("choice, filter_vote", [("confidence", False), ("contrast", False), ("consensus", False),
+                                                 ("consensus", True)])
+def test_same_seed_same_boxes(choice, filter_vote):
     clip = make_clip(15, seed=3)
 
     def boxes(seed):
-        tracker = Tracker(_params(2, choice), seed=seed)
+        tracker = Tracker(dataclasses.replace(_params(2, choice), filter_vote=filter_vote), seed=seed)
         tracker.init(clip.frames[0], clip.boxes_xywh[0])
         return np.array([tracker.update(frame).box_xywh for frame in clip.frames[1:]])
 

@@ -29,7 +29,10 @@ REFIND = 10
 
 def _params(preset: str):
     # robust as it was before each of its later switches: each switch alone changes the boxes.
-    before_consensus = dataclasses.replace(get_preset("robust"), independent_runs=2, run_choice="contrast")
+    before_voter = dataclasses.replace(get_preset("robust"), filter_vote=False)
+    if preset == "robust-three-runs":  # before a correlation-filter tracker voted with the runs
+        return before_voter
+    before_consensus = dataclasses.replace(before_voter, independent_runs=2, run_choice="contrast")
     if preset == "robust-two-runs":  # before three runs reported the box they agree on
         return before_consensus
     before_translation = dataclasses.replace(before_consensus, reported_translation_filter=False)
@@ -124,7 +127,8 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
 
 
 @pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust-best-score",
-                                    "robust-unfiltered", "robust-untranslated", "robust-two-runs", "robust"])
+                                    "robust-unfiltered", "robust-untranslated", "robust-two-runs", "robust-three-runs",
+                                    "robust"])
 def test_preset_boxes_are_unchanged(preset):
     # robust's one-run boxes were recorded before the scale_filter and independent_runs switches; its two-run
     # boxes by confidence when robust became two runs (each of its runs is a one-run tracker:
