@@ -6,8 +6,8 @@ Bhattacharyya coefficient of the HSV colour histograms inside the box and in a r
 around it. Three uses: each run of the ``robust`` preset takes, of its best candidates near the best score, the
 one whose box stands out most (``TrackerParams.contrast_candidates``); between independent runs it picks the
 reported run (``TrackerParams.run_choice`` ``"contrast"``; with ``"consensus"``, as ``robust`` has it, only
-among runs with as many agreeing runs, and a run no other agrees with); and the tool reads it as a failure
-signal (``annotator.failure.signals``).
+among boxes with as many agreeing boxes, a voter's among them, and a run no other agrees with); and the tool
+reads it as a failure signal (``annotator.failure.signals``).
 """
 
 from __future__ import annotations

@@ -120,7 +120,8 @@ class TrackerParams:
     ``"consensus"``: the runs vote. Two runs agree when their boxes overlap by an IoU of at least 0.5; the
     reported box is the mean (:func:`sptpt.boxes.mean_box`) of the boxes of the run that most other runs agree
     with and of those runs (of runs with as many, the one whose box stands out most), and a run that no other
-    agrees with is reported alone, chosen by contrast as above. Runs that have lost the target rarely lose it
+    agrees with is reported alone, chosen by contrast as above (with ``filter_vote``, a correlation-filter
+    tracker votes too: see there). Runs that have lost the target rarely lose it
     to the same place, so with three runs the two that kept it outvote the one that stands out on background
     (Girl, Singer2), and the mean of independent runs' boxes cancels part of their jitter. On
     ``../shared/otb`` over six seeds, three runs by consensus score 0.602 ± 0.018 against 0.583 ± 0.022 for two
@@ -134,10 +135,10 @@ class TrackerParams:
     consensus as one more run: its box counts as a run's in the agreement and in the mean box, but it is never
     reported alone (where no box agrees with any other, the runs decide as without it), and the frame's other
     fields are a run's. It errs differently from SPTPT: where it agrees with runs its size improves their mean
-    (Dog1, Car4, David), and where it is lost (Bolt2, Couple, Jogging) it rarely lands where a lost run did. Without
-    ``run_choice="consensus"`` and two runs or more there is no vote, and the field has no effect. On ``../shared/otb`` over six seeds, with ``robust``'s three
-    runs: 0.608 ± 0.018 against 0.602 ± 0.018 without it, higher in every seed, for about 4 ms a frame.
-    True in ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
+    (Dog1, Car4, David), and where it is lost (Bolt2, Couple, Jogging) it rarely lands where a lost run did.
+    Without ``run_choice="consensus"`` and two runs or more there is no vote, and the field has no effect. On
+    ``../shared/otb`` over six seeds, with ``robust``'s three runs: 0.608 ± 0.019 against 0.602 ± 0.018 without
+    it, higher in every seed, for about 4 ms a frame. True in ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
 
     contrast_candidates: int = 0
     """Of this many best candidates by log-likelihood, those whose box overlaps the best one's by an IoU of at

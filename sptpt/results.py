@@ -57,8 +57,9 @@ class FrameResult:
     run_boxes_xywh : (R, 4) float64 ndarray or None
         With ``independent_runs`` R > 1: every run's box this frame, in run
         order (``box_xywh`` is one of them, or with ``run_choice="consensus"``
-        the mean of those that agree). Where the runs disagree, one has
-        likely lost the target. None for a single run.
+        the mean of those that agree, with ``filter_vote`` perhaps with the
+        correlation-filter tracker's box, which is not listed here). Where the
+        runs disagree, one has likely lost the target. None for a single run.
     """
 
     box_xywh: np.ndarray

@@ -118,16 +118,18 @@ class ScaleFilter:
             raise RuntimeError("ScaleFilter.factor() before init()")
         return self._factor(self._spectrum(rgb, state))
 
-    def step(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool, min_scale: float) -> float:
-        """``state``'s scale times :meth:`factor` (at least ``min_scale``); with ``learn``, then :meth:`update` there.
+    def step(self, rgb: np.ndarray, state: np.ndarray, *, min_scale: float, max_scale: float = math.inf,
+             learn: bool = False) -> float:
+        """``state``'s scale times :meth:`factor`, kept within ``[min_scale, max_scale]``; with ``learn``, then
+        :meth:`update` at the new scale.
 
         The same numbers as the two calls, sampling once where the scale stays (a factor of exactly 1, on most
-        frames): the update's samples around the new state are then the factor's.
+        frames, or a bound that holds it): the update's samples around the new state are then the factor's.
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.step() before init()")
         spectrum = self._spectrum(rgb, state)
-        scale = max(float(state[2]) * self._factor(spectrum), min_scale)
+        scale = min(max(float(state[2]) * self._factor(spectrum), min_scale), max_scale)
         if learn:
             if scale != state[2]:
                 moved = np.array(state, dtype=np.float64)

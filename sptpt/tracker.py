@@ -11,7 +11,8 @@ its surroundings); if it scores above Phi it joins the positive model, and
 the negative model is refitted from samples drawn around it. (``robust``
 also reports a box sized by a scale filter and centred by a translation
 filter beside the run, which leave the run itself untouched; and it tracks
-three independent runs and reports the mean box of those that agree.)
+three independent runs, lets a correlation-filter tracker vote with them, and
+reports the mean box of those that agree.)
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ from sptpt.translation import TranslationFilter
 __all__ = ["STAGES", "Tracker"]
 
 #: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
-#: ``translation`` only with ``reported_translation_filter``, ``filter_vote`` only with ``filter_vote``).
+#: ``translation`` only with ``reported_translation_filter``, ``filter_vote`` only where the correlation-filter tracker
+#: votes: ``filter_vote`` with ``run_choice="consensus"`` and two runs or more).
 STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale", "translation",
           "filter_vote")
 
@@ -93,8 +95,9 @@ class Tracker:
     With ``params.independent_runs`` R > 1 the tracker follows the object with R
     independent runs and reports, each frame, what ``params.run_choice``
     picks (the more confident run, the one whose box stands out most from its
-    surroundings, or the mean box of the runs that agree); every run's box is
-    in ``FrameResult.run_boxes_xywh``.
+    surroundings, or the mean box of the runs that agree, with ``filter_vote``
+    of a correlation-filter tracker's box too); every run's box is in
+    ``FrameResult.run_boxes_xywh``.
 
     Examples
     --------
@@ -125,8 +128,8 @@ class Tracker:
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
             self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
         # Draws no random numbers, so the runs are the same with it and without it.
-        votes = p.filter_vote and p.run_choice == "consensus" and p.independent_runs > 1
-        self._filter_voter = FilterTracker(p.template_size) if votes else None
+        voting = p.filter_vote and p.run_choice == "consensus" and p.independent_runs > 1
+        self._filter_voter = FilterTracker(p.template_size) if voting else None
         self._time = timer
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
@@ -170,16 +173,19 @@ class Tracker:
         with _single_threaded_blas():
             # Each run checks the frame (and that init came first) itself.
             results = self._update_runs(frame, details)
-            voters = []
+            if len(results) == 1:
+                return results[0]
+            rgb = _as_rgb(frame)
+            voter_boxes = []
             if self._filter_voter is not None:
                 with self._time("filter_vote"):
-                    voters.append(self._filter_voter.update(_as_rgb(frame)))
+                    voter_boxes.append(self._filter_voter.update(rgb))
         chosen = _more_confident(results)
-        if len(results) > 1 and self.params.run_choice == "contrast":
-            chosen = _most_contrasted(results, _as_rgb(frame), chosen)
-        if len(results) > 1 and self.params.run_choice == "consensus":
-            boxes = np.stack([r.box_xywh for r in results] + voters)
-            chosen, agreeing = _consensus(boxes, len(results), _as_rgb(frame), chosen)
+        if self.params.run_choice == "contrast":
+            chosen = _most_contrasted(results, rgb, chosen)
+        if self.params.run_choice == "consensus":
+            boxes = np.stack([r.box_xywh for r in results] + voter_boxes)
+            chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
             return dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         return _reported(results, chosen)
 
@@ -336,7 +342,8 @@ class _Run:
             reported_state[1] += dy
         if accepted:
             self._anchor = self._state.copy()
-            if p.scale_filter:  # the reported box's filters learnt above, from the samples they had taken
+            if p.scale_filter:  # the search's scale filter learns at the state it sized (the reported box's
+                # filters learnt in step and shift above; the parameters forbid both scale filters at once)
                 with self._time("scale"):
                     self._scale_filter.update(rgb, self._state)
             if scoring == "subspace" and p.level_window > 0:
@@ -532,9 +539,10 @@ def _consensus(boxes: np.ndarray, n_runs: int, rgb: np.ndarray, confident: int) 
     Among boxes with as many agreeing boxes, the one that stands out most (on equal contrast ``confident`` if it
     is one of them, else the first); a box no other agrees with is reported alone. With three runs: all agree,
     all three; one pair agrees, that pair; one run agrees with the two others (which do not agree), all three;
-    none, the most contrasted run alone. A voter is never reported alone: where no box agrees with any other,
-    the runs decide among themselves. The run returned is the chosen box's, or where that is a voter's, the first
-    run that agrees with it.
+    none, the most contrasted run alone. A voter is never reported alone: where no run agrees with it, the runs
+    decide among themselves. The run returned (whose score, confidence and acceptance the frame reports) is the
+    chosen box's, or where that is a voter's, the first run that agrees with it: any run of the group would do,
+    and the first needs no further rule.
     """
     agree = np.stack([np.nan_to_num(iou_xywh(boxes, b), nan=0.0) >= _AGREE_IOU for b in boxes])
     np.fill_diagonal(agree, False)
@@ -545,9 +553,10 @@ def _consensus(boxes: np.ndarray, n_runs: int, rgb: np.ndarray, confident: int) 
     agreeing = [chosen, *np.flatnonzero(agree[chosen]).tolist()]
     if chosen < n_runs:
         return chosen, agreeing
-    if len(agreeing) == 1:  # a voter alone; then no box agrees with any other
+    runs = [i for i in agreeing if i < n_runs]
+    if not runs:  # the voter alone (or with voters only): as if it had not voted
         return _consensus(boxes[:n_runs], n_runs, rgb, confident)
-    return min(agreeing), agreeing
+    return runs[0], agreeing
 
 
 #: The candidates re-ranked by contrast overlap the best-scoring one at least this much: contrast corrects a box that

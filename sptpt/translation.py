@@ -11,6 +11,8 @@ moves only the reported box by that much. The filter learns from SPTPT's
 box, never from the box it moved: fed its own answers, a correlation filter
 drifts with them, and in a screen on stored ``robust`` boxes that drift
 lost Coke, Human9 and Tiger1 (``benchmarks/RESULTS.md``, "robust development").
+(That drift is accepted in :mod:`sptpt.filter_tracker`, where the filter does
+follow its own answers: a tracker apart from SPTPT, whose box only votes.)
 
 Danelljan et al., "Accurate Scale Estimation for Robust Visual Tracking"
 (BMVC 2014; the translation part): a multichannel correlation filter over a

@@ -53,6 +53,18 @@ def test_it_is_its_two_filters_stepped_in_order_and_deterministic():
         np.testing.assert_array_equal(box, box_xywh_from_states(state, 32))
 
 
+def test_on_featureless_frames_its_box_stops_at_the_frame_size():
+    # A black frame (black as the samples' padding outside the frame) gives the scale filter a flat response, whose
+    # peak is its largest scale: without the bound the box would grow by 1.37 a frame (to 6e5 px after 30 frames).
+    frames, boxes = moving_clip(2)
+    tracker = FilterTracker(32)
+    tracker.init(frames[0], boxes[0])
+    flat = np.zeros_like(frames[0])
+    got = np.array([tracker.update(flat) for _ in range(30)])
+    assert np.isfinite(got).all()
+    assert got[:, 2].max() == max(flat.shape[:2])  # width at most the frame's longer side
+
+
 def test_update_before_init_is_refused():
     with pytest.raises(RuntimeError, match="before init"):
         FilterTracker(32).update(np.zeros((40, 40, 3), np.uint8))

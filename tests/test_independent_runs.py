@@ -225,6 +225,9 @@ def test_a_voter_counts_in_the_vote_and_the_mean_but_is_never_reported_alone():
     # Chosen itself (its box stands out most of a pair), the run reported is the run that agrees with it.
     assert colour_contrast(frame, on_object) > colour_contrast(frame, near)
     assert _consensus_of(near, on_background, elsewhere, voters=[on_object]) == (0, [3, 0])
+    # Two voters that agree only with each other count for no run: the runs decide as without them.
+    assert (_consensus_of(on_background, elsewhere, voters=[on_object, near])
+            == _consensus_of(on_background, elsewhere))
     # Alone, however much it stands out: the runs decide as without it.
     assert _consensus_of(on_background, elsewhere, voters=[on_object]) == _consensus_of(on_background, elsewhere)
     chosen, agreeing = _consensus_of(on_background, elsewhere, voters=[on_object])
@@ -284,6 +287,7 @@ def test_filter_vote_without_a_consensus_of_runs_changes_nothing(runs, choice):
         tracker.init(clip.frames[0], clip.boxes_xywh[0])
         return [tracker.update(frame) for frame in clip.frames[1:]]
 
+    assert Tracker(dataclasses.replace(_params(runs, choice), filter_vote=True), seed=4)._filter_voter is None
     for with_it, without in zip(results(True), results(False)):
         np.testing.assert_array_equal(with_it.box_xywh, without.box_xywh)
         assert with_it.log_likelihood == without.log_likelihood

@@ -119,18 +119,25 @@ def test_scale_filter_answers_one_on_the_frame_it_learned_and_needs_init():
 
 @pytest.mark.parametrize("learn", [True, False])
 def test_step_equals_factor_then_update_at_the_new_scale(learn):
-    # A growing object (the scale moves on some frames and stays on others), and a frame the filter rejects
-    # below min_scale: step's one sampling must leave the same scales and the same filter, bit for bit.
+    # A growing object (the scale moves on some frames and stays on others), a frame where min_scale lifts the
+    # scale, and frames where max_scale holds it where it is (the reuse path through a bound): step's one sampling
+    # must leave the same scales and the same filter as the two calls, bit for bit.
     first, box = _scene(1.0)
     state = state_from_box_xywh(box, 32)
     stepped, called = ScaleFilter(32), ScaleFilter(32)
     stepped.init(first, state)
     called.init(first, state)
     stayed = moved = 0
-    for change, min_scale in [(1.0, 0.0), (1.06, 0.0), (1.06, 0.0), (1.12, 0.0), (1.12, 0.0), (0.95, 10.0)]:
+    held = 0
+    bounds = [(1.0, 0.0, np.inf), (1.06, 0.0, np.inf), (1.06, 0.0, np.inf), (1.12, 0.0, np.inf), (1.12, 0.0, np.inf),
+              (1.3, 0.0, "hold"), (1.3, 0.0, "hold"), (0.95, 10.0, np.inf)]
+    for change, min_scale, max_scale in bounds:
         frame, _ = _scene(change)
-        scale = stepped.step(frame, state, learn=learn, min_scale=min_scale)
-        expected = max(float(state[2]) * called.factor(frame, state), min_scale)
+        if max_scale == "hold":  # the object has grown past the state's scale; the bound keeps it there
+            max_scale = float(state[2])
+            held += called.factor(frame, state) > 1
+        scale = stepped.step(frame, state, learn=learn, min_scale=min_scale, max_scale=max_scale)
+        expected = min(max(float(state[2]) * called.factor(frame, state), min_scale), max_scale)
         assert scale == expected
         if learn:
             new_state = state.copy()
@@ -141,7 +148,8 @@ def test_step_equals_factor_then_update_at_the_new_scale(learn):
         stayed, moved = stayed + (scale == state[2]), moved + (scale != state[2])
         state = state.copy()
         state[2] = scale
-    assert stayed and moved  # both of step's paths were taken
+    assert stayed and moved and held == 2  # both of step's paths were taken, one through the upper bound
+    assert scale == 10.0  # and the last frame was lifted to min_scale
     with pytest.raises(RuntimeError, match="before init"):
         ScaleFilter(32).step(first, state, learn=True, min_scale=0.0)
 

@@ -32,7 +32,10 @@ the run farthest from the box, ``run_support`` with the second nearest (does
 another run back the box besides the one it came from?). Runs that put the
 box in different places have likely not all kept the object; with three
 runs, one lost run lowers ``run_iou`` under a right box, while a box that no
-second run backs is likely wrong.
+second run backs is likely wrong. (With ``filter_vote`` the box may be the mean
+of one run and the correlation-filter tracker that votes with the runs; that
+tracker's box is not among the runs' boxes, so ``run_support`` does not count
+it: the failure model is fitted on ``robust``'s own boxes, as they are.)
 
 Signals are the raw material; :mod:`annotator.failure.model` turns them into
 features (running levels, short windows) and a failure probability. Where a
