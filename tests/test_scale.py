@@ -219,6 +219,20 @@ def test_the_reported_scale_filter_sizes_the_box_and_leaves_the_search_alone():
     np.testing.assert_array_equal([r.box_xywh for r in again], [r.box_xywh for r in sized])
 
 
+def test_on_black_frames_the_reported_box_stops_at_the_frame_size():
+    import dataclasses
+
+    # Black as the samples' padding, the frames give the scale filter a flat response, whose peak is its largest
+    # scale: unbounded, the reported box grew by 1.37 a frame.
+    frames, boxes = growing_clip(6)
+    black = np.zeros((25,) + frames.shape[1:], np.uint8)
+    one_run = dataclasses.replace(get_preset("robust"), independent_runs=1)
+    got = np.array([r.box_xywh for r in track_results(one_run, np.concatenate([frames, black]), boxes[0])])
+    assert np.isfinite(got).all()
+    assert got[:, 2].max() <= max(frames.shape[1:3]) + 1e-9
+    assert got[-1, 2] > 2 * boxes[0, 2]  # it did grow, up to the bound
+
+
 def test_the_two_scale_filters_are_exclusive():
     import dataclasses
 
