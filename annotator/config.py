@@ -31,9 +31,9 @@ from sptpt.params import TrackerParams, get_preset, params_from_mapping
 
 __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "resolve_config"]
 
-#: The tracker preset of a run that names none: ``robust`` (three runs), 0.602 +- 0.018 success AUC on
-#: ../shared/otb over 6 seeds against ``paper``'s 0.393 +- 0.032, at about 0.9 times its speed
-#: (benchmarks/RESULTS.md, "robust development").
+#: The tracker preset of a run that names none: ``robust`` (three runs and a correlation-filter tracker that votes
+#: with them), 0.608 +- 0.019 success AUC on ../shared/otb over 6 seeds against ``paper``'s 0.393 +- 0.032, at about
+#: 0.8 times its speed (benchmarks/RESULTS.md, "robust development").
 #: ``paper`` stays the spec, for reproducing the paper.
 DEFAULT_PRESET = "robust"
 
