@@ -14,11 +14,9 @@ DSST (Danelljan et al., BMVC 2014), built from :class:`sptpt.translation.Transla
 and :class:`sptpt.scale.ScaleFilter`: each frame the translation filter
 moves the box to its peak, the scale filter then sizes it there, and both
 learn from the new box, every frame (it has no score to reject a frame by).
-As in DSST, the box is no wider than the frame's longer side (or the first
-box): on a featureless frame (black, or a flat colour) the scale filter's
-response is flat, its peak the largest of its scales, and the box would
-otherwise grow by 1.37 a frame without end. On ``../shared/otb`` the bound
-never binds.
+As in DSST, the box is no wider than the frame's longer side (the scale
+filter's bound, :meth:`sptpt.scale.ScaleFilter.init`); on ``../shared/otb``
+the bound never binds.
 """
 
 from __future__ import annotations
@@ -48,7 +46,6 @@ class FilterTracker:
     def init(self, rgb: np.ndarray, box_xywh) -> None:
         """Learn both filters at ``box_xywh`` (0-based ``x, y, w, h``) of the ``(H, W, 3)`` uint8 frame ``rgb``."""
         self._state = state_from_box_xywh(np.asarray(box_xywh, dtype=np.float64), self.template_size)
-        self._max_scale = max(max(rgb.shape[:2]) / self.template_size, float(self._state[2]))  # a first box may be wider
         self._translation.init(rgb, self._state)
         self._scale.init(rgb, self._state)
 
@@ -60,8 +57,7 @@ class FilterTracker:
         state = self._state.copy()
         state[0] += dx
         state[1] += dy
-        state[2] = self._scale.step(rgb, state, min_scale=1.0 / self.template_size, max_scale=self._max_scale,
-                                    learn=True)
+        state[2] = self._scale.step(rgb, state, learn=True)
         self._translation.update(rgb, state)
         self._state = state
         return box_xywh_from_states(state[None], self.template_size)[0]

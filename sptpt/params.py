@@ -138,7 +138,8 @@ class TrackerParams:
     (Dog1, Car4, David), and where it is lost (Bolt2, Couple, Jogging) it rarely lands where a lost run did.
     Without ``run_choice="consensus"`` and two runs or more there is no vote, and the field has no effect. On
     ``../shared/otb`` over six seeds, with ``robust``'s three runs: 0.608 ± 0.019 against 0.602 ± 0.018 without
-    it, higher in every seed, for about 4 ms a frame. True in ``robust``. [ours, benchmarks/RESULTS.md "robust development"]"""
+    it, higher in every seed, for about 4 ms a frame. True in ``robust``.
+    [ours, benchmarks/RESULTS.md "robust development"]"""
 
     contrast_candidates: int = 0
     """Of this many best candidates by log-likelihood, those whose box overlaps the best one's by an IoU of at

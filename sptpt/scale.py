@@ -20,8 +20,10 @@ constants are the paper's (33 scales, step 1.02, Gaussian label of
 ``sqrt(33) / 4`` scales, learning rate 0.025, regularisation 0.01), except
 the sampling and the features. Samples are the 32x32 templates the tracker
 already warps: bilinear, without anti-aliasing, 0 outside the frame (DSST
-resizes with area averaging and repeats the border pixels), and the scale
-has no upper bound (DSST's is the image size). Features are HOG-like
+resizes with area averaging and repeats the border pixels), and the box
+from :meth:`ScaleFilter.step` is at most as wide as the frame's longer side
+(DSST bounds it by the image size; :meth:`ScaleFilter.factor` alone has no
+bound). Features are HOG-like
 histograms of 9 unsigned orientations over 4-pixel cells of the grey
 template (DSST: fHOG over a patch of at most 512 pixels). A prototype of
 this filter (OpenCV sampling, script not kept), run with ground-truth
@@ -106,7 +108,14 @@ class ScaleFilter:
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
-        """Learn the filter from the samples around the first state."""
+        """Learn the filter from the samples around the first state, and bound the scales :meth:`step` gives.
+
+        The box is at least one template pixel wide and, as in DSST, no wider than the frame's longer side (or the
+        first box): on a black frame the response is flat, its peak the largest of the scales, and an unbounded
+        box grew by 1.37 a frame without end.
+        """
+        self.min_scale = 1.0 / self.template_size
+        self.max_scale = max(max(rgb.shape[:2]) / self.template_size, float(state[2]))
         self._numerator, self._denominator = self._terms(self._spectrum(rgb, state))
 
     def factor(self, rgb: np.ndarray, state: np.ndarray) -> float:
@@ -118,16 +127,18 @@ class ScaleFilter:
             raise RuntimeError("ScaleFilter.factor() before init()")
         return self._factor(self._spectrum(rgb, state))
 
-    def step(self, rgb: np.ndarray, state: np.ndarray, *, min_scale: float, max_scale: float = math.inf,
-             learn: bool = False) -> float:
-        """``state``'s scale times :meth:`factor`, kept within ``[min_scale, max_scale]``; with ``learn``, then
-        :meth:`update` at the new scale.
+    def step(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool = False, min_scale: float | None = None,
+             max_scale: float | None = None) -> float:
+        """``state``'s scale times :meth:`factor`, kept within ``[min_scale, max_scale]`` (by default the bounds
+        :meth:`init` set); with ``learn``, then :meth:`update` at the new scale.
 
         The same numbers as the two calls, sampling once where the scale stays (a factor of exactly 1, on most
         frames, or a bound that holds it): the update's samples around the new state are then the factor's.
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.step() before init()")
+        min_scale = self.min_scale if min_scale is None else min_scale
+        max_scale = self.max_scale if max_scale is None else max_scale
         spectrum = self._spectrum(rgb, state)
         scale = min(max(float(state[2]) * self._factor(spectrum), min_scale), max_scale)
         if learn:

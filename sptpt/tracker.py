@@ -261,11 +261,9 @@ class _Run:
             with self._time("scale"):
                 self._scale_filter = ScaleFilter(p.template_size)
                 self._scale_filter.init(rgb, self._state)
-        # The reported box's scale under ``reported_scale_filter``: the filter's own, apart from the state's. Its box
-        # is no wider than the frame's longer side (or the first box), as in DSST: on a black frame the filter's
-        # response is flat, its peak the largest scale, and the box grew 1.37x a frame without end.
+        # The reported box's scale under ``reported_scale_filter``: the filter's own, apart from the state's, and
+        # within the filter's bounds (``ScaleFilter.init``).
         self._reported_scale = float(self._state[2])
-        self._max_reported_scale = max(max(self._frame_shape) / p.template_size, self._reported_scale)
         self._translation_filter: TranslationFilter | None = None
         if p.reported_translation_filter:
             with self._time("translation"):
@@ -332,9 +330,7 @@ class _Run:
             sized_state[2] = self._reported_scale
             with self._time("scale"):
                 # On accepted frames the filter then learns at the new scale, from the state's centre.
-                self._reported_scale = self._scale_filter.step(rgb, sized_state, learn=accepted,
-                                                               min_scale=1.0 / p.template_size,
-                                                               max_scale=self._max_reported_scale)
+                self._reported_scale = self._scale_filter.step(rgb, sized_state, learn=accepted)
             sized_state[2] = self._reported_scale
         reported_state = sized_state
         if self._translation_filter is not None:
