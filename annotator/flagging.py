@@ -36,7 +36,8 @@ REASONS: Mapping[str, str] = {
     "doubt:motion": "the box jumped or changed size more than the object plausibly moves",
     "doubt:drift": "the box's size or shape drifted from the first frame's, or it is far from the last human box",
     "doubt:flow": "optical flow moved the previous box somewhere else, or could not follow its points",
-    "doubt:appearance": "the image under the box no longer looks like the object in the first frame",
+    "doubt:appearance": "the image under the box no longer looks like the object in the first frame, or like the "
+                        "object earlier in the track",
     "doubt:contrast": "the box's colours hardly differ from those around it: it may sit on background",
     "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
     "doubt:passes": "between two human boxes, the re-tracks forward from the earlier and backward from the later "

@@ -9,7 +9,7 @@ Step 1, the runs (the tool's own batch command, so the signals are exactly the p
 
 Step 2, this script::
 
-    python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --write
+    python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --select-groups --write
 
 reads every item's track store and ground truth, and reports, on held-out
 sequences only (each sequence scored by a model fitted on the 16 others;
@@ -20,7 +20,10 @@ AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
 measures each signal group's worth (AUROC with the group left out) and the
 tracker's own confidence as a baseline. ``--select-groups`` lets each fold
 leave out the signal groups that backward elimination picks on its training
-sequences (nested; off by default: measured, it does not pay). Every model,
+sequences (nested), and the shipped model those it picks on all of them. The
+shipped model is fitted with it since ``ncc_memory`` joined the signals
+(2026-11-27): before, it did not pay; with that signal the drift and score
+groups only add noise between sequences (RESULTS.md, "the track's own past"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
 predictions (``annotator.failure.fit``). ``--write`` refits on everything,
@@ -238,7 +241,8 @@ def main() -> int:
     parser.add_argument("--select-groups", action="store_true",
                         help="each fold, and the shipped model, leave out the signal groups that backward "
                              "elimination by leave-one-sequence-out AUROC picks on their training sequences "
-                             "(measured 2026-11-24: no better held out than every group, see RESULTS.md)")
+                             "(the shipped model's command uses it: held out, it pays since ncc_memory joined the "
+                             "signals; RESULTS.md)")
     parser.add_argument("--workers", type=int, default=2, help="processes for the held-out folds (default 2)")
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()

@@ -72,6 +72,7 @@ def test_flow_appearance_and_motion_signals_move_where_the_box_slides_onto_backg
     assert failed["flow_iou"][FAIL_AT] < 0.2 < truth["flow_iou"][before].min()
     assert failed["ncc_first"][FAIL_AT] < truth["ncc_first"][before].min() - 0.2
     assert failed["ncc_prev"][FAIL_AT] < truth["ncc_prev"][before].min() - 0.2
+    assert failed["ncc_memory"][FAIL_AT:].max() < truth["ncc_memory"][before].min() - 0.2
     assert failed["jump"][FAIL_AT] > 1.0 > truth["jump"][before].max()
     # On background the box's colours are those around it; on the object they differ, all along the track.
     assert failed["contrast"][FAIL_AT:].max() < 0.2 < 0.5 < truth["contrast"][1:].min()
@@ -167,7 +168,69 @@ def test_the_object_swapped_for_background_lowers_the_appearance_signals(clip):
     swapped = measure(clip, clip.boxes_xywh, frames)
     assert swapped["ncc_first"][FAIL_AT] < truth["ncc_first"][1:FAIL_AT].min() - 0.3
     assert swapped["ncc_prev"][FAIL_AT] < truth["ncc_prev"][1:FAIL_AT].min() - 0.3
+    assert swapped["ncc_memory"][FAIL_AT] < truth["ncc_memory"][1:FAIL_AT].min() - 0.3
     assert swapped["contrast"][FAIL_AT:].max() < truth["contrast"][1:FAIL_AT].min() - 0.1
+
+
+def _turning_object(frames: int, seed: int = 7) -> tuple[list[np.ndarray], np.ndarray]:
+    """A still box over an object whose texture turns, frame by frame, from one random pattern into another."""
+    rng = np.random.default_rng(seed)
+    before, after = (cv2.resize(rng.uniform(0, 255, (8, 8, 3)), (40, 40), interpolation=cv2.INTER_NEAREST)
+                     for _ in range(2))
+    video = []
+    for k in range(frames):
+        frame = np.full((120, 160, 3), 128.0)
+        frame[40:80, 60:100] = before + (after - before) * k / (frames - 1)
+        video.append(frame.astype(np.uint8))
+    return video, np.tile([60.0, 40.0, 40.0, 40.0], (frames, 1))
+
+
+def test_the_memory_signal_holds_while_the_object_turns_where_the_first_frame_loses_it():
+    video, boxes = _turning_object(81)
+    meter = SignalMeter()
+    meter.first(video[0], boxes[0])
+    rows = [meter.next(video[k], boxes[k], log_likelihood=5.0, scoring="subspace", accepted=True)
+            for k in range(1, len(video))]
+    last = rows[-1]
+    # The object at the end looks unlike its first frame but like its recent past, which the memory holds.
+    assert last["ncc_first"] < 0.2
+    assert last["ncc_memory"] > last["ncc_first"] + 0.3
+
+
+def slow_ncc_memory(patches: list, position: int, every: int, size: int) -> float:
+    """``ncc_memory`` at ``position`` by its definition: the median NCC with the patches of the pass's first frame
+    and of every ``every``-th frame after it, at least ``every`` frames old (frames whose box missed the image
+    have no patch); when more than ``size`` would be kept, the spacing doubles until they fit."""
+    from annotator.failure.signals import MEMORY_EVERY, _ncc
+
+    spacing = every
+    while True:
+        kept = [j for j in range(0, position - MEMORY_EVERY + 1, spacing) if patches[j] is not None]
+        if patches[0] is not None and 0 not in kept:
+            kept.insert(0, 0)
+        if len(kept) <= size:
+            break
+        spacing *= 2
+    if patches[position] is None or not kept:
+        return 0.0
+    return float(np.median([_ncc(patches[position], patches[j]) for j in kept]))
+
+
+@pytest.mark.parametrize("size", [200, 3])
+def test_the_memory_signal_equals_its_definition_frame_by_frame(clip, monkeypatch, size):
+    import annotator.failure.signals as signals_module
+    from annotator.failure.signals import MEMORY_EVERY, _grey, _patch
+
+    monkeypatch.setattr(signals_module, "MEMORY_SIZE", size)
+    rng = np.random.default_rng(11)
+    frames = [clip.frames[k % len(clip.frames)] for k in range(95)]
+    boxes = [clip.boxes_xywh[k % len(clip.frames)] + np.r_[rng.normal(0, 3, 2), 0, 0] for k in range(95)]
+    boxes[33] = np.array([400.0, 400.0, 20.0, 20.0])  # off the image: no patch, remembered or compared
+    patches = [_patch(_grey(f), b) for f, b in zip(frames, boxes)]
+    got = measure(clip, boxes, frames)["ncc_memory"]
+    assert got[0] == 1.0
+    expected = [slow_ncc_memory(patches, k, MEMORY_EVERY, size) for k in range(1, len(frames))]
+    np.testing.assert_allclose(got[1:], expected, atol=1e-12)
 
 
 def slow_contrast(frame_rgb: np.ndarray, box) -> float:

@@ -99,7 +99,7 @@ MODEL_PATH = "data/failure_model.json"
 LOOKAHEAD = 2  # frames after a frame that its features read
 LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
 TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
-_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "run_support", "contrast")
+_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "run_support", "contrast", "ncc_memory")
 
 FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED))
 
@@ -111,7 +111,8 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "jump": "motion", "scale_change": "motion",
     "scale_drift": "drift", "aspect_drift": "drift", "since_anchor": "drift",
     "flow_iou": "flow", "flow_fb": "flow", "flow_kept": "flow", "flow_iou_w5": "flow",
-    "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance",
+    "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance", "ncc_memory": "appearance",
+    "ncc_memory_w5": "appearance",
     "run_iou": "runs", "run_iou_w5": "runs", "run_support": "runs", "run_support_w5": "runs",
     "contrast": "contrast", "contrast_w5": "contrast",
 }

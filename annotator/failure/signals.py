@@ -11,7 +11,12 @@ checks independent of SPTPT's model, all from OpenCV:
   ``flow_kept`` the share of points that survived.
 * **appearance**: normalised cross-correlation of the grey patch under the
   box with the first frame's (``ncc_first``) and the previous frame's
-  (``ncc_prev``).
+  (``ncc_prev``), and with the track's own past (``ncc_memory``: the median
+  over the patches of every 10th frame of the pass, up to 10 frames before
+  this one). An object whose look changes as it turns still resembles much
+  of its past, and a box that has slid onto background resembles little of
+  it; the first frame alone cannot tell the two apart, the previous frame
+  alone cannot see a slow slide.
 * **contrast**: how far the colours inside the box differ from those of a
   ring around it (``contrast``). An object stands out from its
   surroundings, wherever it goes and however its look changes; a box that
@@ -54,6 +59,7 @@ lowers ``p_fail``.
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Mapping
 
 import cv2
@@ -82,6 +88,9 @@ SIGNALS: Mapping[str, str] = {
     "flow_kept": "share of flow points whose forward-backward error was small (1 when no flow)",
     "ncc_first": "normalised cross-correlation of the box's grey patch with the first frame's, in [-1, 1]",
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
+    "ncc_memory": "median normalised cross-correlation of the box's grey patch with the pass's remembered patches: "
+                  "its first frame's and every 10th frame's after it, once at least 10 frames old (at most 200; "
+                  "beyond, every other is forgotten and the spacing doubles), in [-1, 1]",
     "run_iou": "lowest IoU of the box with the boxes of the tracker's independent runs (NaN with one run: "
                "not measured)",
     "run_support": "second highest IoU of the box with the boxes of the tracker's independent runs: how well a "
@@ -95,7 +104,7 @@ SIGNALS: Mapping[str, str] = {
 NEUTRAL: Mapping[str, float] = {
     "log_likelihood": 0.0, "bootstrap": 0.0, "accepted": 1.0, "score_gap": 0.0, "particle_spread": 0.0, "jump": 0.0,
     "scale_change": 0.0, "scale_drift": 0.0, "aspect_drift": 0.0, "flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0,
-    "ncc_first": 1.0, "ncc_prev": 1.0,
+    "ncc_first": 1.0, "ncc_prev": 1.0, "ncc_memory": 1.0,
     # Not measured: a given box has no runs to compare, and a one-run tracker none at all (module docstring).
     "run_iou": math.nan, "run_support": math.nan,
     # Not measured on a box a person gave (as re-tracking stores its anchors), nor on rows no pass scored.
@@ -106,6 +115,12 @@ _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
 _LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 _TOP_SHARE = 0.05
+#: ``ncc_memory``: the pass remembers the patch of every this-many-th frame, and compares a frame with remembered
+#: patches at least this many frames old (the last few frames are what the box is now, not what the object was).
+MEMORY_EVERY = 10
+#: ``ncc_memory``: patches remembered at most; when full, every other is forgotten and the spacing doubles, so the
+#: memory spans the whole pass in bounded space (200 patches of 32 x 32: 1.6 MB).
+MEMORY_SIZE = 200
 
 
 def _grey(frame_rgb: np.ndarray) -> np.ndarray:
@@ -148,6 +163,50 @@ def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None,
     return float(np.clip(gap, 0.0, 50.0)), float(min(spread, 10.0))
 
 
+class _PatchMemory:
+    """The patches ``ncc_memory`` compares with: every :data:`MEMORY_EVERY`-th of a pass, once that many frames old.
+
+    :meth:`add` takes every frame's patch in pass order (None where the box missed the image); the first is
+    remembered at once, later ones when :data:`MEMORY_EVERY` more frames have been added.
+    """
+
+    def __init__(self) -> None:
+        self._frames = 0  # patches added so far: the next one's position in the pass
+        self._every = MEMORY_EVERY
+        self._waiting: deque[tuple[int, np.ndarray]] = deque()  # remembered, not yet old enough
+        self._kept: list[tuple[int, np.ndarray]] = []
+        self._matrix: np.ndarray | None = None  # the kept patches as rows, rebuilt when they change
+
+    def add(self, patch: np.ndarray | None) -> None:
+        position = self._frames
+        self._frames += 1
+        if patch is not None and position % self._every == 0:
+            if position == 0:
+                self._keep(position, patch)
+            else:
+                self._waiting.append((position, patch))
+        # Patches become comparable once MEMORY_EVERY frames old, as of the next frame (position self._frames).
+        while self._waiting and self._waiting[0][0] <= self._frames - MEMORY_EVERY:
+            self._keep(*self._waiting.popleft())
+
+    def _keep(self, position: int, patch: np.ndarray) -> None:
+        if len(self._kept) == MEMORY_SIZE:
+            self._every *= 2
+            self._kept = [(p, q) for p, q in self._kept if p % self._every == 0]
+            self._matrix = None
+        if position % self._every == 0:
+            self._kept.append((position, patch))
+            self._matrix = None
+
+    def median_ncc(self, patch: np.ndarray | None) -> float:
+        """Median NCC of ``patch`` with the kept patches; 0 when either side is missing (as :func:`_ncc`)."""
+        if patch is None or not self._kept:
+            return 0.0
+        if self._matrix is None:
+            self._matrix = np.stack([q.ravel() for _, q in self._kept])
+        return float(np.clip(np.median(self._matrix @ patch.ravel()), -1.0, 1.0))
+
+
 class SignalMeter:
     """Measures :data:`SIGNALS` frame by frame along one pass of one track.
 
@@ -162,13 +221,17 @@ class SignalMeter:
         self._prev_grey: np.ndarray | None = None
         self._prev_box: np.ndarray | None = None
         self._prev_patch: np.ndarray | None = None
+        self._memory = _PatchMemory()
 
     def first(self, frame_rgb: np.ndarray, box_xywh) -> dict[str, float]:
         grey = _grey(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
         self._first_box, self._first_patch = box, _patch(grey, box)
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, self._first_patch
-        return {**NEUTRAL, "ncc_first": 1.0 if self._first_patch is not None else 0.0}
+        self._memory = _PatchMemory()
+        self._memory.add(self._first_patch)
+        measured = 1.0 if self._first_patch is not None else 0.0
+        return {**NEUTRAL, "ncc_first": measured, "ncc_memory": measured}
 
     def next(self, frame_rgb: np.ndarray, box_xywh, *, log_likelihood: float, scoring: str, accepted: bool,
              particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None,
@@ -204,11 +267,13 @@ class SignalMeter:
             "flow_kept": flow_kept,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
+            "ncc_memory": self._memory.median_ncc(patch),
             "run_iou": math.nan if runs is None else float(runs[-1]),
             "run_support": math.nan if runs is None else float(runs[1]),
             "contrast": colour_contrast(frame_rgb, box),
         }
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
+        self._memory.add(patch)
         return signals
 
     def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray) -> tuple[float, float, float]:
