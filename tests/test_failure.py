@@ -225,12 +225,36 @@ def test_the_memory_signal_equals_its_definition_frame_by_frame(clip, monkeypatc
     rng = np.random.default_rng(11)
     frames = [clip.frames[k % len(clip.frames)] for k in range(95)]
     boxes = [clip.boxes_xywh[k % len(clip.frames)] + np.r_[rng.normal(0, 3, 2), 0, 0] for k in range(95)]
-    boxes[33] = np.array([400.0, 400.0, 20.0, 20.0])  # off the image: no patch, remembered or compared
+    for k in (30, 33, 50):  # off the image: no patch to compare (33) or to remember (30, 50)
+        boxes[k] = np.array([400.0, 400.0, 20.0, 20.0])
     patches = [_patch(_grey(f), b) for f, b in zip(frames, boxes)]
     got = measure(clip, boxes, frames)["ncc_memory"]
     assert got[0] == 1.0
     expected = [slow_ncc_memory(patches, k, MEMORY_EVERY, size) for k in range(1, len(frames))]
     np.testing.assert_allclose(got[1:], expected, atol=1e-12)
+
+
+def test_the_memory_stays_bounded_where_thinning_alone_forgets_nothing(monkeypatch):
+    import annotator.failure.signals as signals_module
+
+    monkeypatch.setattr(signals_module, "MEMORY_SIZE", 4)
+    memory = signals_module._PatchMemory()
+    patch = np.full((32, 32), 1 / 32.0)
+    for k in range(400):
+        # No patch at 10, 30, 50, ...: the kept ones are already multiples of 20 when the spacing first doubles.
+        memory.add(None if k % 20 == 10 else patch)
+        assert len(memory._kept) <= 4
+
+
+def test_a_flag_reason_never_names_a_group_the_model_leaves_out():
+    from annotator.failure.model import FEATURE_GROUPS
+
+    left_out = ("drift", "score")
+    coef = np.array([0.0 if FEATURE_GROUPS[f] in left_out else -1.0 for f in FEATURES])
+    model = model_from_fit(FEATURES, np.zeros(len(FEATURES)), np.ones(len(FEATURES)), coef, 0.0, 0.9, {})
+    # Every feature above its mean: every group the model weighs lowers the log-odds, the left-out ones add 0.
+    groups = model.main_group(np.ones((3, len(FEATURES))))
+    assert groups and not set(groups) & set(left_out)
 
 
 def slow_contrast(frame_rgb: np.ndarray, box) -> float:

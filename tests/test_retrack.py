@@ -154,6 +154,28 @@ def test_reflag_never_flags_anchors_and_always_flags_absences():
     assert all(r.startswith("doubt:") for r in reasons[1:6])
 
 
+def test_a_store_without_ncc_memory_reads_ncc_first_in_its_place():
+    """Kept rows of a store from before ncc_memory existed: not a perfect match with the past (its neutral value,
+    which would clear them of doubt) but the row's ncc_first."""
+    from annotator.failure import SIGNALS
+    from annotator.review.merge import filled_signals
+
+    n = 6
+    rng = np.random.default_rng(4)
+    signals = {name: rng.uniform(0, 1, n) for name in SIGNALS}
+    old = {name: v for name, v in signals.items() if name != "ncc_memory"}
+    filled = filled_signals(old)
+    np.testing.assert_array_equal(filled["ncc_memory"], signals["ncc_first"])
+    # Rows a new pass measured keep their value; a row without either takes ncc_first's neutral value.
+    part = {**signals, "ncc_memory": np.r_[np.nan, signals["ncc_memory"][1:]],
+            "ncc_first": np.r_[np.nan, signals["ncc_first"][1:]]}
+    filled = filled_signals(part)
+    np.testing.assert_array_equal(filled["ncc_memory"], np.r_[1.0, signals["ncc_memory"][1:]])
+    flagged_old = reflag(old, np.zeros(n, bool), np.zeros(n, bool), CONFIG)[2]
+    np.testing.assert_array_equal(flagged_old, reflag({**old, "ncc_memory": signals["ncc_first"]}, np.zeros(n, bool),
+                                                      np.zeros(n, bool), CONFIG)[2])
+
+
 @pytest.mark.parametrize("name", ["run_iou", "run_support", "contrast"])
 def test_reflag_reads_a_signal_not_measured_as_the_models_mean(name, tmp_path):
     """A one-run track, or a store from before the signal existed, has NaN there: the model neither raises nor lowers

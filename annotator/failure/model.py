@@ -326,9 +326,15 @@ class FailureModel:
         return sigmoid(z)
 
     def main_group(self, features: np.ndarray) -> list[str]:
-        """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most."""
+        """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most.
+
+        Only groups the model weighs: a group it leaves out (all weights 0) always contributes 0, which would
+        otherwise "raise the log-odds most" on a frame where every weighed group lowers them, and name a reason
+        (``--review-budget`` flags such frames too) that the model does not read.
+        """
         contrib = self._contributions(features)
-        groups = sorted(set(FEATURE_GROUPS.values()))
+        groups = sorted({FEATURE_GROUPS[f] for f, c in zip(self.features, self.coef) if c != 0.0}) or \
+            sorted(set(FEATURE_GROUPS.values()))
         by_group = np.stack([contrib[:, [i for i, f in enumerate(self.features) if FEATURE_GROUPS[f] == g]].sum(axis=1)
                              for g in groups], axis=1)
         return [groups[int(k)] for k in np.argmax(by_group, axis=1)]

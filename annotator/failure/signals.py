@@ -12,8 +12,9 @@ checks independent of SPTPT's model, all from OpenCV:
 * **appearance**: normalised cross-correlation of the grey patch under the
   box with the first frame's (``ncc_first``) and the previous frame's
   (``ncc_prev``), and with the track's own past (``ncc_memory``: the median
-  over the patches of every 10th frame of the pass, up to 10 frames before
-  this one). An object whose look changes as it turns still resembles much
+  over the patches of the pass's first frame and of every 10th frame after
+  it, up to 10 frames before this one, so that on frames 1-9 it equals
+  ``ncc_first``; at most 200, thinned as the pass grows). An object whose look changes as it turns still resembles much
   of its past, and a box that has slid onto background resembles little of
   it; the first frame alone cannot tell the two apart, the previous frame
   alone cannot see a slow slide.
@@ -90,7 +91,9 @@ SIGNALS: Mapping[str, str] = {
     "ncc_prev": "normalised cross-correlation of the box's grey patch with the previous frame's (1 on the first)",
     "ncc_memory": "median normalised cross-correlation of the box's grey patch with the pass's remembered patches: "
                   "its first frame's and every 10th frame's after it, once at least 10 frames old (at most 200; "
-                  "beyond, every other is forgotten and the spacing doubles), in [-1, 1]",
+                  "beyond, every other is forgotten and the spacing doubles), in [-1, 1]; on a pass's first "
+                  "frame 1 (0 where its box misses the image, as ncc_first); a store that predates the signal reads "
+                  "ncc_first in its place (annotator.review.merge.filled_signals)",
     "run_iou": "lowest IoU of the box with the boxes of the tracker's independent runs (NaN with one run: "
                "not measured)",
     "run_support": "second highest IoU of the box with the boxes of the tracker's independent runs: how well a "
@@ -119,7 +122,7 @@ _TOP_SHARE = 0.05
 #: patches at least this many frames old (the last few frames are what the box is now, not what the object was).
 MEMORY_EVERY = 10
 #: ``ncc_memory``: patches remembered at most; when full, every other is forgotten and the spacing doubles, so the
-#: memory spans the whole pass in bounded space (200 patches of 32 x 32: 1.6 MB).
+#: memory spans the whole pass in bounded space (200 patches of 32 x 32, and their stacked copy: 3.3 MB).
 MEMORY_SIZE = 200
 
 
@@ -166,8 +169,9 @@ def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None,
 class _PatchMemory:
     """The patches ``ncc_memory`` compares with: every :data:`MEMORY_EVERY`-th of a pass, once that many frames old.
 
-    :meth:`add` takes every frame's patch in pass order (None where the box missed the image); the first is
-    remembered at once, later ones when :data:`MEMORY_EVERY` more frames have been added.
+    :meth:`add` takes every frame's patch in pass order (None where the box missed the image). The first is
+    compared with from the next frame on; the patch of frame ``p`` (a multiple of the spacing) from frame
+    ``p + MEMORY_EVERY`` on.
     """
 
     def __init__(self) -> None:
@@ -190,7 +194,8 @@ class _PatchMemory:
             self._keep(*self._waiting.popleft())
 
     def _keep(self, position: int, patch: np.ndarray) -> None:
-        if len(self._kept) == MEMORY_SIZE:
+        # A loop, not a test: where the patches between were missing, one doubling may forget none.
+        while len(self._kept) >= MEMORY_SIZE:
             self._every *= 2
             self._kept = [(p, q) for p, q in self._kept if p % self._every == 0]
             self._matrix = None

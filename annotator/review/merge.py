@@ -220,10 +220,16 @@ def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outsid
 def filled_signals(signals: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A track's stored :data:`SIGNALS` with every NaN ("not measured": rows no pass scored; run_iou of a one-run
     tracker; a signal a store was written without, as before it existed) at its neutral value, which for run_iou,
-    run_support and contrast is NaN itself (the model reads it as its training mean)."""
+    run_support and contrast is NaN itself (the model reads it as its training mean); ``ncc_memory`` takes the
+    row's (filled) ``ncc_first``."""
     n = len(next(iter(signals.values()))) if signals else 0
-    return {name: np.nan_to_num(np.asarray(signals.get(name, np.full(n, np.nan)), dtype=np.float64), nan=NEUTRAL[name])
-            for name in SIGNALS}
+    stored = {name: np.asarray(signals.get(name, np.full(n, np.nan)), dtype=np.float64) for name in SIGNALS}
+    filled = {name: np.nan_to_num(values, nan=NEUTRAL[name]) for name, values in stored.items()}
+    # ncc_memory is NaN on the rows of a store written before it existed, kept by a re-track. Its neutral value
+    # (1, a perfect match with the past: right for a box a person gave, like ncc_first's) would clear those rows
+    # of doubt; the row's ncc_first is the nearest measure (the two are equal on a pass's first ten frames).
+    filled["ncc_memory"] = np.where(np.isnan(stored["ncc_memory"]), filled["ncc_first"], stored["ncc_memory"])
+    return filled
 
 
 def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.ndarray,
