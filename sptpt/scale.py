@@ -91,6 +91,8 @@ class ScaleFilter:
         self._window = np.hanning(N_SCALES)
         self._numerator: np.ndarray | None = None
         self._denominator: np.ndarray | None = None
+        # The scales step() keeps to; set by init() from the frame and the first state.
+        self.min_scale, self.max_scale = 0.0, math.inf
 
     def _spectrum(self, rgb: np.ndarray, state: np.ndarray) -> np.ndarray:
         """``(features, N_SCALES)`` Fourier transform over the scale axis of the samples around ``state``.
@@ -127,20 +129,17 @@ class ScaleFilter:
             raise RuntimeError("ScaleFilter.factor() before init()")
         return self._factor(self._spectrum(rgb, state))
 
-    def step(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool = False, min_scale: float | None = None,
-             max_scale: float | None = None) -> float:
-        """``state``'s scale times :meth:`factor`, kept within ``[min_scale, max_scale]`` (by default the bounds
-        :meth:`init` set); with ``learn``, then :meth:`update` at the new scale.
+    def step(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool = False) -> float:
+        """``state``'s scale times :meth:`factor`, kept within ``[min_scale, max_scale]`` (the bounds :meth:`init`
+        set); with ``learn``, then :meth:`update` at the new scale.
 
         The same numbers as the two calls, sampling once where the scale stays (a factor of exactly 1, on most
         frames, or a bound that holds it): the update's samples around the new state are then the factor's.
         """
         if self._numerator is None:
             raise RuntimeError("ScaleFilter.step() before init()")
-        min_scale = self.min_scale if min_scale is None else min_scale
-        max_scale = self.max_scale if max_scale is None else max_scale
         spectrum = self._spectrum(rgb, state)
-        scale = min(max(float(state[2]) * self._factor(spectrum), min_scale), max_scale)
+        scale = min(max(float(state[2]) * self._factor(spectrum), self.min_scale), self.max_scale)
         if learn:
             if scale != state[2]:
                 moved = np.array(state, dtype=np.float64)

@@ -136,7 +136,8 @@ def test_step_equals_factor_then_update_at_the_new_scale(learn):
         if max_scale == "hold":  # the object has grown past the state's scale; the bound keeps it there
             max_scale = float(state[2])
             held += called.factor(frame, state) > 1
-        scale = stepped.step(frame, state, learn=learn, min_scale=min_scale, max_scale=max_scale)
+        stepped.min_scale, stepped.max_scale = min_scale, max_scale
+        scale = stepped.step(frame, state, learn=learn)
         expected = min(max(float(state[2]) * called.factor(frame, state), min_scale), max_scale)
         assert scale == expected
         if learn:
@@ -151,7 +152,7 @@ def test_step_equals_factor_then_update_at_the_new_scale(learn):
     assert stayed and moved and held == 2  # both of step's paths were taken, one through the upper bound
     assert scale == 10.0  # and the last frame was lifted to min_scale
     with pytest.raises(RuntimeError, match="before init"):
-        ScaleFilter(32).step(first, state, learn=True, min_scale=0.0)
+        ScaleFilter(32).step(first, state, learn=True)
 
 
 def growing_clip(n_frames: int = 50, growth: float = 1.6):
