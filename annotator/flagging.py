@@ -26,7 +26,7 @@ from typing import Mapping
 import numpy as np
 
 __all__ = ["KEYFRAME_REASON", "REASONS", "FlagParams", "FlagResult", "SpanFlagger", "budget_flags", "flag_p_fail",
-           "keyframe_request", "keyframe_rows", "spans_from_mask", "with_keyframe_request"]
+           "keyframe_request", "keyframe_rows", "span_flags", "spans_from_mask", "with_keyframe_request"]
 
 #: Every reason a user can see, with what it means. ``doubt:<group>`` names the group of signals that
 #: raised the failure probability most (annotator.failure.model.FEATURE_GROUPS).
@@ -227,6 +227,38 @@ def flag_p_fail(p_fail: np.ndarray, groups, threshold: float, params: FlagParams
     flagged = np.array([f for _, f, _ in decided], dtype=bool)
     result = FlagResult(flagged=flagged, reasons=tuple(r for _, _, r in decided), spans=spans_from_mask(flagged))
     return with_keyframe_request(result, p_fail, keyframe=keyframe, outside=outside, params=params)
+
+
+def span_flags(doubtful: np.ndarray, params: FlagParams, *, blocked: np.ndarray | None = None) -> np.ndarray:
+    """Which frames of a whole track are flagged, from its doubtful frames: :class:`SpanFlagger`'s spans at once.
+
+    The same flags as :func:`flag_p_fail` with ``p_fail > threshold`` as ``doubtful``, ``blocked`` = keyframes
+    (no outside frames, no review budget, no keyframe request), without reasons and without a Python loop over
+    frames: choosing a threshold (:func:`annotator.failure.fit.choose_threshold`) flags tens of thousands of
+    frames at each of ninety thresholds.
+    """
+    doubtful = np.asarray(doubtful, bool)
+    n = doubtful.shape[0]
+    blocked = np.zeros(n, bool) if blocked is None else np.asarray(blocked, bool)
+    raw = doubtful & ~blocked
+    merged = raw.copy()
+    gaps = spans_from_mask(~raw)
+    if len(gaps):
+        blocked_before = np.concatenate([[0], np.cumsum(blocked)])
+        # A gap merges only between two doubtful frames, when short and free of keyframes.
+        fill = gaps[(gaps[:, 0] > 0) & (gaps[:, 1] < n) & (gaps[:, 1] - gaps[:, 0] <= params.merge_gap)
+                    & (blocked_before[gaps[:, 1]] == blocked_before[gaps[:, 0]])]
+        merged |= _cover(fill, n)
+    spans = spans_from_mask(merged)
+    return _cover(spans[spans[:, 1] - spans[:, 0] >= params.min_span], n)
+
+
+def _cover(spans: np.ndarray, n: int) -> np.ndarray:
+    """A length-``n`` mask, True on the ``[start, stop)`` spans (disjoint)."""
+    edges = np.zeros(n + 1, np.int64)
+    np.add.at(edges, spans[:, 0], 1)
+    np.add.at(edges, spans[:, 1], -1)
+    return np.cumsum(edges[:-1]) > 0
 
 
 def budget_flags(p_fail: np.ndarray, groups, percent: float, *, keyframe: np.ndarray,

@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from annotator.flagging import (REASONS, FlagParams, FlagResult, SpanFlagger, budget_flags, flag_p_fail,
-                                keyframe_request, spans_from_mask, with_keyframe_request)
+                                keyframe_request, span_flags, spans_from_mask, with_keyframe_request)
 
 
 def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tuple[list[bool], list[str]]:
@@ -81,6 +81,15 @@ def test_online_spans_equal_the_offline_reference(track, params, threshold):
     assert result.flagged.tolist() == expected[0]
     assert list(result.reasons) == expected[1]
     np.testing.assert_array_equal(result.spans, spans_from_mask(result.flagged))
+
+
+@settings(max_examples=200, deadline=None)
+@given(track_st, params_st, st.floats(0.05, 0.95))
+def test_vectorised_span_flags_equal_the_offline_reference(track, params, threshold):
+    p_fail, keyframe = np.array(track[0]), np.array(track[2], bool)
+    no_request = FlagParams(merge_gap=params.merge_gap, min_span=params.min_span, lost_threshold=None)
+    expected, _ = reference(p_fail, track[1], threshold, keyframe, np.zeros(len(p_fail), bool), no_request)
+    assert span_flags(p_fail > threshold, no_request, blocked=keyframe).tolist() == expected
 
 
 @settings(max_examples=100, deadline=None)
