@@ -4,16 +4,17 @@ Step 1, the runs (the tool's own batch command, so the signals are exactly the p
 
     for S in 0 1 2; do
       sptpt-annotate batch --otb-root ../shared/otb --out benchmarks/_runs/failure/robust-s$S \\
-          --seed $S --stop 150 --no-render --formats flags --workers 2 --preset robust
+          --seed $S --no-render --formats flags --workers 2 --preset robust
     done
 
 Step 2, this script::
 
     python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --select-groups --write
 
-reads every item's track store and ground truth, and reports, on held-out
-sequences only (each sequence scored by a model fitted on the 16 others;
-the flag threshold is ``FLAG_THRESHOLD`` in every fold): AUROC of p_fail for failure frames
+reads every item's track store and ground truth (every frame of every sequence; before 2026-11-27 (5th
+session) the runs stopped at frame 150), and reports, on held-out sequences only (each sequence scored by a
+model fitted on the 16 others, its flag threshold chosen for the targets on those 16 alone by
+``annotator.failure.fit.choose_threshold``): AUROC of p_fail for failure frames
 (IoU < 0.5), expected calibration error, and the flags' precision, recall,
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
@@ -22,8 +23,10 @@ tracker's own confidence as a baseline. ``--select-groups`` lets each fold
 leave out the signal groups that backward elimination picks on its training
 sequences (nested), and the shipped model those it picks on all of them. The
 shipped model is fitted with it since ``ncc_memory`` joined the signals
-(2026-11-27): before, it did not pay; with that signal the drift and score
-groups only add noise between sequences (RESULTS.md, "the track's own past"). Every model,
+(2026-11-27): before, it did not pay; with that signal the score group (and, on
+first 150 frames only, drift) adds noise between sequences (RESULTS.md, "the
+track's own past"). Forward selection was tried and did worse held out
+("fitted on whole sequences"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
 predictions (``annotator.failure.fit``). ``--write`` refits on everything,
@@ -52,7 +55,8 @@ from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # no
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
 from annotator.failure.fit import (  # noqa: E402
-    FLAG_THRESHOLD, MIN_GROUP_GAIN, Sample, choose_C, choose_groups, fit_fold, fit_model, group_features)
+    MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,
+    group_features)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES  # noqa: E402
 from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
@@ -133,8 +137,8 @@ def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each
 def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1
              ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, dict]]:
     """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold
-    model's ``info`` (its C, groups left out, calibration) by held-out sequence. Folds run in ``workers``
-    processes."""
+    model's ``info`` (its C, groups left out, calibration) with its ``flag_threshold``, by held-out sequence.
+    Folds run in ``workers`` processes."""
     names = sorted({s.sequence for s in samples})
     fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups)
     if workers > 1:
@@ -147,7 +151,7 @@ def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers:
         for s in held:
             p = model.p_fail(s.features)
             out.append((s, np.where(s.use, p, 0.0), model.main_group(s.features), model.threshold))
-    return out, {name: model.info for name, (model, _) in folds.items()}
+    return out, {name: {**model.info, "flag_threshold": model.threshold} for name, (model, _) in folds.items()}
 
 
 def calibration_slope(info: dict) -> float | str:
@@ -305,7 +309,7 @@ def main() -> int:
         a = auroc(X[:, k], y)
         single[name] = max(a, 1 - a) if np.isfinite(a) else float("nan")
 
-    thresholds = sorted({round(t, 2) for _, _, _, t in results})
+    thresholds = {name: info["flag_threshold"] for name, info in fold_info.items()}
     lines = [
         f"{'metric':<40} {'mean ± std over seeds':>24}   target",
         f"{'AUROC of p_fail (held-out)':<40} {fmt(mean_std(prob, 'auroc')):>24}   >= 0.90",
@@ -336,7 +340,7 @@ def main() -> int:
     info = {
         "fitted_by": command,
         "data": {"runs": args.runs, "sequences": sequences, "seeds": seeds, "frames": frames,
-                 "preset": preset, "range": "first 150 frames of each sequence"},
+                 "preset": preset, "range": "every frame of each sequence"},
         "C": chosen_C,
         "dropped_groups": list(dropped),
         "held_out": {"auroc": mean_std(prob, "auroc"), "ece": mean_std(prob, "ece"),
@@ -385,12 +389,15 @@ def main() -> int:
         "",
         f"Command: `{command}` after the three batch runs in the script's docstring  ",
         f"Machine: {machine_line()}; wall time of this script {time.time() - started:.0f} s.  ",
-        f"Data: {len(sequences)} sequences of `../shared/otb`, first 150 frames each, preset `{preset}`, seeds {seeds} "
+        f"Data: {len(sequences)} sequences of `../shared/otb`, every frame, preset `{preset}`, seeds {seeds} "
         f"({frames} frames scored; first frames excluded). Every figure is on held-out sequences: the model for a "
-        f"sequence was fitted on the other {len(sequences) - 1}. Threshold: p_fail > {FLAG_THRESHOLD} in every fold "
-        f"and in the shipped model; it was chosen from {', '.join(f'{t:g}' for t in SWEEP_THRESHOLDS)} by the "
-        f"simulated reviewer's time on 7 of these sequences (RESULTS.md, \"Flag threshold\"), not for the frame "
-        f"targets below. Before, the rule kept 0.85 of the training frames' failures (0.25 on the last model). "
+        f"sequence was fitted on the other {len(sequences) - 1}. Threshold: each model's own, chosen for the targets "
+        f"on its training sequences alone (`choose_threshold`: of 0.05-0.95, the widest margin "
+        f"min(recall - {TARGET_RECALL}, precision - {TARGET_PRECISION}) on their recalibrated leave-one-sequence-out "
+        f"predictions, flagged as the tool flags them); the folds chose {thresholds} (held-out sequence: threshold), "
+        f"the shipped model "
+        f"{model.threshold:g}. Until 2026-11-27 (5th session) it was 0.9 everywhere, chosen by the simulated "
+        f"reviewer's time (RESULTS.md, \"Flag threshold\"). "
         f"Flags: threshold, then spans merged "
         f"(gap <= {params.merge_gap}, spans >= {params.min_span}). Regularisation: C per held-out fold chosen from "
         f"{args.C} by the leave-one-sequence-out AUROC of that fold's {len(sequences) - 1} training sequences "

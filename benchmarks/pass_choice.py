@@ -185,6 +185,7 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
     names = sorted(set(data["sequence"]))
     disagree = data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW
     anchored = data["anchored"]
+    threshold = load_model(None).threshold
 
     def share(right, rows):
         return [right[rows & (data["seed"] == s)].mean() for s in seeds]
@@ -219,8 +220,9 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
               f"{expected_calibration_error(doubt['section'], wrong):.3f}); the p_fail such a frame keeps in the tool, "
               f"its source pass's own (for an interpolated frame, that of the pass that doubts itself less), at AUROC "
               f"{auroc(doubt['kept'], wrong):.3f} (ECE {expected_calibration_error(doubt['kept'], wrong):.3f}); "
-              f"above the flag threshold 0.9: {int((doubt['section'] > 0.9).sum())} and "
-              f"{int((doubt['kept'] > 0.9).sum())} frames. (Each pass's p_fail here is scored along the pass alone; "
+              f"above the main model's flag threshold {threshold:g}: {int((doubt['section'] > threshold).sum())} and "
+              f"{int((doubt['kept'] > threshold).sum())} frames. (Each pass's p_fail here is scored along the pass "
+              "alone; "
               "the tool scores the merged track.)"]
     lines += ["", "Per sequence (all seeds pooled), frames right between anchors, `anchored` → `chosen`: " + "; ".join(
         f"{name} {anchored[data['sequence'] == name].mean():.3f} → {chosen[data['sequence'] == name].mean():.3f}"

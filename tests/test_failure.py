@@ -26,8 +26,10 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import (FLAG_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups, fit_model,
-                                   fit_pass_agreement, group_features, leave_one_sequence_out, platt)
+from annotator.failure.fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
+                                   UNCHOSEN_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups,
+                                   choose_threshold, fit_model, fit_pass_agreement, group_features,
+                                   leave_one_sequence_out, platt)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -471,13 +473,50 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     want = 1 / (1 + np.exp(-(slope * np.log(q / (1 - q)) + offset)))
     np.testing.assert_allclose(calibrated.p_fail(features), want, rtol=1e-9, atol=1e-12)
     assert "calibration" not in raw.info
-    # The threshold is a probability, the same whatever the fit: recalibration moves p_fail, not the threshold.
+    # The threshold is chosen on the recalibrated held-out predictions: a recalibration that shifts p_fail up
+    # moves the threshold up with it (the same frames flagged), while the raw model's stays unchosen.
     monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
     shifted = fit_model(samples, C=0.01)
-    assert calibrated.threshold == raw.threshold == shifted.threshold == FLAG_THRESHOLD == 0.9
     assert np.all(shifted.p_fail(features) > raw.p_fail(features))
+    assert raw.threshold == UNCHOSEN_THRESHOLD and "threshold" not in raw.info
+    assert shifted.threshold > calibrated.threshold
+    monkeypatch.undo()
+    held = [(s, 1 / (1 + np.exp(-(slope * np.log(p / (1 - p)) + offset)))) for s, p in
+            [(s, model.p_fail(s.features)) for model, hs in
+             leave_one_sequence_out(samples, C=0.01, calibrate=False).values() for s in hs]]
+    assert calibrated.threshold == choose_threshold(held)
     # One sequence has no held-out predictions to calibrate on: the model stays raw.
     assert "calibration" not in fit_model(samples[:1], C=0.01).info
+
+
+def test_choose_threshold_takes_the_widest_margin_over_both_targets_as_the_tool_flags():
+    rng = np.random.default_rng(21)
+    held = []
+    for k in range(5):
+        n = 80
+        failed = np.zeros(n, bool)
+        failed[20 + 7 * k: 45 + 5 * k] = True
+        p = np.clip(0.35 * failed + rng.normal(0.3, 0.18, n), 0.001, 0.999)
+        use = rng.random(n) > 0.1
+        held.append((Sample(f"S{k}", 0, np.zeros((n, len(FEATURES))), failed, use), p))
+    # The reference: every grid threshold flagged by the tool's own span flagger, pooled, the margin by hand.
+    margins = {}
+    for t in THRESHOLD_GRID:
+        flagged = hits = failures = 0
+        for s, p in held:
+            f = flag_p_fail(p, ["score"] * len(p), t, THRESHOLD_FLAGS, keyframe=~s.use).flagged[s.use]
+            flagged += f.sum()
+            hits += (f & s.failed[s.use]).sum()
+            failures += s.failed[s.use].sum()
+        margins[t] = min(hits / failures - TARGET_RECALL, (hits / flagged if flagged else 0.0) - TARGET_PRECISION)
+    best = max(margins.values())
+    assert choose_threshold(held) == max(t for t, m in margins.items() if m == best)
+    assert len(set(np.round(list(margins.values()), 9))) > 10  # the grid matters on these predictions
+    # Separable predictions: every threshold between the two levels flags exactly the failures; the highest wins.
+    s = held[0][0]
+    assert choose_threshold([(s, np.where(s.failed, 0.8, 0.2))]) == 0.79
+    with pytest.raises(ValueError, match="failed frames"):
+        choose_threshold([(Sample("A", 0, s.features, np.zeros_like(s.failed), s.use), held[0][1])])
 
 
 def test_calibration_is_skipped_when_a_fold_has_frames_of_one_kind():

@@ -13,10 +13,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from annotator.failure.model import (FEATURE_GROUPS, FEATURES, PASS_CHOICE_FEATURES, PASS_OPTIONS, FailureModel,
-                                     PassAgreement, PassChoice, logit, model_from_fit)
+                                     PassAgreement, PassChoice, logit, model_from_fit, sigmoid)
+from annotator.flagging import FlagParams, span_flags
 
-__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "fit_fold", "fit_model", "fit_pass_choice",
-           "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
+__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
+           "fit_pass_choice", "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
 
 #: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
 MIN_GROUP_GAIN = 0.002
@@ -42,13 +43,18 @@ def _stack(samples: Sequence[Sample]) -> tuple[np.ndarray, np.ndarray]:
     return X, y
 
 
-#: Flag a frame when ``p_fail`` exceeds this: only boxes the model is nearly sure are wrong. Chosen by the
-#: simulated reviewer's time (benchmarks/simulated_reviewer.py; nested leave-one-sequence-out over its
-#: sequences picks it in every fold) from 0.25, 0.35, 0.5, 0.7 and 0.9: every flag on a right box costs a look,
-#: and re-tracking after a correction rewrites, and re-flags, the spans after it, so fewer, surer flags cost the
-#: reviewer less at every step of that grid. It replaced the rule "keep 0.85 of the training frames' failures"
-#: (0.25 on the last model), which flagged a third of all frames. RESULTS.md, "Flag threshold", has the figures.
-FLAG_THRESHOLD = 0.9
+#: Issue #9's targets for the flags at the default threshold: they choose it (:func:`choose_threshold`).
+TARGET_RECALL = 0.80
+TARGET_PRECISION = 0.70
+#: The thresholds :func:`choose_threshold` chooses from.
+THRESHOLD_GRID = tuple(round(0.05 + 0.01 * k, 2) for k in range(91))
+#: How the threshold's flags are made when it is chosen: the tool's span merging, without the keyframe request
+#: (which replaces a lost track's flags by every 10th frame: frames for a person to box, not predictions of
+#: wrong boxes, and not what the targets score).
+THRESHOLD_FLAGS = FlagParams(lost_threshold=None)
+#: The threshold of a model that had no held-out predictions to choose one on (fitted on one sequence, or
+#: without calibration: such models only rank frames).
+UNCHOSEN_THRESHOLD = 0.5
 
 
 def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -77,44 +83,104 @@ def _masked(samples: Sequence[Sample], drop: Sequence[str]) -> list[Sample]:
 
 def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, Any] | None = None,
               drop: Sequence[str] = (), calibrate: bool = True) -> FailureModel:
-    """Fit on every sample's usable frames; the model flags above :data:`FLAG_THRESHOLD`.
+    """Fit on every sample's usable frames, recalibrate, and choose the flag threshold.
 
     Features named in ``drop`` get weight 0 (their columns are zeroed for the fit, so the regression leaves
     their coefficients at exactly 0, with mean 0 and scale 1): the model reads them and ignores them.
 
-    With ``calibrate`` (and samples of two sequences or more) the log-odds are then recalibrated by
-    :func:`platt` on the leave-one-sequence-out predictions of the same samples, and the slope and offset are
-    folded into the coefficients and intercept (``info["calibration"]``), so the file keeps its form. The
-    strong regularisation that ranks unseen sequences best (small C) also shrinks the log-odds towards 0: on
-    held-out sequences the model was underconfident (slope 1.1-1.4, RESULTS.md "Failure model: calibrated").
-    The recalibration is monotone, so it changes no frame's rank, only what ``p_fail`` says.
+    With ``calibrate`` (and samples of two sequences or more) the model then learns from its own
+    leave-one-sequence-out predictions on the same samples, the only ones that show how it does on a sequence
+    it has not seen:
+
+    - its log-odds are recalibrated by :func:`platt`, and the slope and offset folded into the coefficients and
+      intercept (``info["calibration"]``), so the file keeps its form. The strong regularisation that ranks
+      unseen sequences best (small C) also shrinks the log-odds towards 0: on held-out sequences the model was
+      underconfident (slope 1.1-1.4, RESULTS.md "Failure model: calibrated"). The recalibration is monotone, so
+      it changes no frame's rank, only what ``p_fail`` says;
+    - its flag threshold is chosen for issue #9's targets by :func:`choose_threshold` on those predictions,
+      recalibrated (``info["threshold"]``).
+
+    Without, the threshold is :data:`UNCHOSEN_THRESHOLD`.
     """
     X, y = _stack(_masked(samples, drop))
     if len(np.unique(y)) < 2:
         raise ValueError("the training frames must hold both failed and good frames")
     mean, scale, coef, intercept = _fit(X, y, C)
     info = dict(info or {})
+    threshold = UNCHOSEN_THRESHOLD
     if calibrate and len({s.sequence for s in samples}) >= 2:
-        slope, offset, skipped = _calibration(samples, C=C, drop=drop)
-        if skipped:
-            info["calibration"] = {"skipped": skipped}
+        try:
+            held = _held_out_by_sample(samples, C=C, drop=drop)
+        except ValueError as exc:  # a fold's training frames are of one kind
+            info["calibration"] = {"skipped": str(exc)}
         else:
-            coef, intercept = coef * slope, intercept * slope + offset
-            info["calibration"] = {"slope": slope, "offset": offset}
-    return model_from_fit(FEATURES, mean, scale, coef, intercept, FLAG_THRESHOLD, info)
+            slope, offset, skipped = _calibration(held)
+            if skipped:
+                info["calibration"] = {"skipped": skipped}
+            else:
+                coef, intercept = coef * slope, intercept * slope + offset
+                info["calibration"] = {"slope": slope, "offset": offset}
+                held = [(s, sigmoid(slope * logit(p) + offset)) for s, p in held]
+            threshold = choose_threshold(held)
+            info["threshold"] = {"rule": f"widest margin over recall >= {TARGET_RECALL} and precision >= "
+                                         f"{TARGET_PRECISION} on the recalibrated leave-one-sequence-out "
+                                         "predictions of the training sequences", **_flag_figures(held, threshold)}
+    return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, info)
 
 
-def _calibration(samples: Sequence[Sample], *, C: float, drop: Sequence[str]) -> tuple[float, float, str]:
-    """Platt's ``(slope, offset, "")`` on the samples' held-out predictions, or ``(1, 0, why)`` if unusable."""
+def _calibration(held: Sequence[tuple[Sample, np.ndarray]]) -> tuple[float, float, str]:
+    """Platt's ``(slope, offset, "")`` on held-out predictions, or ``(1, 0, why)`` if unusable."""
     try:
-        slope, offset = platt(*_held_out_predictions(samples, C=C, drop=drop))
-    except ValueError as exc:  # a fold's training frames, or all held-out frames, are of one kind
+        slope, offset = platt(np.concatenate([p[s.use] for s, p in held]),
+                              np.concatenate([s.failed[s.use] for s, _ in held]))
+    except ValueError as exc:  # all held-out frames are of one kind
         return 1.0, 0.0, str(exc)
     if slope <= 0:
         # Held-out sequences ranked backwards (too few or too unlike to learn from): a negative slope would turn
         # the model around on the frames it was fitted to, so it stays as fitted.
         return 1.0, 0.0, f"held-out slope {slope:.3g} is not positive"
     return slope, offset, ""
+
+
+def _flag_counts(held: Sequence[tuple[Sample, np.ndarray]], threshold: float) -> tuple[int, int, int]:
+    """Flagged frames, flagged failures and failures of the held-out predictions at ``threshold``."""
+    flagged = hits = failures = 0
+    for s, p in held:
+        f = span_flags(p > threshold, THRESHOLD_FLAGS, blocked=~s.use)[s.use]
+        failed = s.failed[s.use]
+        flagged += int(f.sum())
+        hits += int((f & failed).sum())
+        failures += int(failed.sum())
+    return flagged, hits, failures
+
+
+def _flag_figures(held: Sequence[tuple[Sample, np.ndarray]], threshold: float) -> dict[str, float | None]:
+    """Precision and recall of the flags at ``threshold`` (None where undefined: the model file is strict JSON)."""
+    flagged, hits, failures = _flag_counts(held, threshold)
+    return {"precision": hits / flagged if flagged else None, "recall": hits / failures if failures else None}
+
+
+def choose_threshold(held: Sequence[tuple[Sample, np.ndarray]], grid: Sequence[float] = THRESHOLD_GRID) -> float:
+    """The threshold of ``grid`` at which flags on held-out ``(sample, p_fail)`` meet the targets most widely.
+
+    Issue #9 asks that the default threshold's flags find :data:`TARGET_RECALL` of the wrong boxes with
+    :data:`TARGET_PRECISION` of the flags on wrong boxes. At each threshold the frames are flagged as the tool
+    flags them (:data:`THRESHOLD_FLAGS`), pooled over the samples, and the threshold with the largest
+    ``min(recall - TARGET_RECALL, precision - TARGET_PRECISION)`` wins (ties: the higher threshold, fewer
+    flags): where both targets are met, the one with the most room on the closer target; where they cannot
+    both be, the nearest miss. The predictions must be of sequences the model did not learn from: on its own
+    training frames a model looks surer than it is.
+    """
+    best = None
+    for threshold in sorted(grid):
+        flagged, hits, failures = _flag_counts(held, threshold)
+        if not failures:
+            raise ValueError("choosing a threshold needs held-out frames that hold failed frames")
+        precision = hits / flagged if flagged else 0.0
+        margin = min(hits / failures - TARGET_RECALL, precision - TARGET_PRECISION)
+        if best is None or margin >= best[0]:
+            best = (margin, threshold)
+    return float(best[1])
 
 
 def platt(p_fail: np.ndarray, failed: np.ndarray) -> tuple[float, float]:
@@ -219,18 +285,21 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
     return -max(scores)[1]
 
 
-def _held_out_predictions(samples: Sequence[Sample], **fold_options) -> tuple[np.ndarray, np.ndarray]:
-    """``(p_fail, failed)`` of every usable frame, each sequence scored by the model fitted without it.
+def _held_out_by_sample(samples: Sequence[Sample], **fold_options) -> list[tuple[Sample, np.ndarray]]:
+    """``(sample, p_fail)`` for every sample, each sequence scored by the model fitted without it.
 
     The fold models are not recalibrated (one more level of folds for nothing): the C and group choices only
-    need their ranking, and :func:`platt` its own.
+    need their ranking, and :func:`platt` and :func:`choose_threshold` recalibrate them themselves.
     """
-    p, y = [], []
-    for model, held in leave_one_sequence_out(samples, calibrate=False, **fold_options).values():
-        for s in held:
-            p.append(model.p_fail(s.features)[s.use])
-            y.append(s.failed[s.use])
-    return np.concatenate(p), np.concatenate(y)
+    return [(s, model.p_fail(s.features))
+            for model, held in leave_one_sequence_out(samples, calibrate=False, **fold_options).values()
+            for s in held]
+
+
+def _held_out_predictions(samples: Sequence[Sample], **fold_options) -> tuple[np.ndarray, np.ndarray]:
+    """``(p_fail, failed)`` of every usable frame of :func:`_held_out_by_sample`, concatenated."""
+    held = _held_out_by_sample(samples, **fold_options)
+    return np.concatenate([p[s.use] for s, p in held]), np.concatenate([s.failed[s.use] for s, _ in held])
 
 
 def fit_pass_agreement(p_track: np.ndarray, pass_iou: np.ndarray, failed: np.ndarray,
