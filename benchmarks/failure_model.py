@@ -425,7 +425,7 @@ def main() -> int:
         "",
         "| threshold | precision | recall | flagged share | share on AUC >= 0.6 |",
         "|---:|---:|---:|---:|---:|",
-        *[f"| {t:g}{' (shipped)' if t == model.threshold else ''} | {fmt(mean_std(m, 'precision'))} | "
+        *[f"| {t:g} | {fmt(mean_std(m, 'precision'))} | "
           f"{fmt(mean_std(m, 'recall'))} | {fmt(mean_std(m, 'flagged_share'))} | "
           f"{fmt(mean_std(m, 'good_flagged_share'))} |" for t, m in sweep.items()],
         "",

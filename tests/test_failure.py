@@ -526,6 +526,8 @@ def test_calibration_is_skipped_when_a_fold_has_frames_of_one_kind():
     assert "both failed and good" in model.info["calibration"]["skipped"]
     np.testing.assert_array_equal(model.p_fail(a.features), fit_model([a, all_good], C=0.01, calibrate=False)
                                   .p_fail(a.features))
+    # Without held-out predictions there is nothing to choose a threshold on.
+    assert model.threshold == UNCHOSEN_THRESHOLD and "threshold" not in model.info
 
 
 def test_a_model_whose_held_out_sequences_rank_backwards_is_not_turned_around():
@@ -539,6 +541,11 @@ def test_a_model_whose_held_out_sequences_rank_backwards_is_not_turned_around():
     model = fit_model(samples, C=0.01)
     assert "is not positive" in model.info["calibration"]["skipped"]
     np.testing.assert_array_equal(model.p_fail(a.features), raw.p_fail(a.features))
+    # The threshold is chosen on the probabilities the model gives: the raw held-out ones, and says so.
+    assert "on the raw leave-one-sequence-out" in model.info["threshold"]["rule"]
+    held = [(s, m.p_fail(s.features)) for m, hs in leave_one_sequence_out(samples, C=0.01, calibrate=False).values()
+            for s in hs]
+    assert model.threshold == choose_threshold(held)
 
 
 def test_recalibration_lowers_the_held_out_calibration_error_of_an_underconfident_model():

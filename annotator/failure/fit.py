@@ -52,8 +52,8 @@ THRESHOLD_GRID = tuple(round(0.05 + 0.01 * k, 2) for k in range(91))
 #: (which replaces a lost track's flags by every 10th frame: frames for a person to box, not predictions of
 #: wrong boxes, and not what the targets score).
 THRESHOLD_FLAGS = FlagParams(lost_threshold=None)
-#: The threshold of a model that had no held-out predictions to choose one on (fitted on one sequence, or
-#: without calibration: such models only rank frames).
+#: The threshold of a model that had no held-out predictions to choose one on: fitted on one sequence, with
+#: ``calibrate=False`` (such models only rank frames), or when a fold's training frames were all of one kind.
 UNCHOSEN_THRESHOLD = 0.5
 
 
@@ -121,10 +121,12 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
                 coef, intercept = coef * slope, intercept * slope + offset
                 info["calibration"] = {"slope": slope, "offset": offset}
                 held = [(s, sigmoid(slope * logit(p) + offset)) for s, p in held]
+            # On the probabilities the model gives: recalibrated, or raw where the recalibration was skipped.
             threshold = choose_threshold(held)
             info["threshold"] = {"rule": f"widest margin over recall >= {TARGET_RECALL} and precision >= "
-                                         f"{TARGET_PRECISION} on the recalibrated leave-one-sequence-out "
-                                         "predictions of the training sequences", **_flag_figures(held, threshold)}
+                                         f"{TARGET_PRECISION} on the {'raw' if skipped else 'recalibrated'} "
+                                         "leave-one-sequence-out predictions of the training sequences",
+                                 **_flag_figures(held, threshold)}
     return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, info)
 
 
@@ -289,7 +291,7 @@ def _held_out_by_sample(samples: Sequence[Sample], **fold_options) -> list[tuple
     """``(sample, p_fail)`` for every sample, each sequence scored by the model fitted without it.
 
     The fold models are not recalibrated (one more level of folds for nothing): the C and group choices only
-    need their ranking, and :func:`platt` and :func:`choose_threshold` recalibrate them themselves.
+    need their ranking; :func:`fit_model` recalibrates them itself before it chooses the threshold.
     """
     return [(s, model.p_fail(s.features))
             for model, held in leave_one_sequence_out(samples, calibrate=False, **fold_options).values()
