@@ -158,31 +158,20 @@ class SpanFlagger:
     def _emit(self, until: int, *, at_end: bool = False) -> list[tuple[int, bool, str]]:
         if until <= self._emitted:
             return []
-        p = self.params
         # Span rules look at most `lag` frames either way; a window of 2 lags
         # before the first undecided frame decides it as the whole prefix would.
         lo = max(0, self._emitted - 2 * self.lag - 1)
         raw = np.array(self._raw[lo:], bool)
         blocked = np.array(self._keyframe[lo:], bool) | np.array(self._outside[lo:], bool)
-        merged = raw.copy()
-        gap_frames: set[int] = set()
-        for start, stop in spans_from_mask(~raw):
-            # A gap merges only between two doubtful frames: it must not touch either end of what is known.
-            if start > 0 and stop < raw.shape[0] and stop - start <= p.merge_gap and not blocked[start:stop].any():
-                merged[start:stop] = True
-                gap_frames.update(range(lo + start, lo + stop))
-        final = merged.copy()
-        for start, stop in spans_from_mask(merged):
-            # A span still open at the end of the known frames may grow, unless the sequence ended.
-            if stop - start < p.min_span and (at_end or stop < raw.shape[0]):
-                final[start:stop] = False
+        # A span still open at the end of the known frames may grow, unless the sequence ended.
+        merged, final = _span_rules(raw, blocked, self.params, open_end=not at_end)
         out = []
         for t in range(self._emitted, until):
             if self._outside[t]:
                 out.append((t, True, "outside"))
                 continue
             flagged = bool(final[t - lo])
-            reason = self._reasons[t] if self._raw[t] else ("span" if t in gap_frames else "")
+            reason = self._reasons[t] if self._raw[t] else ("span" if merged[t - lo] else "")
             out.append((t, flagged, (reason or "span") if flagged else ""))
         self._emitted = until
         return out
@@ -234,24 +223,38 @@ def span_flags(doubtful: np.ndarray, params: FlagParams, *, blocked: np.ndarray 
     """Which frames of a whole track are flagged, from its doubtful frames: :class:`SpanFlagger`'s spans at once.
 
     The same flags as :func:`flag_p_fail` with ``p_fail > threshold`` as ``doubtful``, ``blocked`` = keyframes
-    (no outside frames, no review budget, no keyframe request), without reasons and without a Python loop over
+    (no outside frames, no review budget, no keyframe request): the rules the flagger applies window by window
+    (:func:`_span_rules`), applied once to the whole track, without reasons and without a Python loop over
     frames: choosing a threshold (:func:`annotator.failure.fit.choose_threshold`) flags tens of thousands of
     frames at each of ninety thresholds.
     """
     doubtful = np.asarray(doubtful, bool)
-    n = doubtful.shape[0]
-    blocked = np.zeros(n, bool) if blocked is None else np.asarray(blocked, bool)
-    raw = doubtful & ~blocked
+    blocked = np.zeros(doubtful.shape[0], bool) if blocked is None else np.asarray(blocked, bool)
+    return _span_rules(doubtful & ~blocked, blocked, params)[1]
+
+
+def _span_rules(raw: np.ndarray, blocked: np.ndarray, params: FlagParams, *, open_end: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(merged, final)`` masks of the span rules on doubtful frames ``raw`` (never ``blocked`` ones).
+
+    ``merged``: ``raw`` with every gap of at most ``merge_gap`` frames between two doubtful frames filled, unless
+    it holds a blocked frame (a keyframe or an outside frame). A gap that touches either end of ``raw`` is not
+    between two doubtful frames. ``final``: ``merged`` without its spans shorter than ``min_span``; with
+    ``open_end``, a span that reaches the end is kept (more frames may lengthen it).
+    """
+    n = raw.shape[0]
     merged = raw.copy()
     gaps = spans_from_mask(~raw)
     if len(gaps):
         blocked_before = np.concatenate([[0], np.cumsum(blocked)])
-        # A gap merges only between two doubtful frames, when short and free of keyframes.
         fill = gaps[(gaps[:, 0] > 0) & (gaps[:, 1] < n) & (gaps[:, 1] - gaps[:, 0] <= params.merge_gap)
                     & (blocked_before[gaps[:, 1]] == blocked_before[gaps[:, 0]])]
         merged |= _cover(fill, n)
     spans = spans_from_mask(merged)
-    return _cover(spans[spans[:, 1] - spans[:, 0] >= params.min_span], n)
+    short = spans[:, 1] - spans[:, 0] < params.min_span
+    if open_end:
+        short &= spans[:, 1] < n
+    return merged, _cover(spans[~short], n)
 
 
 def _cover(spans: np.ndarray, n: int) -> np.ndarray:
