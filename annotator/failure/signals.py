@@ -69,7 +69,7 @@ import numpy as np
 from sptpt.boxes import iou_xywh
 from sptpt.contrast import colour_contrast
 
-__all__ = ["NEUTRAL", "SIGNALS", "SignalMeter", "particle_stats"]
+__all__ = ["NEUTRAL", "SIGNALS", "STAND_IN", "SignalMeter", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -93,7 +93,7 @@ SIGNALS: Mapping[str, str] = {
                   "its first frame's and every 10th frame's after it, once at least 10 frames old (at most 200; "
                   "beyond, every other is forgotten and the spacing doubles), in [-1, 1]; on a pass's first "
                   "frame 1 (0 where its box misses the image, as ncc_first); a store that predates the signal reads "
-                  "ncc_first in its place (annotator.review.merge.filled_signals)",
+                  "ncc_first in its place",
     "run_iou": "lowest IoU of the box with the boxes of the tracker's independent runs (NaN with one run: "
                "not measured)",
     "run_support": "second highest IoU of the box with the boxes of the tracker's independent runs: how well a "
@@ -113,6 +113,11 @@ NEUTRAL: Mapping[str, float] = {
     # Not measured on a box a person gave (as re-tracking stores its anchors), nor on rows no pass scored.
     "contrast": math.nan,
 }
+#: Signals newer than some stores, each with the measured signal a stored row that lacks it reads in its place
+#: (``annotator.review.merge.filled_signals``) instead of its neutral value. ``ncc_memory``'s neutral 1, a perfect
+#: match with the past, is right for a box a person gave but would clear a tracked row of doubt; ``ncc_first`` is
+#: the nearest measure (the two are equal on a pass's first ten frames).
+STAND_IN: Mapping[str, str] = {"ncc_memory": "ncc_first"}
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)

@@ -15,7 +15,7 @@ import numpy as np
 from annotator.config import RunConfig
 from annotator.failure import SIGNALS, FailureModel, load_model, score_track
 from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, logit
-from annotator.failure.signals import NEUTRAL
+from annotator.failure.signals import NEUTRAL, STAND_IN
 from annotator.flagging import flag_p_fail
 from annotator.review.segments import Box
 from sptpt.boxes import iou_xywh
@@ -220,15 +220,13 @@ def track_p_fail(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outsid
 def filled_signals(signals: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A track's stored :data:`SIGNALS` with every NaN ("not measured": rows no pass scored; run_iou of a one-run
     tracker; a signal a store was written without, as before it existed) at its neutral value, which for run_iou,
-    run_support and contrast is NaN itself (the model reads it as its training mean); ``ncc_memory`` takes the
-    row's (filled) ``ncc_first``."""
+    run_support and contrast is NaN itself (the model reads it as its training mean); a signal with a
+    :data:`~annotator.failure.signals.STAND_IN` takes that signal's (filled) value on the row instead."""
     n = len(next(iter(signals.values()))) if signals else 0
     stored = {name: np.asarray(signals.get(name, np.full(n, np.nan)), dtype=np.float64) for name in SIGNALS}
     filled = {name: np.nan_to_num(values, nan=NEUTRAL[name]) for name, values in stored.items()}
-    # ncc_memory is NaN on the rows of a store written before it existed, kept by a re-track. Its neutral value
-    # (1, a perfect match with the past: right for a box a person gave, like ncc_first's) would clear those rows
-    # of doubt; the row's ncc_first is the nearest measure (the two are equal on a pass's first ten frames).
-    filled["ncc_memory"] = np.where(np.isnan(stored["ncc_memory"]), filled["ncc_first"], stored["ncc_memory"])
+    for name, stand_in in STAND_IN.items():
+        filled[name] = np.where(np.isnan(stored[name]), filled[stand_in], stored[name])
     return filled
 
 
