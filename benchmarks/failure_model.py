@@ -1,4 +1,4 @@
-"""Fit and measure the failure probability on ../shared/otb: leave-one-sequence-out, several seeds.
+"""Fit and measure the failure probability on ../shared/otb: leave-one-video-out, several seeds.
 
 Step 1, the runs (the tool's own batch command, so the signals are exactly the product's)::
 
@@ -9,12 +9,13 @@ Step 1, the runs (the tool's own batch command, so the signals are exactly the p
 
 Step 2, this script::
 
-    python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --select-groups --write
+    python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/robust-s*' --write
 
 reads every item's track store and ground truth (every frame of every sequence; before 2026-11-27 (5th
-session) the runs stopped at frame 150), and reports, on held-out sequences only (each sequence scored by a
-model fitted on the 16 others, its flag threshold chosen for the targets on those 16 alone by
-``annotator.failure.fit.choose_threshold``): AUROC of p_fail for failure frames
+session) the runs stopped at frame 150), and reports, on held-out videos only (each sequence scored by a
+model fitted on the other videos: Jogging.1 and Jogging.2 are one video, held out together; until the 6th
+session on 2026-11-27 the folds were sequences), its flag threshold chosen for the targets on those alone by
+``annotator.failure.fit.choose_threshold``: AUROC of p_fail for failure frames
 (IoU < 0.5), expected calibration error, and the flags' precision, recall,
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
@@ -22,11 +23,12 @@ measures each signal group's worth (AUROC with the group left out) and the
 tracker's own confidence as a baseline. ``--select-groups`` lets each fold
 leave out the signal groups that backward elimination picks on its training
 sequences (nested), and the shipped model those it picks on all of them. The
-shipped model is fitted with it since ``ncc_memory`` joined the signals
-(2026-11-27): before, it did not pay; with that signal the score group (and, on
-first 150 frames only, drift) adds noise between sequences (RESULTS.md, "the
-track's own past"). Forward selection was tried and did worse held out
-("fitted on whole sequences"). Every model,
+regression is L1-regularised (``annotator.failure.fit``), which sets the weight
+of a signal that does not pay to exactly 0 by itself; the shipped model is
+fitted without ``--select-groups`` since then (RESULTS.md, "Failure model:
+sparse"). Before, with L2, it was fitted with it (RESULTS.md, "the track's own
+past"). Forward selection was tried and did worse held out ("fitted on whole
+sequences"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
 predictions (``annotator.failure.fit``). ``--write`` refits on everything,
@@ -38,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import functools
 import glob
 import json
@@ -56,18 +59,20 @@ from annotator.evaluation.calibration import auroc, expected_calibration_error, 
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
 from annotator.failure.fit import (  # noqa: E402
     MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,
-    group_features)
-from annotator.failure.model import FEATURE_GROUPS, FEATURES  # noqa: E402
+    group_features, video)
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel  # noqa: E402
 from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.store import STORE_NAME, read_store  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
 
-#: Regularisation values the nested cross-validation chooses from (inverse L2 strength).
+#: Regularisation values the nested cross-validation chooses from (inverse L1 strength).
 C_GRID = "1,0.1,0.01,0.003,0.001,0.0003,0.0001"
 MODEL_FILE = ROOT / "annotator" / "data" / "failure_model.json"
 tracking_seconds: list[float] = []  # mean tracker seconds per frame of every run, filled by load_samples
 PLOTS = ROOT / "benchmarks" / "failure_plots"
+#: The main model of each held-out fold, one file per sequence (``--write``), for benchmarks/pass_choice.py.
+FOLDS = ROOT / "benchmarks" / "_runs" / "failure" / "folds"
 
 
 def load_samples(run_globs: list[str], otb: Path) -> tuple[list[Sample], dict, dict]:
@@ -135,11 +140,10 @@ def signal_cost(otb: Path, sequences: list[str], tracking_ms: float, frames_each
 
 
 def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1
-             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, dict]]:
-    """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold
-    model's ``info`` (its C, groups left out, calibration) with its ``flag_threshold``, by held-out sequence.
-    Folds run in ``workers`` processes."""
-    names = sorted({s.sequence for s in samples})
+             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
+    """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold's
+    model by held-out video. Folds run in ``workers`` processes."""
+    names = sorted({video(s.sequence) for s in samples})
     fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups)
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
@@ -151,7 +155,7 @@ def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers:
         for s in held:
             p = model.p_fail(s.features)
             out.append((s, np.where(s.use, p, 0.0), model.main_group(s.features), model.threshold))
-    return out, {name: {**model.info, "flag_threshold": model.threshold} for name, (model, _) in folds.items()}
+    return out, {name: model for name, (model, _) in folds.items()}
 
 
 def calibration_slope(info: dict) -> float | str:
@@ -239,14 +243,14 @@ def main() -> int:
                         help="batch output folders (globs), one per seed")
     parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
     parser.add_argument("--C", default=C_GRID,
-                        help="inverse L2 strength of the logistic regression, or a comma-separated grid: each held-out "
-                             "fold then chooses its own on its training sequences (nested leave-one-sequence-out), "
+                        help="inverse L1 strength of the logistic regression, or a comma-separated grid: each held-out "
+                             "fold then chooses its own on its training videos (nested leave-one-video-out), "
                              f"and the shipped model chooses on all of them (default: {C_GRID})")
     parser.add_argument("--select-groups", action="store_true",
                         help="each fold, and the shipped model, leave out the signal groups that backward "
-                             "elimination by leave-one-sequence-out AUROC picks on their training sequences "
-                             "(the shipped model's command uses it: held out, it pays since ncc_memory joined the "
-                             "signals; RESULTS.md)")
+                             "elimination by leave-one-video-out AUROC picks on their training videos "
+                             "(the shipped model's command used it with L2 regularisation; with L1 it does not: "
+                             "RESULTS.md, \"Failure model: sparse\")")
     parser.add_argument("--workers", type=int, default=2, help="processes for the held-out folds (default 2)")
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
@@ -264,6 +268,7 @@ def main() -> int:
     seeds = sorted({s.seed for s in samples})
     preset = run_preset(args.runs)
     sequences = sorted({s.sequence for s in samples})
+    videos = sorted({video(name) for name in sequences})
     frames = sum(int(s.use.sum()) for s in samples)
     print(f"{len(samples)} runs: {len(sequences)} sequences x seeds {seeds}; {frames} frames scored", flush=True)
 
@@ -271,7 +276,8 @@ def main() -> int:
     # run's flags by every 10th frame (frames for a person to box, not predictions of wrong boxes).
     params = FlagParams(lost_threshold=None)
     select = args.select_groups
-    results, fold_info = held_out(samples, C=C, select_groups=select, workers=args.workers)
+    results, fold_models = held_out(samples, C=C, select_groups=select, workers=args.workers)
+    fold_info = {name: {**model.info, "flag_threshold": model.threshold} for name, model in fold_models.items()}
     fold_C = {name: info["C"] for name, info in fold_info.items()}
     fold_groups = {name: tuple(info.get("dropped_groups", ())) for name, info in fold_info.items()}
     fold_slopes = [calibration_slope(info) for info in fold_info.values()]
@@ -350,6 +356,13 @@ def main() -> int:
     from annotator.atomic import write_text_atomic
 
     write_text_atomic(MODEL_FILE, json.dumps(model.to_json(), indent=1) + "\n")
+    # Each sequence's fold model, fitted without its video: benchmarks/pass_choice.py --write adds its own fold
+    # section to it, so that the simulated reviewer's flags are held out too.
+    FOLDS.mkdir(parents=True, exist_ok=True)
+    for name in sequences:
+        fold = fold_models[video(name)]
+        fold_file = dataclasses.replace(fold, info={**fold.info, "held_out": name, "fold": video(name)})
+        write_text_atomic(FOLDS / f"{name}.json", json.dumps(fold_file.to_json(), indent=1) + "\n")
     # The pass_choice section reads each pass's probability under the main model: refitted with it, not kept.
     print(f"wrote {MODEL_FILE.relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
           "until it is refitted): run python benchmarks/pass_choice.py --generate --write (the rows it stored hold "
@@ -385,32 +398,37 @@ def main() -> int:
     single_rows = ["| feature | AUROC alone (either direction, all frames) |", "|---|---:|"]
     single_rows += [f"| {n} | {v:.3f} |" for n, v in sorted(single.items(), key=lambda kv: -kv[1])]
     markdown = "\n".join([
-        "## Failure probability and flags (leave-one-sequence-out)",
+        "## Failure probability and flags (leave-one-video-out)",
         "",
         f"Command: `{command}` after the three batch runs in the script's docstring  ",
         f"Machine: {machine_line()}; wall time of this script {time.time() - started:.0f} s.  ",
         f"Data: {len(sequences)} sequences of `../shared/otb`, every frame, preset `{preset}`, seeds {seeds} "
-        f"({frames} frames scored; first frames excluded). Every figure is on held-out sequences: the model for a "
-        f"sequence was fitted on the other {len(sequences) - 1}. Threshold: each model's own, chosen for the targets "
-        f"on its training sequences alone (`choose_threshold`: of 0.05-0.95, the widest margin "
-        f"min(recall - {TARGET_RECALL}, precision - {TARGET_PRECISION}) on their recalibrated leave-one-sequence-out "
-        f"predictions, flagged as the tool flags them); the folds chose {thresholds} (held-out sequence: threshold), "
+        f"({frames} frames scored; first frames excluded). Every figure is on held-out videos: the model for a "
+        f"sequence was fitted on the other {len(videos) - 1} of the {len(videos)} videos (Jogging.1 and Jogging.2 "
+        f"are one video, held out together). Regression: L1-regularised logistic regression (L2 before 2026-11-27, "
+        f"6th session). Threshold: each model's own, chosen for the targets "
+        f"on its training videos alone (`choose_threshold`: of 0.05-0.95, the widest margin "
+        f"min(recall - {TARGET_RECALL}, precision - {TARGET_PRECISION}) on their recalibrated leave-one-video-out "
+        f"predictions, flagged as the tool flags them); the folds chose {thresholds} (held-out video: threshold), "
         f"the shipped model "
         f"{model.threshold:g}. Until 2026-11-27 (5th session) it was 0.9 everywhere, chosen by the simulated "
         f"reviewer's time (RESULTS.md, \"Flag threshold\"). "
         f"Flags: threshold, then spans merged "
         f"(gap <= {params.merge_gap}, spans >= {params.min_span}). Regularisation: C per held-out fold chosen from "
-        f"{args.C} by the leave-one-sequence-out AUROC of that fold's {len(sequences) - 1} training sequences "
+        f"{args.C} by the leave-one-video-out AUROC of that fold's {len(videos) - 1} training videos "
         f"(nested), {dict(sorted(collections.Counter(fold_C.values()).items()))} (value: folds); shipped model "
         f"C = {chosen_C}. Calibration: each model's log-odds scaled and shifted by Platt scaling on the "
-        f"leave-one-sequence-out predictions of its own training sequences; fold slopes {fold_slopes}, shipped "
+        f"leave-one-video-out predictions of its own training videos; fold slopes {fold_slopes}, shipped "
         f"model {calibration_text(model.info)}. "
         + (f"Signal groups: each fold leaves out the groups that greedy backward elimination (a group goes when "
-           f"its absence raises the leave-one-sequence-out AUROC by >= {MIN_GROUP_GAIN}) picks on that fold's "
-           f"training sequences, with that fold's C (nested): "
+           f"its absence raises the leave-one-video-out AUROC by >= {MIN_GROUP_GAIN}) picks on that fold's "
+           f"training videos, with that fold's C (nested): "
            f"{dict(sorted(collections.Counter('+'.join(g) or 'none' for g in fold_groups.values()).items()))} "
            f"(groups: folds); the shipped model leaves out {'+'.join(dropped) or 'none'} (weight 0)."
-           if select else "Every signal group is used (--select-groups leaves some out by nested selection)."),
+           if select else "Every signal group is offered to the regression, whose L1 penalty gives a signal that "
+                          "does not pay weight 0 (--select-groups also leaves groups out by nested selection). "
+                          f"The shipped model's weights of exactly 0: "
+                          f"{', '.join(n for n, c in zip(FEATURES, model.coef) if c == 0) or 'none'}."),
         "",
         *table,
         "",

@@ -29,10 +29,14 @@ whichever the failure model's ``pass_choice`` section
    ``annotator/data/failure_model.json`` (the rest of the file unchanged),
    and one model file per sequence (that fold's section) into
    ``--data``/folds, for ``benchmarks/simulated_reviewer.py --fold-models``.
+   A fold file's main part is the sequence's own fold model from
+   ``--main-folds`` (fitted without its video by ``benchmarks/failure_model.py
+   --write``; since 2026-11-27, 6th session), so the reviewer's flags are held
+   out as well; where there is none, the installed main model.
 
-The main model is the installed one throughout: it was fitted on these
-sequences (``benchmarks/failure_model.py``), so the per-pass probabilities
-the section reads are not themselves held out.
+The per-pass probabilities the section reads, in the data and so in its fit,
+are the installed main model's: it was fitted on these sequences
+(``benchmarks/failure_model.py``), so they are not themselves held out.
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ from _results import machine_line, update_section  # noqa: E402
 from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
-from annotator.failure import load_model  # noqa: E402
+from annotator.failure import FailureModelError, load_model  # noqa: E402
 from annotator.failure.fit import fit_pass_choice  # noqa: E402
 from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
@@ -234,6 +238,21 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
     return "\n".join(lines) + "\n"
 
 
+def held_out_main(folder: Path, name: str, parser: argparse.ArgumentParser):
+    """The main model fitted without ``name``'s video, from ``folder``, or None where there is none."""
+    path = folder / f"{name}.json"
+    if not path.is_file():
+        return None
+    try:
+        model = load_model(path)
+    except FailureModelError as exc:
+        parser.error(f"--main-folds: {exc}")
+    if model.info.get("held_out") != name:
+        parser.error(f"--main-folds: {path} is not the fold model of {name} (its info.held_out is "
+                     f"{model.info.get('held_out')!r}); write the folds again with benchmarks/failure_model.py --write")
+    return dataclasses.replace(model, pass_choice=None)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(parser, otb=ROOT.parent / "shared" / "otb", stop=200, every="10",
@@ -242,6 +261,10 @@ def main() -> None:
                   data=HERE / "_runs" / "pass_choice")
     parser.add_argument("--write", action="store_true",
                         help="write the section into the package's failure model, and the fold models")
+    parser.add_argument("--main-folds", type=Path, default=HERE / "_runs" / "failure" / "folds", metavar="DIR",
+                        help="each sequence's main model fitted without its video, DIR/SEQUENCE.json (written by "
+                             "benchmarks/failure_model.py --write): --write builds that sequence's fold model on it; "
+                             "a sequence without one gets the installed main model (default: %(default)s)")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = parser.parse_args()
     started = time.perf_counter()
@@ -262,10 +285,15 @@ def main() -> None:
                                                    indent=1) + "\n")
         fold_dir = args.data / "folds"
         fold_dir.mkdir(parents=True, exist_ok=True)
+        held_main = 0
         for name, section in folds.items():
-            write_text_atomic(fold_dir / f"{name}.json",
-                              json.dumps(dataclasses.replace(model, pass_choice=section).to_json(), indent=1) + "\n")
-        print(f"wrote {package_file} and {len(folds)} fold models in {fold_dir}", file=sys.stderr)
+            main_part = held_out_main(args.main_folds, name, parser)
+            held_main += main_part is not None
+            write_text_atomic(fold_dir / f"{name}.json", json.dumps(dataclasses.replace(
+                model if main_part is None else main_part, pass_choice=section).to_json(), indent=1) + "\n")
+        print(f"wrote {package_file} and {len(folds)} fold models in {fold_dir} ({held_main} on a main model fitted "
+              f"without the sequence's video, from {args.main_folds}; the rest on the installed one)",
+              file=sys.stderr)
     if not args.no_record:
         update_section("pass-choice", text)
 

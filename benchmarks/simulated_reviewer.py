@@ -594,7 +594,7 @@ def main() -> None:
     if args.fold_models is not None:
         if args.failure_model is not None:
             parser.error("give --fold-models or --failure-model, not both")
-        held_out_parts = set()
+        held_out_parts, folds = set(), {}
         for s in all_sequences:
             path = (args.fold_models / f"{s.name}.json").resolve()
             try:
@@ -609,14 +609,25 @@ def main() -> None:
                              "benchmarks/pass_choice.py --write)")
             held_out_parts |= sections.keys()
             sequence_models[s.name] = str(path)
+            folds[s.name] = fold
             model_record.setdefault("fold_sha256", {})[s.name] = hashlib.sha256(
                 json.dumps(fold.to_json(), sort_keys=True).encode()).hexdigest()
         made_by = {"between_anchors": "benchmarks/anchored_failure.py --write: main part and between_anchors "
                                       "section both fitted without the sequence's video",
-                   "pass_choice": "benchmarks/pass_choice.py --write: the installed main part, the pass_choice "
-                                  "section fitted without the sequence's video"}
+                   "pass_choice": "benchmarks/pass_choice.py --write: the pass_choice section fitted without the "
+                                  "sequence's video"}
+        held_main = [name for name, fold in folds.items() if fold.info.get("held_out") == name]
+        if args.flag_threshold is None:
+            thresholds = sorted({fold.threshold for fold in folds.values()})
+            threshold_text = (f"each fold model's own ({thresholds[0]:g}-{thresholds[-1]:g})" if len(thresholds) > 1
+                              else f"{thresholds[0]:g} (the fold models')")
+        main_text = ("main part of every fold fitted without the sequence's video (benchmarks/failure_model.py "
+                     "--write)" if len(held_main) == len(all_sequences) else
+                     f"main part fitted without the sequence's video for {', '.join(held_main)}, the installed "
+                     "one for the rest" if held_main else "the installed main part")
         model_text = (f"per-sequence fold models `{args.fold_models}/SEQUENCE.json` ("
-                      + "; ".join(made_by[part] for part in sorted(held_out_parts)) + f"); flag threshold "
+                      + "; ".join([main_text, *(made_by[part] for part in sorted(held_out_parts))])
+                      + f"); flag threshold "
                       f"{threshold_text}, {keyframe_text}, other flag settings the run defaults")
         model_record["fold_models"] = str(args.fold_models.resolve())
     params = get_preset(args.preset)

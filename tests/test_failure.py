@@ -29,7 +29,7 @@ from annotator.failure import (
 from annotator.failure.fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
                                    UNCHOSEN_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups,
                                    choose_threshold, fit_model, fit_pass_agreement, group_features,
-                                   leave_one_sequence_out, platt)
+                                   leave_one_video_out, platt, video)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from annotator.synthetic import make_clip
@@ -434,9 +434,9 @@ def test_choose_C_takes_the_grid_value_that_ranks_held_out_failures_best():
     samples = small_samples()
     grid = [1.0, 0.01, 0.0001]
     scores = {}
-    for c in grid:  # the reference: leave-one-sequence-out by hand, pooled AUROC of the uncalibrated folds
+    for c in grid:  # the reference: leave-one-video-out by hand, pooled AUROC of the uncalibrated folds
         p, y = [], []
-        for model, held in leave_one_sequence_out(samples, C=c, calibrate=False).values():
+        for model, held in leave_one_video_out(samples, C=c, calibrate=False).values():
             p += [model.p_fail(s.features)[s.use] for s in held]
             y += [s.failed[s.use] for s in held]
         scores[c] = auroc(np.concatenate(p), np.concatenate(y))
@@ -456,12 +456,12 @@ def test_platt_recovers_a_known_slope_and_offset():
 
 def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     samples = small_samples()
-    raw = fit_model(samples, C=0.01, calibrate=False)
-    calibrated = fit_model(samples, C=0.01)
+    raw = fit_model(samples, C=0.1, calibrate=False)
+    calibrated = fit_model(samples, C=0.1)
     slope, offset = calibrated.info["calibration"]["slope"], calibrated.info["calibration"]["offset"]
     # The slope and offset are Platt's on the same samples' held-out predictions ...
     p, y = [], []
-    for model, held in leave_one_sequence_out(samples, C=0.01, calibrate=False).values():
+    for model, held in leave_one_video_out(samples, C=0.1, calibrate=False).values():
         p += [model.p_fail(s.features)[s.use] for s in held]
         y += [s.failed[s.use] for s in held]
     assert (slope, offset) == platt(np.concatenate(p), np.concatenate(y))
@@ -476,17 +476,17 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     # The threshold is chosen on the recalibrated held-out predictions: a recalibration that shifts p_fail up
     # moves the threshold up with it (the same frames flagged), while the raw model's stays unchosen.
     monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
-    shifted = fit_model(samples, C=0.01)
+    shifted = fit_model(samples, C=0.1)
     assert np.all(shifted.p_fail(features) > raw.p_fail(features))
     assert raw.threshold == UNCHOSEN_THRESHOLD and "threshold" not in raw.info
     assert shifted.threshold > calibrated.threshold
     monkeypatch.undo()
     held = [(s, 1 / (1 + np.exp(-(slope * np.log(p / (1 - p)) + offset)))) for s, p in
             [(s, model.p_fail(s.features)) for model, hs in
-             leave_one_sequence_out(samples, C=0.01, calibrate=False).values() for s in hs]]
+             leave_one_video_out(samples, C=0.1, calibrate=False).values() for s in hs]]
     assert calibrated.threshold == choose_threshold(held)
     # One sequence has no held-out predictions to calibrate on: the model stays raw.
-    assert "calibration" not in fit_model(samples[:1], C=0.01).info
+    assert "calibration" not in fit_model(samples[:1], C=0.1).info
 
 
 def test_choose_threshold_takes_the_widest_margin_over_both_targets_as_the_tool_flags():
@@ -522,9 +522,9 @@ def test_choose_threshold_takes_the_widest_margin_over_both_targets_as_the_tool_
 def test_calibration_is_skipped_when_a_fold_has_frames_of_one_kind():
     a, b = small_samples()[:2]
     all_good = Sample("B", 0, b.features, np.zeros_like(b.failed), b.use)
-    model = fit_model([a, all_good], C=0.01)  # the fold that holds A out trains on good frames only
+    model = fit_model([a, all_good], C=0.1)  # the fold that holds A out trains on good frames only
     assert "both failed and good" in model.info["calibration"]["skipped"]
-    np.testing.assert_array_equal(model.p_fail(a.features), fit_model([a, all_good], C=0.01, calibrate=False)
+    np.testing.assert_array_equal(model.p_fail(a.features), fit_model([a, all_good], C=0.1, calibrate=False)
                                   .p_fail(a.features))
     # Without held-out predictions there is nothing to choose a threshold on.
     assert model.threshold == UNCHOSEN_THRESHOLD and "threshold" not in model.info
@@ -537,13 +537,13 @@ def test_a_model_whose_held_out_sequences_rank_backwards_is_not_turned_around():
     flipped = b.features.copy()
     flipped[:, column] += 4.0 * b.failed
     samples = [a, Sample("B", 0, flipped, b.failed, b.use)]
-    raw = fit_model(samples, C=0.01, calibrate=False)
-    model = fit_model(samples, C=0.01)
+    raw = fit_model(samples, C=0.1, calibrate=False)
+    model = fit_model(samples, C=0.1)
     assert "is not positive" in model.info["calibration"]["skipped"]
     np.testing.assert_array_equal(model.p_fail(a.features), raw.p_fail(a.features))
     # The threshold is chosen on the probabilities the model gives: the raw held-out ones, and says so.
-    assert "on the raw leave-one-sequence-out" in model.info["threshold"]["rule"]
-    held = [(s, m.p_fail(s.features)) for m, hs in leave_one_sequence_out(samples, C=0.01, calibrate=False).values()
+    assert "on the raw leave-one-video-out" in model.info["threshold"]["rule"]
+    held = [(s, m.p_fail(s.features)) for m, hs in leave_one_video_out(samples, C=0.1, calibrate=False).values()
             for s in hs]
     assert model.threshold == choose_threshold(held)
 
@@ -560,7 +560,7 @@ def test_recalibration_lowers_the_held_out_calibration_error_of_an_underconfiden
     errors = {}
     for calibrate in (False, True):
         p, y = [], []
-        for model, held in leave_one_sequence_out(samples, C=0.01, calibrate=calibrate).values():
+        for model, held in leave_one_video_out(samples, C=0.01, calibrate=calibrate).values():
             p += [model.p_fail(s.features)[s.use] for s in held]
             y += [s.failed[s.use] for s in held]
         errors[calibrate] = expected_calibration_error(np.concatenate(p), np.concatenate(y))
@@ -570,11 +570,11 @@ def test_recalibration_lowers_the_held_out_calibration_error_of_an_underconfiden
 def test_nested_folds_choose_C_without_seeing_their_held_out_sequence():
     samples = small_samples()
     grid = [1.0, 0.01, 0.0001]
-    folds = leave_one_sequence_out(samples, C=grid)
+    folds = leave_one_video_out(samples, C=grid)
     # Flip every label of sequence A: the fold that holds A out must not change at all.
     flipped = [Sample(s.sequence, s.seed, s.features, ~s.failed if s.sequence == "A" else s.failed, s.use)
                for s in samples]
-    again = leave_one_sequence_out(flipped, C=grid)
+    again = leave_one_video_out(flipped, C=grid)
     assert json.dumps(folds["A"][0].to_json()) == json.dumps(again["A"][0].to_json())
     for name, (model, _) in folds.items():
         train = [s for s in samples if s.sequence != name]
@@ -605,15 +605,15 @@ def test_dropped_features_get_weight_zero_and_are_ignored():
 
 
 def test_nested_folds_choose_groups_without_seeing_their_held_out_sequence():
-    samples = small_samples()
-    folds = leave_one_sequence_out(samples, C=0.1, select_groups=True)
+    samples = small_samples()  # C = 1: weak enough that the L1 penalty keeps noise signals
+    folds = leave_one_video_out(samples, C=1.0, select_groups=True)
     flipped = [Sample(s.sequence, s.seed, s.features, ~s.failed if s.sequence == "A" else s.failed, s.use)
                for s in samples]
-    again = leave_one_sequence_out(flipped, C=0.1, select_groups=True)
+    again = leave_one_video_out(flipped, C=1.0, select_groups=True)
     assert json.dumps(folds["A"][0].to_json()) == json.dumps(again["A"][0].to_json())
     for name, (model, _) in folds.items():
         train = [s for s in samples if s.sequence != name]
-        assert model.info["dropped_groups"] == list(choose_groups(train, C=0.1))
+        assert model.info["dropped_groups"] == list(choose_groups(train, C=1.0))
         assert "flow" not in model.info["dropped_groups"]  # the one group that separates failures stays
     assert any(model.info["dropped_groups"] for model, _ in folds.values())  # noise groups do go
 
@@ -779,3 +779,26 @@ def test_the_between_anchors_script_refuses_bad_input_in_one_line(tmp_path, argv
     assert done.returncode == code
     lines = done.stderr.strip().splitlines()
     assert fragment in lines[-1] and "Traceback" not in done.stderr
+
+
+def test_the_regression_gives_signals_that_do_not_pay_weight_exactly_0():
+    # In small_samples only flow_iou separates failures; the other columns are noise. An L2 penalty would only
+    # shrink their weights; L1 sets most of them to exactly 0.
+    model = fit_model(small_samples(), C=0.1, calibrate=False)
+    assert model.coef[FEATURES.index("flow_iou")] < 0
+    assert np.sum(model.coef == 0.0) >= len(FEATURES) - 3
+
+
+def test_both_sequences_of_one_video_are_held_out_together():
+    assert video("Jogging.1") == video("Jogging.2") == "Jogging" and video("Bolt2") == "Bolt2"
+    a, b, c, d = small_samples()
+    samples = [Sample("J.1", 0, a.features, a.failed, a.use), Sample("J.2", 0, b.features, b.failed, b.use), c, d]
+    folds = leave_one_video_out(samples, C=0.1)
+    assert sorted(folds) == ["C", "D", "J"]
+    model, held = folds["J"]
+    assert [s.sequence for s in held] == ["J.1", "J.2"]
+    # Trained on C and D alone, which hold no two sequences of one video: its own folds are C and D.
+    assert json.dumps(model.to_json()) == json.dumps(fit_model([c, d], C=0.1, info={"C": 0.1}).to_json())
+    # The other folds train on both halves of J.
+    assert json.dumps(folds["C"][0].to_json()) == json.dumps(fit_model([samples[0], samples[1], d], C=0.1,
+                                                                       info={"C": 0.1}).to_json())

@@ -1,4 +1,4 @@
-"""Fitting the failure model: logistic regression, leave-one-sequence-out, recalibrated on held-out sequences.
+"""Fitting the failure model: L1-regularised logistic regression, leave-one-video-out, recalibrated on held-out videos.
 
 Used by ``benchmarks/failure_model.py`` (which gathers the runs and writes the
 model file); kept in the package so that a test can refit on fixed data and
@@ -17,9 +17,10 @@ from annotator.failure.model import (FEATURE_GROUPS, FEATURES, PASS_CHOICE_FEATU
 from annotator.flagging import FlagParams, span_flags
 
 __all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
-           "fit_pass_choice", "fit_pass_agreement", "group_features", "leave_one_sequence_out", "platt"]
+           "fit_pass_choice", "fit_pass_agreement", "group_features", "leave_one_video_out", "platt",
+           "video"]
 
-#: A group of signals is left out only when that raises the leave-one-sequence-out AUROC by at least this much.
+#: A group of signals is left out only when that raises the leave-one-video-out AUROC by at least this much.
 MIN_GROUP_GAIN = 0.002
 
 
@@ -66,7 +67,13 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
     X = np.where(measured, X, mean)
     scale = X.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
-    model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs")
+    # L1 (lasso): most signals are redundant with others, and a signal whose level differs between sequences more
+    # than between good and failed frames teaches the model which sequence it is looking at. Its weight is better
+    # exactly 0 than small (RESULTS.md, "Failure model: sparse"). liblinear penalises the intercept as a weight on a
+    # constant column of intercept_scaling; at 100 the penalty on it is negligible. Its coordinate descent visits
+    # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
+    model = LogisticRegression(C=C, l1_ratio=1.0, solver="liblinear", intercept_scaling=100.0, max_iter=10000,
+                               random_state=0)
     model.fit((X - mean) / scale, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
@@ -89,7 +96,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     their coefficients at exactly 0, with mean 0 and scale 1): the model reads them and ignores them.
 
     With ``calibrate`` (and samples of two sequences or more) the model then learns from its own
-    leave-one-sequence-out predictions on the same samples, the only ones that show how it does on a sequence
+    leave-one-video-out predictions on the same samples, the only ones that show how it does on a sequence
     it has not seen:
 
     - its log-odds are recalibrated by :func:`platt`, and the slope and offset folded into the coefficients and
@@ -108,7 +115,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     mean, scale, coef, intercept = _fit(X, y, C)
     info = dict(info or {})
     threshold = UNCHOSEN_THRESHOLD
-    if calibrate and len({s.sequence for s in samples}) >= 2:
+    if calibrate and len({video(s.sequence) for s in samples}) >= 2:
         try:
             held = _held_out_by_sample(samples, C=C, drop=drop)
         except ValueError as exc:  # a fold's training frames are of one kind
@@ -125,7 +132,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
             threshold = choose_threshold(held)
             info["threshold"] = {"rule": f"widest margin over recall >= {TARGET_RECALL} and precision >= "
                                          f"{TARGET_PRECISION} on the {'raw' if skipped else 'recalibrated'} "
-                                         "leave-one-sequence-out predictions of the training sequences",
+                                         "leave-one-video-out predictions of the training sequences",
                                  **_flag_figures(held, threshold)}
     return model_from_fit(FEATURES, mean, scale, coef, intercept, threshold, info)
 
@@ -201,10 +208,19 @@ def platt(p_fail: np.ndarray, failed: np.ndarray) -> tuple[float, float]:
     return float(fit.coef_[0, 0]), float(fit.intercept_[0])
 
 
-def leave_one_sequence_out(samples: Sequence[Sample], *, C: float | Sequence[float] = 1.0,
-                           drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True
-                           ) -> dict[str, tuple[FailureModel, list[Sample]]]:
-    """For each sequence: the model fitted on all *other* sequences (every seed), and that sequence's samples.
+def video(sequence: str) -> str:
+    """The video a sequence was cut from: OTB splits a video with two targets into ``Jogging.1`` and ``Jogging.2``.
+
+    Cross-validation holds out whole videos: a model that learned one person of a video has seen the other's
+    frames, lighting and background, and would look better on it than on a video it has never seen.
+    """
+    return sequence.split(".")[0]
+
+
+def leave_one_video_out(samples: Sequence[Sample], *, C: float | Sequence[float] = 1.0,
+                        drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True
+                        ) -> dict[str, tuple[FailureModel, list[Sample]]]:
+    """For each :func:`video`: the model fitted on all *other* videos (every seed), and that video's samples.
 
     ``C`` is the regularisation, or a grid of values: then each fold chooses
     its own from the grid by :func:`choose_C` on its training sequences alone
@@ -216,16 +232,16 @@ def leave_one_sequence_out(samples: Sequence[Sample], *, C: float | Sequence[flo
     (``info["dropped_groups"]``). ``calibrate`` is passed to :func:`fit_model`.
     """
     return {name: fit_fold(samples, name, C=C, drop=drop, select_groups=select_groups, calibrate=calibrate)
-            for name in sorted({s.sequence for s in samples})}
+            for name in sorted({video(s.sequence) for s in samples})}
 
 
 def fit_fold(samples: Sequence[Sample], held_out: str, *, C: float | Sequence[float] = 1.0,
              drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True
              ) -> tuple[FailureModel, list[Sample]]:
-    """One fold of :func:`leave_one_sequence_out`: the model fitted without ``held_out``, and its samples."""
+    """One fold of :func:`leave_one_video_out`: the model fitted without the video ``held_out``, and its samples."""
     masked = _masked(samples, drop)
-    train = [s for s in masked if s.sequence != held_out]
-    held = [s for s in masked if s.sequence == held_out]
+    train = [s for s in masked if video(s.sequence) != held_out]
+    held = [s for s in masked if video(s.sequence) == held_out]
     fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C)
     dropped = choose_groups(train, C=fold_C) if select_groups else ()
     model = fit_model(train, C=fold_C, drop=group_features(dropped), calibrate=calibrate,
@@ -234,14 +250,14 @@ def fit_fold(samples: Sequence[Sample], held_out: str, *, C: float | Sequence[fl
 
 
 def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_GROUP_GAIN) -> tuple[str, ...]:
-    """Signal groups to leave out: greedy backward elimination on the leave-one-sequence-out AUROC of ``samples``.
+    """Signal groups to leave out: greedy backward elimination on the leave-one-video-out AUROC of ``samples``.
 
     Each step leaves out the group whose absence raises the AUROC (pooled over
     the held-out sequences) most, as long as it rises by ``min_gain``. Signals
     whose level differs between sequences more than between good and failed
     frames teach the model which sequence it is looking at; only held-out
     sequences show that, so the choice is made by cross-validation, and, in
-    :func:`leave_one_sequence_out`, on the training sequences of each fold alone.
+    :func:`leave_one_video_out`, on the training sequences of each fold alone.
     """
     from annotator.evaluation.calibration import auroc
 
@@ -271,7 +287,7 @@ def backward_elimination(groups: Sequence[str], score: Callable[[Sequence[str]],
 
 
 def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
-    """The regularisation of ``grid`` whose leave-one-sequence-out predictions on ``samples`` rank failures best.
+    """The regularisation of ``grid`` whose leave-one-video-out predictions on ``samples`` rank failures best.
 
     The criterion is the AUROC pooled over the held-out sequences; ties go to the stronger regularisation
     (smaller C). Only held-out sequences show how well a model ranks a sequence it has not seen: the errors
@@ -281,8 +297,8 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
     """
     from annotator.evaluation.calibration import auroc
 
-    if len({s.sequence for s in samples}) < 2:
-        raise ValueError("choosing C needs samples of at least two sequences")
+    if len({video(s.sequence) for s in samples}) < 2:
+        raise ValueError("choosing C needs samples of at least two videos")
     scores = [(auroc(*_held_out_predictions(samples, C=value)), -value) for value in (float(c) for c in grid)]
     return -max(scores)[1]
 
@@ -294,7 +310,7 @@ def _held_out_by_sample(samples: Sequence[Sample], **fold_options) -> list[tuple
     need their ranking; :func:`fit_model` recalibrates them itself before it chooses the threshold.
     """
     return [(s, model.p_fail(s.features))
-            for model, held in leave_one_sequence_out(samples, calibrate=False, **fold_options).values()
+            for model, held in leave_one_video_out(samples, calibrate=False, **fold_options).values()
             for s in held]
 
 

@@ -19,8 +19,9 @@ into one row of :data:`FEATURES` per frame. Besides the signals themselves:
 
 Model
 -----
-A logistic regression on standardised features, fitted on ../shared/otb with
-leave-one-sequence-out cross-validation by ``benchmarks/failure_model.py``,
+A logistic regression on standardised features (L1-regularised: most
+weights are exactly 0), fitted on ../shared/otb with leave-one-video-out
+cross-validation by ``benchmarks/failure_model.py``,
 which writes :data:`MODEL_PATH`: a small JSON file (feature names, means,
 scales, coefficients, intercept, default threshold, and how it was fitted).
 No pickles: the file is read with ``json`` and checked field by field.

@@ -1,0 +1,99 @@
+"""L1 against L2: which penalty of the failure model's logistic regression ranks and flags held-out videos better.
+
+    python benchmarks/failure_penalty.py --runs 'benchmarks/_runs/failure/robust-s*'
+
+The same runs as ``benchmarks/failure_model.py`` (its docstring has the batch commands). For each penalty and
+each C of ``--C``, every video is scored by a model fitted on the other videos, every signal offered, C fixed
+(not chosen per fold), recalibrated and its threshold chosen on its own training videos, exactly as
+``annotator.failure.fit.fit_model`` does it; only the regression differs. L1 is the product's
+(``annotator.failure.fit._fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
+Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md ("Failure model: sparse").
+
+This is how the penalty was chosen (2026-11-27, 6th session), on the sequences whose held-out figures
+``failure_model.py`` reports: those figures measure the procedure, not the choice of it (RESULTS.md says so).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import annotator.failure.fit as fit  # noqa: E402
+from benchmarks._results import machine_line, update_section  # noqa: E402
+from benchmarks.failure_model import (flag_metrics, fmt, held_out, load_samples, mean_std,  # noqa: E402
+                                      per_seed_probability)
+from annotator.flagging import FlagParams  # noqa: E402
+
+L1_FIT = fit._fit
+
+
+def l2_fit(X: np.ndarray, y: np.ndarray, C: float):
+    """The regression before L1: the same standardisation, scikit-learn's default L2 penalty."""
+    from sklearn.linear_model import LogisticRegression
+
+    measured = ~np.isnan(X)
+    mean = np.where(measured, X, 0.0).sum(axis=0) / np.maximum(measured.sum(axis=0), 1)
+    X = np.where(measured, X, mean)
+    scale = X.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs").fit((X - mean) / scale, y.astype(int))
+    return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", nargs="+", default=["benchmarks/_runs/failure/robust-s*"])
+    parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
+    parser.add_argument("--C", default="0.001,0.003,0.01,0.03", help="comma-separated C values (default %(default)s)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    try:
+        grid = [float(c) for c in args.C.split(",")]
+    except ValueError:
+        parser.error(f"--C {args.C!r}: expected comma-separated numbers such as 0.001,0.003")
+    if any(not np.isfinite(c) or c <= 0 for c in grid):
+        parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
+    started = time.time()
+    samples, aucs, _ = load_samples(args.runs, args.otb)
+    rows = ["| penalty | C | AUROC | ECE | precision | recall | share on AUC >= 0.6 | weights exactly 0 |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for penalty, regression in (("L2", l2_fit), ("L1", L1_FIT)):
+        fit._fit = regression  # the fold processes are forked after this, so they fit with it too
+        for C in grid:
+            results, models = held_out(samples, C=C, workers=args.workers)
+            prob = per_seed_probability(results)
+            flags = flag_metrics(results, aucs, FlagParams(lost_threshold=None))
+            zeros = np.mean([np.sum(m.coef == 0.0) for m in models.values()])
+            rows.append(f"| {penalty} | {C:g} | {fmt(mean_std(prob, 'auroc'))} | {fmt(mean_std(prob, 'ece'))} | "
+                        f"{fmt(mean_std(flags, 'precision'))} | {fmt(mean_std(flags, 'recall'))} | "
+                        f"{fmt(mean_std(flags, 'good_flagged_share'))} | {zeros:.1f} of {len(models[next(iter(models))].coef)} |")
+            print(rows[-1], flush=True)
+    fit._fit = L1_FIT
+    if args.no_record:
+        return 0
+    command = "python benchmarks/failure_penalty.py --runs " + " ".join(f"'{g}'" for g in args.runs) + \
+              (f" --C {args.C}" if args.C != "0.001,0.003,0.01,0.03" else "")
+    update_section("failure-penalty", "\n".join([
+        "## Failure model: sparse (L1 against L2 at fixed C, held out by video)",
+        "",
+        f"Command: `{command}`  ",
+        f"Machine: {machine_line()}; wall time {time.time() - started:.0f} s.  ",
+        "Every video scored by a model fitted on the others (Jogging.1 and Jogging.2 held out together), every "
+        "signal offered, C fixed in every fold, recalibrated and thresholded on its training videos as the product "
+        "does; mean ± std over seeds; weights exactly 0: mean over the folds.",
+        "",
+        *rows,
+    ]))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
