@@ -348,3 +348,21 @@ def test_the_benchmark_refuses_rows_scored_by_another_main_model(tmp_path):
     np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(other), **rows)
     with pytest.raises(SystemExit, match="another main failure model than the installed one"):
         script.load_data(tmp_path, {"Seq"}, [0], [10], 200)
+
+
+def test_the_benchmark_builds_a_fold_file_on_the_main_model_fitted_without_that_sequence(tmp_path):
+    import argparse
+
+    from _benchmark_scripts import load_script
+
+    script = load_script("pass_choice")
+    parser = argparse.ArgumentParser()
+    fold = dataclasses.replace(model_with(section()), info={"held_out": "B.1", "fold": "B"}, threshold=0.31)
+    (tmp_path / "B.1.json").write_text(json.dumps(fold.to_json()), encoding="utf-8")
+    (tmp_path / "B.2.json").write_text(json.dumps(fold.to_json()), encoding="utf-8")  # B.1's, under B.2's name
+    main = script.held_out_main(tmp_path, "B.1", parser)
+    # The main part only: the fold's own pass_choice section is added by --write.
+    assert main.threshold == 0.31 and main.info["held_out"] == "B.1" and main.pass_choice is None
+    assert script.held_out_main(tmp_path, "A", parser) is None  # no fold model: the installed one is used
+    with pytest.raises(SystemExit):
+        script.held_out_main(tmp_path, "B.2", parser)
