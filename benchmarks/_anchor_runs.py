@@ -19,6 +19,8 @@ from typing import Any, Callable, Iterator
 import numpy as np
 from _sequences import SequenceError, select_sequences
 
+from annotator.failure.fit import video
+
 __all__ = ["add_arguments", "mean_std", "parse_seeds_and_intervals", "stored_data", "stored_rows", "track_jobs",
            "video"]
 
@@ -105,10 +107,6 @@ def stored_rows(folder: Path, sequences: set[str] | None, seeds, everies, column
         raise SystemExit(f"no data in {folder} for these sequences, seeds and intervals: run with --generate first")
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 
-
-def video(sequence: str) -> str:
-    """The fold of a sequence: OTB's Jogging.1 and Jogging.2 are two people in one video."""
-    return sequence.split(".")[0]
 
 
 def mean_std(values, digits: int = 3) -> str:

@@ -359,6 +359,8 @@ def main() -> int:
     # Each sequence's fold model, fitted without its video: benchmarks/pass_choice.py --write adds its own fold
     # section to it, so that the simulated reviewer's flags are held out too.
     FOLDS.mkdir(parents=True, exist_ok=True)
+    for old in FOLDS.glob("*.json"):  # a sequence no longer among the runs must not keep an older fit's fold
+        old.unlink()
     for name in sequences:
         fold = fold_models[video(name)]
         fold_file = dataclasses.replace(fold, info={**fold.info, "held_out": name, "fold": video(name)})

@@ -16,6 +16,7 @@ This is how the penalty was chosen (2026-11-27, 6th session), on the sequences w
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import sys
 import time
 from pathlib import Path
@@ -65,10 +66,18 @@ def main() -> int:
     samples, aucs, _ = load_samples(args.runs, args.otb)
     rows = ["| penalty | C | AUROC | ECE | precision | recall | share on AUC >= 0.6 | weights exactly 0 |",
             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    # The regression is swapped in this process; fold processes inherit it only when forked (spawn and forkserver
+    # import the modules afresh, with the product's L1).
+    if args.workers > 1:
+        multiprocessing.set_start_method("fork", force=True)
     for penalty, regression in (("L2", l2_fit), ("L1", L1_FIT)):
-        fit._fit = regression  # the fold processes are forked after this, so they fit with it too
+        fit._fit = regression
         for C in grid:
             results, models = held_out(samples, C=C, workers=args.workers)
+            # L2 leaves a weight at exactly 0 only on a constant column (its scale set to 1); L1 on many more.
+            if penalty == "L2" and any(np.any((m.coef == 0.0) & (m.scale != 1.0)) for m in models.values()):
+                raise SystemExit("an L2 fold model has a weight of exactly 0: the folds were fitted with another "
+                                 "regression than l2_fit; run with --workers 1")
             prob = per_seed_probability(results)
             flags = flag_metrics(results, aucs, FlagParams(lost_threshold=None))
             zeros = np.mean([np.sum(m.coef == 0.0) for m in models.values()])

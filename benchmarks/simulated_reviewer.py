@@ -95,6 +95,7 @@ from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
+from annotator.failure.fit import video  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
@@ -616,7 +617,8 @@ def main() -> None:
                                       "section both fitted without the sequence's video",
                    "pass_choice": "benchmarks/pass_choice.py --write: the pass_choice section fitted without the "
                                   "sequence's video"}
-        held_main = [name for name, fold in folds.items() if fold.info.get("held_out") == name]
+        # failure_model.py names the sequence a fold model is for, anchored_failure.py the video it holds out.
+        held_main = [name for name, fold in folds.items() if fold.info.get("held_out") in (name, video(name))]
         if args.flag_threshold is None:
             thresholds = sorted({fold.threshold for fold in folds.values()})
             threshold_text = (f"each fold model's own ({thresholds[0]:g}-{thresholds[-1]:g})" if len(thresholds) > 1

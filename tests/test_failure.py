@@ -802,3 +802,29 @@ def test_both_sequences_of_one_video_are_held_out_together():
     # The other folds train on both halves of J.
     assert json.dumps(folds["C"][0].to_json()) == json.dumps(fit_model([samples[0], samples[1], d], C=0.1,
                                                                        info={"C": 0.1}).to_json())
+
+
+def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_other(monkeypatch):
+    # Every nested fit (the choice of C, the recalibration, the threshold) must hold out whole videos too. Each
+    # sample carries its own value in since_anchor, so the rows a fit sees tell which sequences it trained on.
+    import annotator.failure.fit as fit
+
+    a, b, c, d = small_samples()
+    column = FEATURES.index("since_anchor")
+    samples = []
+    for mark, (name, s) in enumerate(zip(["J.1", "J.2", "C", "D"], [a, b, c, d]), start=1):
+        features = s.features.copy()
+        features[:, column] = mark
+        samples.append(Sample(name, 0, features, s.failed, s.use))
+    seen = []
+    real_fit = fit._fit
+
+    def recording_fit(X, y, C):
+        seen.append(set(np.unique(X[:, column]).tolist()))
+        return real_fit(X, y, C)
+
+    monkeypatch.setattr(fit, "_fit", recording_fit)
+    leave_one_video_out(samples, C=[0.1, 1.0])
+    assert len(seen) > 20
+    assert all((1.0 in marks) == (2.0 in marks) for marks in seen)  # J.1 and J.2 together, or neither
+    assert {1.0, 2.0, 3.0} in seen and {3.0, 4.0} in seen  # folds without D, and without J

@@ -53,7 +53,7 @@ THRESHOLD_GRID = tuple(round(0.05 + 0.01 * k, 2) for k in range(91))
 #: (which replaces a lost track's flags by every 10th frame: frames for a person to box, not predictions of
 #: wrong boxes, and not what the targets score).
 THRESHOLD_FLAGS = FlagParams(lost_threshold=None)
-#: The threshold of a model that had no held-out predictions to choose one on: fitted on one sequence, with
+#: The threshold of a model that had no held-out predictions to choose one on: fitted on one video, with
 #: ``calibrate=False`` (such models only rank frames), or when a fold's training frames were all of one kind.
 UNCHOSEN_THRESHOLD = 0.5
 
@@ -67,9 +67,9 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
     X = np.where(measured, X, mean)
     scale = X.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
-    # L1 (lasso): most signals are redundant with others, and a signal whose level differs between sequences more
-    # than between good and failed frames teaches the model which sequence it is looking at. Its weight is better
-    # exactly 0 than small (RESULTS.md, "Failure model: sparse"). liblinear penalises the intercept as a weight on a
+    # L1 (lasso): most signals repeat what another says, and the model ranks unseen videos better when it weighs a
+    # few of them and gives the rest weight exactly 0 than when it gives all of them small weights (RESULTS.md,
+    # "Failure model: sparse"). liblinear penalises the intercept as a weight on a
     # constant column of intercept_scaling; at 100 the penalty on it is negligible. Its coordinate descent visits
     # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
     model = LogisticRegression(C=C, l1_ratio=1.0, solver="liblinear", intercept_scaling=100.0, max_iter=10000,
@@ -95,7 +95,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     Features named in ``drop`` get weight 0 (their columns are zeroed for the fit, so the regression leaves
     their coefficients at exactly 0, with mean 0 and scale 1): the model reads them and ignores them.
 
-    With ``calibrate`` (and samples of two sequences or more) the model then learns from its own
+    With ``calibrate`` (and samples of two videos or more) the model then learns from its own
     leave-one-video-out predictions on the same samples, the only ones that show how it does on a sequence
     it has not seen:
 
@@ -304,7 +304,7 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
 
 
 def _held_out_by_sample(samples: Sequence[Sample], **fold_options) -> list[tuple[Sample, np.ndarray]]:
-    """``(sample, p_fail)`` for every sample, each sequence scored by the model fitted without it.
+    """``(sample, p_fail)`` for every sample, each scored by the model fitted without its video.
 
     The fold models are not recalibrated (one more level of folds for nothing): the C and group choices only
     need their ranking; :func:`fit_model` recalibrates them itself before it chooses the threshold.
