@@ -110,7 +110,9 @@ def run_preset(run_globs: list[str]) -> str:
     presets = {json.loads(p.read_text())["config"]["preset"]
                for g in run_globs for run in glob.glob(g) for p in Path(run).glob("*/run.json")}
     if len(presets) != 1:
-        raise SystemExit(f"--runs: expected runs of one tracker preset, found {sorted(presets) or 'none'}")
+        raise SystemExit(f"--runs {' '.join(run_globs)}: expected batch runs of one tracker preset, found "
+                         f"{sorted(presets) or 'none'}; make them with the batch commands of "
+                         "benchmarks/failure_model.py's docstring")
     return presets.pop()
 
 
@@ -237,6 +239,19 @@ def fmt(pair: tuple[float, float], digits: int = 3) -> str:
     return f"{pair[0]:.{digits}f} ± {pair[1]:.{digits}f}"
 
 
+def checked_C_and_workers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[float]:
+    """The values of ``--C`` (one or a comma-separated grid); a one-line error for a bad ``--C`` or ``--workers``."""
+    try:
+        C = [float(c) for c in args.C.split(",")]
+    except ValueError:
+        parser.error(f"--C {args.C!r}: expected a number or comma-separated numbers such as {C_GRID}")
+    if any(not np.isfinite(c) or c <= 0 for c in C):
+        parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
+    if args.workers < 1:
+        parser.error(f"--workers {args.workers}: expected an integer >= 1 (processes for the held-out folds)")
+    return C
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", nargs="+", default=["benchmarks/_runs/failure/robust-s*"],
@@ -255,15 +270,8 @@ def main() -> int:
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
     started = time.time()
-    try:
-        C = [float(c) for c in args.C.split(",")]
-    except ValueError:
-        parser.error(f"--C {args.C!r}: expected a number or comma-separated numbers such as {C_GRID}")
-    if any(not np.isfinite(c) or c <= 0 for c in C):
-        parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
+    C = checked_C_and_workers(parser, args)
     C = C[0] if len(C) == 1 else C
-    if args.workers < 1:
-        parser.error(f"--workers {args.workers}: expected an integer >= 1 (processes for the held-out folds)")
     samples, aucs, confidence = load_samples(args.runs, args.otb)
     seeds = sorted({s.seed for s in samples})
     preset = run_preset(args.runs)

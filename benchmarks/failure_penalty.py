@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT))
 
 import annotator.failure.fit as fit  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
-from benchmarks.failure_model import (flag_metrics, fmt, held_out, load_samples, mean_std,  # noqa: E402
-                                      per_seed_probability)
+from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,  # noqa: E402
+                                      load_samples, mean_std, per_seed_probability, run_preset)
 from annotator.flagging import FlagParams  # noqa: E402
 
 L1_FIT = fit._fit
@@ -39,12 +39,8 @@ def l2_fit(X: np.ndarray, y: np.ndarray, C: float):
     """The regression before L1: the same standardisation, scikit-learn's default L2 penalty."""
     from sklearn.linear_model import LogisticRegression
 
-    measured = ~np.isnan(X)
-    mean = np.where(measured, X, 0.0).sum(axis=0) / np.maximum(measured.sum(axis=0), 1)
-    X = np.where(measured, X, mean)
-    scale = X.std(axis=0)
-    scale = np.where(scale > 1e-9, scale, 1.0)
-    model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs").fit((X - mean) / scale, y.astype(int))
+    Z, mean, scale = fit._standardised(X)
+    model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs").fit(Z, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
 
@@ -53,17 +49,13 @@ def main() -> int:
     parser.add_argument("--runs", nargs="+", default=["benchmarks/_runs/failure/robust-s*"])
     parser.add_argument("--otb", type=Path, default=ROOT.parent / "shared" / "otb")
     parser.add_argument("--C", default="0.001,0.003,0.01,0.03", help="comma-separated C values (default %(default)s)")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2, help="processes for the held-out folds (default 2)")
     parser.add_argument("--no-record", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = parser.parse_args()
-    try:
-        grid = [float(c) for c in args.C.split(",")]
-    except ValueError:
-        parser.error(f"--C {args.C!r}: expected comma-separated numbers such as 0.001,0.003")
-    if any(not np.isfinite(c) or c <= 0 for c in grid):
-        parser.error(f"--C {args.C!r}: every value must be a finite number > 0")
+    grid = checked_C_and_workers(parser, args)
     started = time.time()
     samples, aucs, _ = load_samples(args.runs, args.otb)
+    run_preset(args.runs)  # one preset, and at least one run
     rows = ["| penalty | C | AUROC | ECE | precision | recall | share on AUC >= 0.6 | weights exactly 0 |",
             "|---|---:|---:|---:|---:|---:|---:|---:|"]
     # The regression is swapped in this process; fold processes inherit it only when forked (spawn and forkserver

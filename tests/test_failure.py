@@ -669,19 +669,23 @@ def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
     assert done.stderr.strip().splitlines()[-1] == f"failure_model.py: error: --C {value!r}: {message}"
 
 
-@pytest.mark.parametrize("argv, fragment", [
-    (["--workers", "0"], "--workers 0: expected an integer >= 1"),
-    (["--C", "0"], "--C '0': every value must be a finite number > 0"),
+@pytest.mark.parametrize("name", ["failure_model", "failure_penalty"])
+@pytest.mark.parametrize("argv, code, fragment", [
+    (["--workers", "0"], 2, "--workers 0: expected an integer >= 1"),
+    (["--C", "0"], 2, "--C '0': every value must be a finite number > 0"),
+    (["--runs", "/nonexistent/run-*"], 1, "--runs /nonexistent/run-*: expected batch runs of one tracker preset, "
+                                          "found none"),
 ])
-def test_the_refit_script_refuses_bad_options_in_one_line(argv, fragment):
+def test_the_refit_scripts_refuse_bad_options_in_one_line(name, argv, code, fragment):
     import subprocess
     import sys
     from pathlib import Path
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "failure_model.py"
-    done = subprocess.run([sys.executable, str(script), *argv], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2
-    assert fragment in done.stderr.strip().splitlines()[-1]
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    done = subprocess.run([sys.executable, str(script), "--no-record" if name == "failure_penalty" else "--C=1",
+                           *argv], capture_output=True, text=True, timeout=120)
+    assert done.returncode == code, done.stderr
+    assert fragment in done.stderr.strip().splitlines()[-1] and "Traceback" not in done.stderr
 
 
 def test_failure_model_script_describes_a_model_without_recalibration_too():

@@ -58,15 +58,23 @@ THRESHOLD_FLAGS = FlagParams(lost_threshold=None)
 UNCHOSEN_THRESHOLD = 0.5
 
 
-def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    from sklearn.linear_model import LogisticRegression
+def _standardised(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Z, mean, scale)``: the features standardised as :class:`FailureModel` reads them, ``Z = (X - mean) / scale``.
 
-    # NaN (a signal not measured) sits at the mean, as FailureModel.p_fail reads it.
+    NaN (a signal not measured) sits at the mean; a constant column keeps scale 1.
+    """
     measured = ~np.isnan(X)
     mean = np.where(measured, X, 0.0).sum(axis=0) / np.maximum(measured.sum(axis=0), 1)
     X = np.where(measured, X, mean)
     scale = X.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
+    return (X - mean) / scale, mean, scale
+
+
+def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    from sklearn.linear_model import LogisticRegression
+
+    Z, mean, scale = _standardised(X)
     # L1 (lasso): most signals repeat what another says, and the model ranks unseen videos better when it weighs a
     # few of them and gives the rest weight exactly 0 than when it gives all of them small weights (RESULTS.md,
     # "Failure model: sparse"). liblinear penalises the intercept as a weight on a
@@ -74,7 +82,7 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
     # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
     model = LogisticRegression(C=C, l1_ratio=1.0, solver="liblinear", intercept_scaling=100.0, max_iter=10000,
                                random_state=0)
-    model.fit((X - mean) / scale, y.astype(int))
+    model.fit(Z, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
 
@@ -140,8 +148,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
 def _calibration(held: Sequence[tuple[Sample, np.ndarray]]) -> tuple[float, float, str]:
     """Platt's ``(slope, offset, "")`` on held-out predictions, or ``(1, 0, why)`` if unusable."""
     try:
-        slope, offset = platt(np.concatenate([p[s.use] for s, p in held]),
-                              np.concatenate([s.failed[s.use] for s, _ in held]))
+        slope, offset = platt(*_pooled(held))
     except ValueError as exc:  # all held-out frames are of one kind
         return 1.0, 0.0, str(exc)
     if slope <= 0:
@@ -316,7 +323,11 @@ def _held_out_by_sample(samples: Sequence[Sample], **fold_options) -> list[tuple
 
 def _held_out_predictions(samples: Sequence[Sample], **fold_options) -> tuple[np.ndarray, np.ndarray]:
     """``(p_fail, failed)`` of every usable frame of :func:`_held_out_by_sample`, concatenated."""
-    held = _held_out_by_sample(samples, **fold_options)
+    return _pooled(_held_out_by_sample(samples, **fold_options))
+
+
+def _pooled(held: Sequence[tuple[Sample, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """``(p_fail, failed)`` of the usable frames of every ``(sample, p_fail)``, concatenated."""
     return np.concatenate([p[s.use] for s, p in held]), np.concatenate([s.failed[s.use] for s, _ in held])
 
 
