@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputWarning", "ToolError", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT", "EXIT_VALUE", "EXIT_OUTPUT",
+__all__ = ["InputWarning", "ToolError", "require_extra", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT", "EXIT_VALUE", "EXIT_OUTPUT",
            "EXIT_PARTIAL", "EXIT_BATCH_FAILURES", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
@@ -39,3 +39,17 @@ class ToolError(Exception):
 
 class InputWarning(UserWarning):
     """Input the tool accepts but that will likely give poor results; the CLI prints it as one line."""
+
+
+#: Optional feature -> (module it imports, the extra that installs it).
+EXTRAS = {"--scheduler": ("distributed", "cluster"), "eval --out": ("matplotlib", "plots")}
+
+
+def require_extra(feature: str) -> None:
+    """Raise a one-line :class:`ToolError` naming the pip command when ``feature``'s optional extra is missing."""
+    import importlib.util
+
+    module, extra = EXTRAS[feature]
+    if importlib.util.find_spec(module) is None:
+        raise ToolError(f"{feature} needs {module}, which is not installed: "
+                        f"pip install 'sptpt-annotate[{extra}]'", EXIT_USAGE)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -18,21 +17,35 @@ from annotator.tracks import TrackResult
 from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",
-           "track_summary", "render_report", "templates_dir"]
+           "track_summary", "render_report", "template_environment", "templates_dir"]
 
 REPORT_TEMPLATE = "report.html.j2"
 
 
 def templates_dir() -> Path:
-    """The folder holding the Jinja2 templates: the source tree's ``templates/``, or the installed copy."""
-    candidates = [
-        Path(__file__).resolve().parent.parent / "templates",
-        Path(sys.prefix) / "share" / "sptpt-annotate" / "templates",
-    ]
+    """The folder holding the Jinja2 templates.
+
+    An installed package carries them as ``annotator/templates`` (pyproject.toml maps the source tree's top-level
+    ``templates/`` there); a source checkout or an editable install reads ``templates/`` beside the package.
+    """
+    package = Path(__file__).resolve().parent
+    candidates = [package / "templates", package.parent / "templates"]
     for candidate in candidates:
         if (candidate / REPORT_TEMPLATE).is_file():
             return candidate
-    raise FileNotFoundError(f"report template {REPORT_TEMPLATE} not found in {', '.join(map(str, candidates))}; reinstall the package")
+    raise FileNotFoundError(f"report template {REPORT_TEMPLATE} not found in {' or '.join(map(str, candidates))}; "
+                            "reinstall sptpt-annotate")
+
+
+def template_environment() -> jinja2.Environment:
+    """The one Jinja2 environment of every HTML page: HTML autoescaped, an undefined name an error."""
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(templates_dir())),
+        autoescape=jinja2.select_autoescape(["html", "j2"]),
+        undefined=jinja2.StrictUndefined,
+    )
+    env.filters["plural"] = plural
+    return env
 
 
 @dataclass(frozen=True)
@@ -258,12 +271,7 @@ def render_report(
     (``run_info["input"]["path"]``), the same before and after a re-track;
     ``video.path`` (as given on the command line) only when there is none.
     """
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(str(templates_dir())),
-        autoescape=jinja2.select_autoescape(["html", "j2"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    env.filters["plural"] = plural
+    env = template_environment()
     thumbs = {(t.track_id, t.position): t for t in thumbnails}
     spans = by_expected_errors([s for track in tracks for s in flagged_spans(track)])
 

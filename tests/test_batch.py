@@ -69,7 +69,7 @@ def dataset(tmp_path_factory) -> Path:
     (root / "clips" / "corrupt.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(2000))
     write_clip(root / "full.mp4", 12, seed=5, faststart=True)
     data = (root / "full.mp4").read_bytes()
-    (root / "clips" / "cut.mp4").write_bytes(data[: int(len(data) * 0.8)])  # decodes 6 of 12 frames, then damage
+    (root / "clips" / "cut.mp4").write_bytes(data[: int(len(data) * 0.8)])  # decodes some of 12 frames (how many depends on the ffmpeg), then damage
     rows += [
         {"video": "clips/corrupt.mp4", "box": "10,10,20,20"},
         {"video": "clips/missing.mp4", "box": "10,10,20,20"},
@@ -117,8 +117,12 @@ def test_failures_are_isolated_and_reported(first_run, dataset):
     for name in GOOD:
         assert (out / name / "run.json").is_file() and (out / name / f"{name}.txt").is_file()
         assert (out / name / "overlay.mp4").is_file() and (out / name / "report.html").is_file()
+    # What decodes of a damaged file depends on the ffmpeg imageio-ffmpeg brings (6 frames with 7.x, 7 with 9.x):
+    # the promise is that every frame that decoded is kept, and that the run says it is partial.
     run = read_run_json(out / "cut")
-    assert run["complete"] is False and run["frames_processed"] == 6
+    assert run["complete"] is False and 1 <= run["frames_processed"] < 12
+    boxes = (out / "cut" / "cut.txt").read_text().splitlines()
+    assert len(boxes) == run["frames_processed"]
     # Seeds derive from the base seed (0) and the id, not from the order items ran in.
     assert all(r["seed"] == item_seed(0, r["id"]) for r in summary["items"])
     assert read_run_json(out / "v1")["config"]["seed"] == item_seed(0, "v1")
@@ -133,12 +137,13 @@ def test_merged_coco_has_unique_ids_and_one_video_per_item(first_run):
     for key in ("videos", "images", "annotations", "tracks"):
         ids = [x["id"] for x in merged[key]]
         assert ids == list(range(1, len(ids) + 1))
-    assert len(merged["images"]) == 10 + 10 + 10 + 6
+    cut = read_run_json(out / "cut")["frames_processed"]  # how many decoded depends on the ffmpeg
+    assert len(merged["images"]) == 10 + 10 + 10 + cut
     assert {im["file_name"].split("/")[0] for im in merged["images"]} == {"v0", "v1", "v2", "cut"}
     singles = sum(len(json.loads((out / n / "annotations.json").read_text())["annotations"]) for n in (*GOOD, "cut"))
     assert len(merged["annotations"]) == singles
     coco = COCO(str(out / "annotations.json"))
-    assert len(coco.getImgIds()) == 36
+    assert len(coco.getImgIds()) == 30 + cut
 
 
 def test_index_report_links_every_item_and_sorts(first_run):

@@ -164,10 +164,7 @@ class _DaskBackend:
     name = "dask"
 
     def __init__(self, address: str) -> None:
-        try:
-            from distributed import Client, Queue
-        except ImportError:  # pragma: no cover - a declared dependency
-            raise ToolError("--scheduler needs dask.distributed: pip install 'dask[distributed]'", EXIT_VALUE) from None
+        from distributed import Client, Queue  # present: run_batch checked the extra first
         try:
             self.client = Client(address, timeout="15s", set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:

@@ -172,13 +172,9 @@ def _merged_labelstudio(stores: Sequence[RunStore]) -> list[dict[str, Any]]:
 
 
 def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
-    import jinja2
+    from annotator.report import template_environment
 
-    from annotator.report import templates_dir
-
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())),
-                             autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined)
-    page = env.get_template(BATCH_TEMPLATE).render(summary=summary, rows=summary["items"])
+    page = template_environment().get_template(BATCH_TEMPLATE).render(summary=summary, rows=summary["items"])
     write_text_atomic(path, page)
 
 

@@ -24,7 +24,7 @@ from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_output
 from annotator.batch.plan import PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.progress import BatchProgress
 from annotator.batch.workers import ItemOutcome
-from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
 from annotator.manifest import BatchItem
 
 LOCK_NAME = ".batch.lock"
@@ -177,6 +177,7 @@ def run_batch(
         raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
                         "sends items to a Dask cluster; give one", EXIT_VALUE)
     if scheduler is not None:
+        require_extra("--scheduler")
         check_scheduler_address(scheduler)
     n_workers = workers or default_workers()
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.

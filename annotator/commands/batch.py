@@ -9,7 +9,7 @@ import typer
 
 from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
-from annotator.errors import EXIT_OK, EXIT_USAGE, ToolError
+from annotator.errors import EXIT_OK, EXIT_USAGE, ToolError, require_extra
 from annotator.wording import plural
 
 
@@ -38,6 +38,8 @@ def batch_command(
     try:
         if (manifest is None) == (otb_root is None):
             raise ToolError("give either a MANIFEST file or --otb-root DIR (one of them)", EXIT_USAGE)
+        if scheduler is not None:
+            require_extra("--scheduler")  # before the manifest is read: a missing install is the first thing to fix
         try:
             items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest)
             file_values = load_config_file(config_file) if config_file is not None else {}

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from annotator.commands.common import fail
-from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
 
 def eval_command(
     results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
@@ -33,6 +33,8 @@ def eval_command(
     try:
         if out is not None and out.exists() and not out.is_dir():
             raise ToolError(f"--out {out} is a file: give a folder for the plots and tables", EXIT_OUTPUT)
+        if out is not None:
+            require_extra("eval --out")
         try:
             if ground_truth.is_dir():
                 names = [n.strip() for n in sequences.split(",") if n.strip()] if sequences is not None else None
