@@ -73,7 +73,7 @@ class FlagParams:
     to box. Correcting a lost track one doubtful frame at a time costs more than boxing keyframes: the tracker loses
     the object again after each correction and every re-tracked span is looked at again. ``None`` never asks.
     Chosen by leave-one-sequence-out on held-out failure probabilities of ``../shared/otb`` (0.6 in 15 of 17 folds).
-    Not with a review budget. [ours, benchmarks/RESULTS.md "keyframe request"]"""
+    Not with a review budget. [ours, benchmarks/HISTORY.md "keyframe request"]"""
     keyframe_every: int = 10
     """Processed frames between the keyframes a lost track asks for. [ours, benchmarks/RESULTS.md]"""
 

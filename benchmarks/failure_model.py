@@ -26,9 +26,9 @@ sequences (nested), and the shipped model those it picks on all of them. The
 regression is L1-regularised (``annotator.failure.fit``), which sets the weight
 of a signal that does not pay to exactly 0 by itself; the shipped model is
 fitted without ``--select-groups`` since then (RESULTS.md, "Failure model:
-sparse"). Before, with L2, it was fitted with it (RESULTS.md, "the track's own
-past"). Forward selection was tried and did worse held out ("fitted on whole
-sequences"). Every model,
+sparse"). Before, with L2, it was fitted with it (HISTORY.md, "the track's own
+past"). Forward selection was tried and did worse held out (HISTORY.md, "Forward
+selection"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
 predictions (``annotator.failure.fit``). ``--write`` refits on everything,
@@ -571,7 +571,7 @@ def main() -> int:
         f"predictions, flagged as the tool flags them); the folds chose {thresholds} (held-out video: threshold), "
         f"the shipped model "
         f"{model.threshold:g}. Until 2026-11-27 (5th session) it was 0.9 everywhere, chosen by the simulated "
-        f"reviewer's time (RESULTS.md, \"Flag threshold\"). "
+        f"reviewer's time (HISTORY.md, \"Flag threshold\"). "
         f"Flags: threshold, then spans merged "
         f"(gap <= {params.merge_gap}, spans >= {params.min_span}). Regularisation: C per held-out fold chosen from "
         f"{args.C} by the leave-one-video-out AUROC of that fold's {len(videos) - 1} training videos "

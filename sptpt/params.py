@@ -62,7 +62,7 @@ class TrackerParams:
     relative_motion: bool = False
     """When True, ``motion_sigma``'s cx and cy entries are fractions of the estimate's size sqrt(w h) and its
     scale entry a fraction of the current scale, so the search follows the object's size instead of a fixed
-    10 px (a 27 px skier and a 107 px car got the same 10 px). [ours, benchmarks/RESULTS.md "robust"]"""
+    10 px (a 27 px skier and a 107 px car got the same 10 px). [ours, benchmarks/HISTORY.md "robust"]"""
 
     scale_filter: bool = False
     """When True, the estimate's scale is set by a DSST scale filter (:mod:`sptpt.scale`) at the winner's centre,
@@ -71,7 +71,7 @@ class TrackerParams:
     and not used by any preset: on ``../shared/otb`` (3 seeds) it holds the size (Dog1 0.79 against robust's
     0.63) but the mean falls, 0.478 and 0.485 (with and without scale particles) against one-run robust's 0.508, as
     the tighter box loses the centre on Car4 and Bolt2. Kept as a switch for that comparison.
-    [ours, benchmarks/RESULTS.md "robust development"]"""
+    [ours, benchmarks/HISTORY.md "robust development"]"""
 
     reported_scale_filter: bool = False
     """When True, the same DSST scale filter sets only the reported box's size: it keeps a scale of its own, steps
@@ -107,7 +107,8 @@ class TrackerParams:
     ``run_choice``). Three runs let the runs outvote one that has lost the target (``run_choice="consensus"``):
     0.602 ± 0.018 against two runs' 0.583 ± 0.022 over the same six seeds. With two kernel threads, a third
     run is tracked after the other two, on both threads. 3 in ``robust``.
-    [ours, benchmarks/RESULTS.md "OTB, 6 seeds" and "Three runs and the box they agree on"]"""
+    [ours, benchmarks/RESULTS.md "OTB, 6 seeds" and "robust development"; benchmarks/HISTORY.md "Three runs and
+    the box they agree on"]"""
 
     run_choice: str = "confidence"
     """Which of the ``independent_runs`` each frame reports. ``"confidence"``: the run whose winner scores higher
@@ -127,7 +128,8 @@ class TrackerParams:
     ``../shared/otb`` over six seeds, three runs by consensus score 0.602 ± 0.018 against 0.583 ± 0.022 for two
     runs by contrast (+0.019 paired, never lower; Girl +0.10, Singer2 +0.05, CarDark +0.04, Car4 +0.04; Bolt2
     -0.02, where two runs lose the runner to the same lane marker). ``"consensus"`` in ``robust``.
-    With one run there is nothing to choose and the field has no effect. [ours, benchmarks/RESULTS.md "robust"]"""
+    With one run there is nothing to choose and the field has no effect.
+    [ours, benchmarks/RESULTS.md "robust development"; benchmarks/HISTORY.md]"""
 
     filter_vote: bool = False
     """When True, a correlation-filter tracker (:class:`sptpt.filter_tracker.FilterTracker`: DSST's translation and
@@ -183,7 +185,7 @@ class TrackerParams:
     negative sample-mode basis of rank 40 from 200 negatives against the positive's rank 4 from 5 tensors).
     Measured and not used by any preset: it does not unfreeze the positive model (David, Coke, Singer2
     still 1-2 positive batches in 100 frames); the sharp positive mean tensor is the cause, see
-    ``accept_drop``. Kept as a switch for that comparison. [ours, benchmarks/RESULTS.md "robust"]"""
+    ``accept_drop``. Kept as a switch for that comparison. [ours, benchmarks/HISTORY.md "robust"]"""
     level_window: int = 0
     """Accepted subspace-scored frames whose winning log-likelihoods form the running level (median and
     spread); 0 disables the running level, relative acceptance and re-detection (paper). [ours]"""
@@ -196,13 +198,13 @@ class TrackerParams:
     that (David: residual of the true box 6.8 under the positive model, 4.5 under the rank-4 negative).
     With it the model keeps learning (David: 20 batches and 100% of frames accepted in 100 frames instead
     of 1 and 4%); the robust preset as a whole moves David's AUC 0.53 -> 0.71 and Coke's 0.34 -> 0.51
-    (first 100 frames, 3 seeds). 0 disables (paper). [ours, benchmarks/RESULTS.md "robust"]"""
+    (first 100 frames, 3 seeds). 0 disables (paper). [ours, benchmarks/HISTORY.md "robust"]"""
     level_min_count: int = 1
     """Subspace-scored frames accepted unconditionally until the running level holds this many values, as
     the paper accepts its bootstrap frames. With 1 (the first winner alone sets the level) the positive
     model froze again in 2 of 6 seeded runs of Coke and Singer2 (accepted 7% of frames): the first winner
     scores high and the next ones, before any positive update, fall more than the spread floor below it.
-    [ours, benchmarks/RESULTS.md "robust"]"""
+    [ours, benchmarks/HISTORY.md "robust"]"""
     level_min_spread: float = 0.5
     """Floor of the running level's robust spread, log-likelihood units (a few equal values give MAD 0). [ours]"""
     redetect_after: int = 0
@@ -288,7 +290,7 @@ PRESETS: dict[str, TrackerParams] = {
     # frame the mean box of those that agree (the run whose box stands out from its surroundings where none do);
     # each run's estimate the candidate that stands out most among its five best; each run's reported box sized by
     # a scale filter beside it, and centred by a translation filter learnt from the run's own boxes. Each
-    # departure is measured in benchmarks/RESULTS.md.
+    # departure is measured in benchmarks/RESULTS.md ("robust development"); the rest in benchmarks/HISTORY.md.
     "robust": TrackerParams(
         n_particles=150, refine_particles=75, n_negatives=100, negative_every=4,
         relative_motion=True, motion_sigma=(0.15, 0.15, 0.01, 0.0, 0.0, 0.0),

@@ -4,7 +4,7 @@ Why: on ``../shared/otb`` the most common failure of the subspace score is
 scale drift with the centre still on the object (Dog1 at 0.6 of its side,
 Human9 growing to 1.8, CarDark to 2.4): SPTPT's log-likelihood is not peaked
 at the true scale on real frames, so neither random scale particles nor a
-deterministic scale search over it hold the size (``benchmarks/RESULTS.md``,
+deterministic scale search over it hold the size (``benchmarks/HISTORY.md``,
 "robust development"). A scale cue from outside the subspace model is needed.
 Fed back into SPTPT's state (``TrackerParams.scale_filter``) a wrong size
 loses the centre too, so ``robust`` uses the filter only for the size of the

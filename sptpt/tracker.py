@@ -308,7 +308,7 @@ class _Run:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
             # its own template, up to 1.02**16 = 1.37x larger or smaller than the returned box: the switch was
-            # measured this way (RESULTS.md, "robust development").
+            # measured this way (HISTORY.md, "robust development").
             with self._time("scale"):
                 self._state[2] = max(self._state[2] * self._scale_filter.factor(rgb, self._state),
                                      1.0 / p.template_size)

@@ -10,7 +10,7 @@ object is from the box SPTPT drew. ``TrackerParams.reported_translation_filter``
 moves only the reported box by that much. The filter learns from SPTPT's
 box, never from the box it moved: fed its own answers, a correlation filter
 drifts with them, and in a screen on stored ``robust`` boxes that drift
-lost Coke, Human9 and Tiger1 (``benchmarks/RESULTS.md``, "robust development").
+lost Coke, Human9 and Tiger1 (``benchmarks/HISTORY.md``, "robust development").
 (That drift is accepted in :mod:`sptpt.filter_tracker`, where the filter does
 follow its own answers: a tracker apart from SPTPT, whose box only votes.)
 

@@ -110,7 +110,7 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     - its log-odds are recalibrated by :func:`platt`, and the slope and offset folded into the coefficients and
       intercept (``info["calibration"]``), so the file keeps its form. The strong regularisation that ranks
       unseen sequences best (small C) also shrinks the log-odds towards 0: on held-out sequences the model was
-      underconfident (slope 1.1-1.4, RESULTS.md "Failure model: calibrated"). The recalibration is monotone, so
+      underconfident (slope 1.1-1.4, HISTORY.md "Failure model: calibrated"). The recalibration is monotone, so
       it changes no frame's rank, only what ``p_fail`` says;
     - its flag threshold is chosen for issue #9's targets by :func:`choose_threshold` on those predictions,
       recalibrated (``info["threshold"]``).
@@ -300,7 +300,7 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
     (smaller C). Only held-out sequences show how well a model ranks a sequence it has not seen: the errors
     lie mostly between sequences. What ``p_fail`` says (its calibration) is set afterwards by
     :func:`fit_model`'s recalibration; choosing C by calibration error instead picked weaker regularisation
-    in two folds of 17 and cost held-out AUROC (RESULTS.md, "Failure model: calibrated").
+    in two folds of 17 and cost held-out AUROC (HISTORY.md, "Failure model: calibrated").
     """
     from annotator.evaluation.calibration import auroc
 
