@@ -1,18 +1,22 @@
-"""Progress on stderr: one display, drawn by rich.
+"""Progress on stderr, for a single video and for a batch: one display, drawn by rich.
 
 What is shown
     What is counted, a bar, the count, the rate (``12.3 frames/s``) and the
-    time left (``ETA 01:05``). The rate and ETA appear from the :data:`ETA_AFTER` th update
+    time left (``ETA 01:05``); for a batch also the items done, failed and
+    reused. The rate and ETA appear from the :data:`ETA_AFTER` th update
     on (see :class:`Progress`).
 
 Where it goes
     On a terminal (the stream's ``isatty()``), one line redrawn in place by
     :class:`rich.progress.Progress`, at most every ``interval`` seconds;
-    lines of their own (the slow-start note) are printed above it.
+    lines of their own (the slow-start note, a batch item that did not
+    finish) are printed above it.
 
     Not on a terminal (a log file, CI, a pipe), no control codes at all:
     short plain lines, each complete in itself, so that the log of a long
-    run says how far it got and how fast: a line every 10% (eleven in all).
+    run says how far it got and how fast: a single video gets a line every
+    10% (eleven in all); a batch gets one per finished item (its status,
+    frames, time and the reason it failed) followed by the run's line.
     ``FORCE_COLOR`` and ``TTY_COMPATIBLE`` ask for colour, not for a line
     redrawn in a log, and change nothing here; ``TERM=dumb`` or
     ``TTY_INTERACTIVE=0`` on a terminal give the plain lines.
@@ -30,13 +34,19 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import rich.progress
 from rich.console import Console
+from rich.table import Column
 from rich.text import Text
 
-__all__ = ["ETA_AFTER", "CountNote", "Progress", "format_clock"]
+from annotator.wording import plural
+
+if TYPE_CHECKING:
+    from annotator.batch.workers import ItemOutcome
+
+__all__ = ["ETA_AFTER", "BatchProgress", "CountNote", "Progress", "format_clock"]
 
 #: Updates before a rate and an ETA are shown. The first step often costs far more than the rest (kernels
 #: compiling, a decoder starting) or far less (steps taken from a cache); a rate that counted it would mislead,
@@ -88,10 +98,13 @@ class _Rate:
 
 
 class _Cell(rich.progress.ProgressColumn):
-    """The ``index`` th of the texts a status passes in its task's ``cells`` field."""
+    """The ``index`` th of the texts a status passes in its task's ``cells`` field.
+
+    Not wrapped: on a narrow terminal the bar gives way first, and the numbers stay whole.
+    """
 
     def __init__(self, index: int) -> None:
-        super().__init__()
+        super().__init__(table_column=Column(no_wrap=True))
         self.index = index
 
     def render(self, task: rich.progress.Task) -> Text:
@@ -295,3 +308,105 @@ class CountNote:
     def close(self) -> None:
         self._display.close()
 
+
+class BatchProgress:
+    """Progress of a batch run: items done, failed and reused, frames across workers, rate, ETA.
+
+    Fed by the ``start`` and ``frames`` events that workers send (see :mod:`annotator.batch.workers`) and by
+    each item's outcome (:meth:`item_finished`); calls may come from any thread. On a terminal, one bar for the
+    whole run, with a line above it for each item that did not finish ``done`` (its reason stays on screen);
+    otherwise a plain line per finished item, saying what it did, then the run's line. The frame total is
+    extrapolated (``~``) from the items started while some have not.
+
+    Parameters
+    ----------
+    n_items : int
+        Items to run (the reused ones not counted).
+    reused : int
+        Items whose finished outputs are kept from an earlier run.
+    console : rich.console.Console, optional
+        Where to draw, instead of a console on ``stream`` (default ``sys.stderr``); for tests.
+    """
+
+    def __init__(self, n_items: int, *, reused: int = 0, enabled: bool = True, stream: TextIO | None = None,
+                 console: Console | None = None, interval: float = 0.2) -> None:
+        self.n_items = n_items
+        self.reused = reused
+        self.enabled = enabled
+        self.items_done = 0
+        self.failed = 0  # items that did not end "done" (failed, or partial)
+        self.totals: dict[str, int] = {}  # item id -> frames announced, then frames processed
+        self.done: dict[str, int] = {}  # item id -> frames processed so far
+        self._rate = _Rate()
+        self._lock = threading.Lock()
+        self._display = _Display(enabled=enabled, stream=stream, console=console, n_cells=3, interval=interval)
+        if n_items:
+            with self._lock:
+                self._show(time.perf_counter(), force=True)
+
+    @property
+    def frames_done(self) -> int:
+        return sum(self.done.values())
+
+    def event(self, event: tuple) -> None:
+        """A worker's ``("start", id, pid, total_frames)`` or ``("frames", id, done)``."""
+        with self._lock:
+            kind, item_id = event[0], event[1]
+            now = time.perf_counter()
+            if kind == "start":
+                self.totals[item_id] = int(event[3])
+                self.done[item_id] = 0  # a retried item starts again
+            elif kind == "frames":
+                self.done[item_id] = max(self.done.get(item_id, 0), int(event[2]))
+                self._rate.update(self.frames_done, now)
+            self._show(now)
+
+    def item_finished(self, item_id: str, outcome: ItemOutcome) -> None:
+        with self._lock:
+            self.items_done += 1
+            self.failed += outcome.status != "done"
+            # What an item actually processed replaces its announced total (a failed item counts 0 frames).
+            self.done[item_id] = outcome.frames
+            self.totals[item_id] = outcome.frames
+            if not self.enabled:
+                return
+            failed = outcome.status == "failed"
+            what = "" if failed else f" {plural(outcome.frames, 'frame')} in {outcome.seconds:.1f} s"
+            reason = f": {outcome.error}" if outcome.error else ""
+            text = f"[{self.items_done}/{self.n_items}] {item_id} {outcome.status}{what}{reason}"
+            now = time.perf_counter()
+            if self._display.live:
+                if outcome.status != "done":
+                    self._display.line(text)
+                self._show(now, force=True)
+            else:
+                self._display.line(text)
+                self._display.line(self.line(now))
+
+    def _status(self, now: float) -> tuple[str, float, float, tuple[str, str, str]]:
+        frames = self.frames_done
+        known = sum(self.totals.values())
+        started = len(self.totals)
+        unstarted = max(self.n_items - started, 0)
+        estimate = known + (known / started * unstarted if started else 0)
+        rate = self._rate.per_second(frames, now)
+        eta = (estimate - frames) / rate if rate and estimate >= frames else None
+        extra = [f"{self.failed} failed"] if self.failed else []
+        extra += [f"{self.reused} reused"] if self.reused else []
+        description = f"items {self.items_done}/{self.n_items}" + (f" ({', '.join(extra)})" if extra else "")
+        completed, total = (frames, estimate) if estimate else (self.items_done, max(self.n_items, 1))
+        cells = (f"frames {frames}/{'~' if unstarted else ''}{int(round(estimate))}", _rate_text(rate, "frames"),
+                 _eta_text(eta))
+        return description, completed, total, cells
+
+    def _show(self, now: float, *, force: bool = False) -> None:
+        description, completed, total, cells = self._status(now)
+        self._display.show(description, completed, total, cells, force=force)
+
+    def line(self, now: float | None = None) -> str:
+        """The run's status as a plain line: ``items 3/10 (1 failed) frames 120/~400  12.3 frames/s  ETA 01:02``."""
+        description, _, _, cells = self._status(time.perf_counter() if now is None else now)
+        return _plain(description, cells)
+
+    def close(self) -> None:
+        self._display.close()

@@ -10,7 +10,8 @@ import pytest
 from rich.console import Console
 
 from annotator import progress as module
-from annotator.progress import CountNote, Progress
+from annotator.batch.workers import ItemOutcome
+from annotator.progress import BatchProgress, CountNote, Progress
 
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 
@@ -25,7 +26,7 @@ def clock(monkeypatch):
 
 @pytest.fixture
 def terminal(monkeypatch):
-    """A console that takes its StringIO for a terminal."""
+    """A console that takes its StringIO for a terminal, wide enough for a batch line."""
     monkeypatch.setenv("TERM", "xterm-256color")  # not "dumb", whatever the test runner's terminal is
     monkeypatch.delenv("TTY_INTERACTIVE", raising=False)
     return Console(file=io.StringIO(), force_terminal=True, force_interactive=True, width=160)
@@ -78,8 +79,12 @@ class _Stream(io.StringIO):
         return self._tty
 
 
+def outcome(item_id: str, status: str, frames: int, error: str | None = None) -> ItemOutcome:
+    return ItemOutcome(item_id, status, error=error, frames=frames, seconds=2.0)
+
+
 def run_everything(stream: io.StringIO | None = None, console: Console | None = None) -> None:
-    """A counted video and its 20 frames, with the slow-start note."""
+    """A counted video, its 20 frames with the slow-start note, and a three-item batch with one failure."""
     note = CountNote("long.mp4", stream=stream, console=console, after=0.0)
     for frames in (100, 200):
         note(frames)
@@ -89,6 +94,12 @@ def run_everything(stream: io.StringIO | None = None, console: Console | None = 
     for _ in range(20):
         bar.advance()
     bar.close()
+    batch = BatchProgress(2, reused=1, stream=stream, console=console)
+    batch.event(("start", "a", 1, 10))
+    batch.event(("frames", "a", 10))
+    batch.item_finished("a", outcome("a", "done", 10))
+    batch.item_finished("b", outcome("b", "failed", 0, error="b.mp4: no such file"))
+    batch.close()
 
 
 def test_off_a_terminal_plain_lines_without_control_codes(monkeypatch):
@@ -106,6 +117,11 @@ def test_off_a_terminal_plain_lines_without_control_codes(monkeypatch):
     # A line every 10%: the first update, then each tenth.
     assert [line.split()[1] for line in frame_lines] == ["1/20", *(f"{2 * k}/20" for k in range(1, 11))]
     assert frame_lines[-1].startswith("frames 20/20  100%  ") and "frames/s  ETA 00:00" in frame_lines[-1]
+    # The batch: a line per finished item, with its status and reason, then the run's line.
+    assert lines[-4:-2] == ["[1/2] a done 10 frames in 2.0 s",
+                            "items 1/2 (1 reused) frames 10/~20  ... frames/s  ETA --:--"]
+    assert lines[-2] == "[2/2] b failed: b.mp4: no such file"
+    assert lines[-1].startswith("items 2/2 (1 failed, 1 reused) frames 10/10  ")
 
 
 @pytest.mark.parametrize("tty", [True, False])
@@ -157,6 +173,39 @@ def test_a_terminal_bar_is_redrawn_at_most_every_interval(clock, terminal):
     bar.close()
 
 
+def test_on_a_terminal_a_batch_shows_items_done_failed_and_reused(clock, terminal):
+    batch = BatchProgress(3, reused=1, console=terminal)
+    batch.event(("start", "a", 1, 50))
+    for t, frames in ((1.0, 10), (2.0, 20), (3.0, 30)):
+        clock[0] = t
+        batch.event(("frames", "a", frames))
+    # 20 frames in the 2 s since the first event; 150 frames expected (3 items of ~50), 120 to go.
+    text = shown(terminal)
+    assert "items 0/3 (1 reused)" in text
+    assert "frames 30/~150" in text and " 10.0 frames/s" in text and "ETA 00:12" in text
+    clock[0] = 4.0
+    batch.item_finished("a", outcome("a", "done", 50))
+    batch.item_finished("b", outcome("b", "failed", 0, error="b.mp4: no such file"))
+    text = shown(terminal)
+    assert "items 2/3 (1 failed, 1 reused)" in text
+    assert "[2/3] b failed: b.mp4: no such file\n" in text  # the reason, on a line of its own above the bar
+    assert "[1/3] a done" not in text  # items that finished well are counted, not listed
+    batch.close()
+
+
+def test_on_an_80_column_terminal_the_bar_gives_way_and_the_numbers_stay_whole(clock, terminal):
+    terminal.width = 80
+    batch = BatchProgress(100, reused=5, console=terminal)
+    batch.event(("start", "a", 1, 12345))
+    for t, frames in ((1.0, 100), (2.0, 200), (3.0, 300)):
+        clock[0] = t
+        batch.event(("frames", "a", frames))
+    batch.close()
+    last = shown(terminal).split("\r")[-1]
+    assert "items 0/100 (5 reused)" in last and "frames 300/~1234500" in last and "100.0 frames/s" in last
+    assert "ETA 3:25:42" in last and "\u2026" not in last  # (1,234,500 - 300) frames at 100 a second; no ellipsis
+
+
 def test_nothing_at_all_when_disabled(terminal):
     stream = _Stream(tty=True)
     note = CountNote("long.mp4", stream=stream, enabled=False, after=0.0)
@@ -165,6 +214,10 @@ def test_nothing_at_all_when_disabled(terminal):
     bar = Progress(10, console=terminal, enabled=False, slow_start="compiling kernels", slow_start_after=0.0)
     bar.advance(10)
     bar.close()
+    batch = BatchProgress(2, console=terminal, enabled=False)
+    batch.event(("start", "a", 1, 10))
+    batch.item_finished("a", outcome("a", "failed", 0, error="boom"))
+    batch.close()
     assert stream.getvalue() == "" and terminal.file.getvalue() == ""
 
 
