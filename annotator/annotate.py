@@ -228,9 +228,10 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
     keep_staging = False
     try:
         render = "overlay" in formats
-        progress = Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE)
-        run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
-                           progress=progress)
+        # Closed here too, so that an error inside the tracking leaves no bar drawn (or cursor hidden).
+        with Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE) as progress:
+            run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
+                               progress=progress)
         result = AnnotateResult(out_dir=staging, run=run)
         if (run.decode_error is not None or run.interrupted) and _holds_finished_run(out_dir):
             destination = out_dir / INCOMPLETE_DIR

@@ -10,14 +10,15 @@ Where things are
     :mod:`~annotator.batch.executors`
         Where items are sent: a local process pool or a Dask cluster, and the
         loop that collects outcomes and replaces dead workers.
-    :mod:`~annotator.batch.progress`
-        The one-line progress display of a whole run.
     :mod:`~annotator.batch.outputs`
         The batch-level files in ``OUT``: ``annotations.json`` (merged COCO),
         ``summary.json``, ``failures.jsonl`` and the ``report.html`` index.
     :mod:`~annotator.batch.run`
         The entry point :func:`run_batch`, which holds the output folder's
         lock and ties the above together.
+
+    The progress display of a whole run, :class:`BatchProgress`, is in
+    :mod:`annotator.progress`, with the single video's.
 
 Killing a run
     Whatever ends the main process, ``kill -9`` included, leaves no work
@@ -32,9 +33,9 @@ from __future__ import annotations
 from annotator.batch.executors import default_workers
 from annotator.batch.outputs import BATCH_FILES, BatchResult
 from annotator.batch.plan import ItemJob, PlannedItem, is_item_finished, item_seed, plan_batch, read_run_json
-from annotator.batch.progress import BatchProgress
 from annotator.batch.run import run_batch
 from annotator.batch.workers import ItemOutcome, run_item
+from annotator.progress import BatchProgress
 
 __all__ = [
     "BATCH_FILES",

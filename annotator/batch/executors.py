@@ -45,9 +45,9 @@ from typing import Any
 
 from annotator.batch.outputs import write_failures
 from annotator.batch.plan import ItemJob, PlannedItem
-from annotator.batch.progress import BatchProgress
 from annotator.batch.workers import ItemOutcome, dask_run_item, pool_initializer, pool_run_item
 from annotator.errors import EXIT_INTERNAL, EXIT_VALUE, ToolError
+from annotator.progress import BatchProgress
 
 _MAX_WORKER_DEATHS = 2  # an item in flight when this many workers died fails
 

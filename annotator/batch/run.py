@@ -22,10 +22,10 @@ from annotator.batch.executors import (check_scheduler_address, default_workers,
                                        worker_context)
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
 from annotator.batch.plan import PlannedItem, is_item_finished, plan_batch, read_run_json
-from annotator.batch.progress import BatchProgress
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
 from annotator.manifest import BatchItem
+from annotator.progress import BatchProgress
 
 LOCK_NAME = ".batch.lock"
 

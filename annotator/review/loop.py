@@ -383,8 +383,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
         capture = WorstFrameThumbnails()
         p_fail = {t.track_id: t.p_fail for t in tracks}
         n = len(run.frame_indices)
-        bar = Progress(n, label="overlay frames", enabled=show_progress)
-        with OverlayWriter(tmp / OVERLAY_NAME, fps=video.fps, width=video.width, height=video.height) as writer:
+        with (Progress(n, label="overlay frames", enabled=show_progress) as bar,
+              OverlayWriter(tmp / OVERLAY_NAME, fps=video.fps, width=video.width, height=video.height) as writer):
             for position, frame in provider.frames(0, n):
                 index = int(run.frame_indices[position])
                 drawn = renderer.annotate(frame, items_from_tracks(tracks, index))
@@ -394,7 +394,6 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                                 p_fail=float(p_fail[t.track_id][position]), drawn=drawn)
                 bar.advance()
         thumbnails = capture.finish()
-        bar.close()
         written["overlay"] = [Path(OVERLAY_NAME)]
     info = dict(run.info)
     info["tracks"] = [track_summary(t) for t in tracks]
