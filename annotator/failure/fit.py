@@ -71,6 +71,18 @@ def _standardised(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return (X - mean) / scale, mean, scale
 
 
+def _l1_penalty() -> dict[str, Any]:
+    """The keyword that makes LogisticRegression's penalty L1: ``l1_ratio=1`` from scikit-learn 1.8 (which
+    deprecates ``penalty``), ``penalty="l1"`` before (where ``l1_ratio`` alone is ignored: a silent L2 fit)."""
+    import sklearn
+
+    major, minor = (int(part) for part in sklearn.__version__.split(".")[:2])
+    return {"l1_ratio": 1.0} if (major, minor) >= (1, 8) else {"penalty": "l1"}
+
+
+_L1 = _l1_penalty()
+
+
 def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     from sklearn.linear_model import LogisticRegression
 
@@ -80,8 +92,8 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
     # "Failure model: sparse"). liblinear penalises the intercept as a weight on a
     # constant column of intercept_scaling; at 100 the penalty on it is negligible. Its coordinate descent visits
     # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
-    model = LogisticRegression(C=C, l1_ratio=1.0, solver="liblinear", intercept_scaling=100.0, max_iter=10000,
-                               random_state=0)
+    model = LogisticRegression(C=C, solver="liblinear", intercept_scaling=100.0, max_iter=10000, random_state=0,
+                               **_L1)
     model.fit(Z, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
