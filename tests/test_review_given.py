@@ -239,3 +239,70 @@ def test_media_url(url, expected):
     assert media_url_for(url, "clips/walk.mp4") == expected
     tasks = build_labelstudio_tasks(VIDEO, [shifted_track()], frames=SHIFTED, video_url=media_url_for(url, VIDEO.path))
     assert tasks[0]["data"]["video"] == (expected or VIDEO.path)
+
+
+# --------------------------------------------------------------------------- from the command line
+
+
+@pytest.fixture(scope="module")
+def cvat_run(tmp_path_factory):
+    import cv2
+
+    from annotator.synthetic import make_clip
+    from test_review_loop_tools import _run
+
+    root = tmp_path_factory.mktemp("given")
+    clip = make_clip(16, size=(96, 72), object_size=(24, 20))
+    (root / "seq").mkdir()
+    for k, frame in enumerate(clip.frames):
+        cv2.imwrite(str(root / "seq" / f"{k:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    (root / "small.yaml").write_text("tracker:\n  n_particles: 60\n  n_negatives: 20\n")
+    box = ",".join(f"{v:.2f}" for v in clip.boxes_xywh[0])
+    code, output = _run(root / "seq", "--box", box, "--config", root / "small.yaml", "--formats",
+                        "otb,flags,cvat,labelstudio", "--media-url", "http://127.0.0.1:8081/", "--out", root / "out",
+                        "-q")
+    assert code == 0, output
+    return root / "out"
+
+
+def test_cvat_file_used_twice_from_the_command_line_changes_nothing_the_second_time(cvat_run, tmp_path):
+    """run.json keeps the keyframes of the cvat.xml it wrote; the second retrack with the same file is a no-op."""
+    import shutil
+
+    from annotator.store import STORE_NAME, read_store
+    from test_retrack import snapshot
+    from test_review_loop_tools import _run
+
+    out = tmp_path / "out"
+    shutil.copytree(cvat_run, out)
+    assert len(json.loads((out / "run.json").read_text())["review_exports"]["cvat"]) == 1
+    edited = tmp_path / "cvat_reviewed.xml"
+    edited.write_text(edit_box((out / "cvat.xml").read_text(), 9, xtl="30.00", ytl="20.00", xbr="55.00",
+                               ybr="41.00", keyframe="1"))
+    code, output = _run("retrack", out, "--corrections", edited)
+    assert code == 0 and "1 new or changed correction" in output, output
+    assert len(json.loads((out / "run.json").read_text())["review_exports"]["cvat"]) == 2
+    before = snapshot(out)
+    code, output = _run("retrack", out, "--corrections", edited)
+    assert code == 0 and "every correction is already applied" in output, output
+    assert snapshot(out) == before
+    assert int(read_store(out / STORE_NAME).tracks[0].keyframe.sum()) == 2
+
+
+def test_media_url_and_labeling_config_survive_a_retrack(cvat_run, tmp_path):
+    import shutil
+
+    from test_review_loop_tools import _run
+
+    out = tmp_path / "out"
+    shutil.copytree(cvat_run, out)
+    outputs = json.loads((out / "run.json").read_text())["outputs"]["labelstudio"]
+    assert sorted(outputs) == ["labelstudio.json", "labelstudio_config.xml"]
+    assert json.loads((out / "labelstudio.json").read_text())[0]["data"]["video"] == "http://127.0.0.1:8081/seq"
+    config = (out / "labelstudio_config.xml").read_text()
+    code, output = _run("retrack", out, "--corrections", out / "cvat.xml", "--media-url", "/data/local-files/?d=v.mp4",
+                        "-q")
+    assert code == 0, output
+    assert json.loads((out / "labelstudio.json").read_text())[0]["data"]["video"] == "/data/local-files/?d=v.mp4"
+    assert json.loads((out / "run.json").read_text())["export_options"] == {"media_url": "/data/local-files/?d=v.mp4"}
+    assert (out / "labelstudio_config.xml").read_text() == config
