@@ -10,6 +10,7 @@ range), Datumaro's ``cvat`` (CVAT for images), a file without ``<original_size>`
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -306,3 +307,27 @@ def test_media_url_and_labeling_config_survive_a_retrack(cvat_run, tmp_path):
     assert json.loads((out / "labelstudio.json").read_text())[0]["data"]["video"] == "/data/local-files/?d=v.mp4"
     assert json.loads((out / "run.json").read_text())["export_options"] == {"media_url": "/data/local-files/?d=v.mp4"}
     assert (out / "labelstudio_config.xml").read_text() == config
+
+
+def test_trailing_outside_keyframe_is_one_warning_line_on_the_command_line(cvat_run, tmp_path):
+    """A run's cvat.xml with FiftyOne's ending: an outside box one frame past the last processed frame."""
+    import shutil
+
+    from test_retrack import snapshot
+    from test_review_loop_tools import _run
+
+    out = tmp_path / "out"
+    shutil.copytree(cvat_run, out)
+    text = (out / "cvat.xml").read_text()
+    last = text.rindex("<box frame=")
+    trailing = re.sub(r'<box frame="\d+"', '<box frame="16"', text[last:text.index("</box>", last) + 6])
+    trailing = re.sub(r'outside="0"', 'outside="1"', re.sub(r'keyframe="0"', 'keyframe="1"', trailing))
+    fiftyone = tmp_path / "fiftyone.xml"
+    fiftyone.write_text(text.replace("</track>", trailing + "\n  </track>"))
+    before = snapshot(out)
+    code, output = _run("retrack", out, "--corrections", fiftyone, "-q")
+    assert code == 0, output
+    lines = output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"sptpt-annotate: warning: {fiftyone}:"), output
+    assert "just past the run's last processed frame 15" in lines[0]
+    assert snapshot(out) == before

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from annotator.commands.common import fail
+from annotator.commands.common import fail, one_line_warnings
 from annotator.errors import EXIT_INTERRUPTED, EXIT_VALUE, ToolError
 
 
@@ -47,9 +47,10 @@ def retrack_command(
         method = merge or DEFAULT_MERGE
         if method not in MERGES:
             raise ToolError(f"--merge {merge!r} is not known: choose from {', '.join(MERGES)}", EXIT_VALUE)
-        result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
-                                   verify_input=not no_verify, input_path=input_path, render=not no_render,
-                                   media_url=media_url)
+        with one_line_warnings():  # a reviewer's file read with a warning (FiftyOne's trailing outside keyframe)
+            result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
+                                       verify_input=not no_verify, input_path=input_path, render=not no_render,
+                                       media_url=media_url)
     except ToolError as error:
         fail(error, debug)
     except KeyboardInterrupt:

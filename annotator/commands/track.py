@@ -95,8 +95,9 @@ def track_command(
             from annotator.review import apply_corrections
 
             try:
-                review = apply_corrections(result.out_dir, corrections, show_progress=not quiet, verify_input=False,
-                                           input_checked=True)
+                with one_line_warnings():
+                    review = apply_corrections(result.out_dir, corrections, show_progress=not quiet,
+                                               verify_input=False, input_checked=True)
             except ToolError as exc:
                 raise ToolError(
                     f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "
