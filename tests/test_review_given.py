@@ -331,3 +331,37 @@ def test_trailing_outside_keyframe_is_one_warning_line_on_the_command_line(cvat_
     assert len(lines) == 1 and lines[0].startswith(f"sptpt-annotate: warning: {fiftyone}:"), output
     assert "just past the run's last processed frame 15" in lines[0]
     assert snapshot(out) == before
+
+
+def test_batch_media_url_gives_each_video_its_url_and_is_part_of_what_a_rerun_keeps(tmp_path, capsys):
+    from annotator.cli import main
+    from test_batch import FAST, write_clip, write_jsonl, box_text
+
+    (tmp_path / "clips").mkdir()
+    box = write_clip(tmp_path / "clips" / "v0.mp4", 5, seed=0)
+    manifest = write_jsonl(tmp_path / "m.jsonl", [{"video": "clips/v0.mp4", "box": box_text(box)}])
+    (tmp_path / "fast.yaml").write_text(FAST)
+    out = tmp_path / "out"
+
+    def batch(*extra):
+        with pytest.raises(SystemExit) as info:
+            main(["batch", str(manifest), "--out", str(out), "--workers", "1", "--config", str(tmp_path / "fast.yaml"),
+                  "--formats", "otb,labelstudio", "--no-render", "--quiet", *extra])
+        return info.value.code, json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else None
+
+    code, summary = batch("--media-url", "/data/local-files/?d=videos/")
+    assert code == 0
+    url = "/data/local-files/?d=videos/v0.mp4"
+    item = out / summary["items"][0]["id"]
+    assert json.loads((item / "labelstudio.json").read_text())[0]["data"]["video"] == url
+    assert (item / "labelstudio_config.xml").is_file()
+    assert [t["data"]["video"] for t in json.loads((out / "labelstudio.json").read_text())] == [url]
+    code, summary = batch("--media-url", "/data/local-files/?d=videos/")
+    assert code == 0 and summary["counts"]["reused"] == 1
+    code, summary = batch("--media-url", "http://127.0.0.1:8081/")
+    assert code == 0 and summary["counts"]["reused"] == 0
+    assert json.loads((item / "labelstudio.json").read_text())[0]["data"]["video"] == "http://127.0.0.1:8081/v0.mp4"
+    capsys.readouterr()
+    code, _ = batch("--media-url", "http://127.0.0.1:8081/v0.mp4")
+    err = capsys.readouterr().err
+    assert code == 4 and err.count("\n") == 1 and "end it with / or =" in err, err
