@@ -192,6 +192,22 @@ def test_keyframe_added_through_the_api_comes_back_to_the_pixel_and_only_once(se
     # Every other human anchor is the first-frame box: the tool's own keyframes did not become anchors.
     assert int(track.keyframe.sum()) == 2
 
+    # What made the second round invent corrections: compared with the re-tracked run instead of the
+    # prediction (an export without parent_prediction), the tool's own keyframes after the human one moved.
+    data = json.loads(export.read_text())
+    assert data[0]["annotations"][0]["parent_prediction"] == prediction["id"]
+    data[0]["annotations"][0].update(parent_prediction=None, prediction=None)
+    from annotator.review.imports import read_labelstudio_corrections
+    from annotator.review.run import load_run
+
+    run = load_run(run_dir)
+    orphan = tmp_path / "without-parent.json"
+    orphan.write_text(json.dumps(data))
+    frames = range(run.store.start, run.store.stop, run.store.step)
+    assert len(read_labelstudio_corrections(orphan, video=run.video, tracks=run.tracks, frames=frames)) > 1
+    assert len(read_labelstudio_corrections(export, video=run.video, tracks=run.tracks, frames=frames)) == 1
+    assert json.loads((run_dir / "labelstudio.json").read_text())[0]["data"]["video"] == tasks[0]["data"]["video"]
+
     # The same export again: nothing is new, nothing is written.
     before = snapshot(run_dir)
     code, output = _run("retrack", run_dir, "--corrections", export)
