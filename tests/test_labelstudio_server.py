@@ -94,7 +94,10 @@ def server(root):
     port = _free_port()
     env = {**os.environ, "LABEL_STUDIO_LOCAL_FILES_SERVING_ENABLED": "true",
            "LABEL_STUDIO_LOCAL_FILES_DOCUMENT_ROOT": str(root / "media"), "PYTHONDONTWRITEBYTECODE": "1",
-           "LABEL_STUDIO_DISABLE_SIGNUP_WITHOUT_LINK": "true", "SENTRY_DSN": "", "FRONTEND_SENTRY_DSN": ""}
+           "LABEL_STUDIO_DISABLE_SIGNUP_WITHOUT_LINK": "true",
+           # Tests stay off the network: no version check against PyPI, no analytics, no error reporting.
+           "LABEL_STUDIO_LATEST_VERSION_CHECK": "false", "LABEL_STUDIO_COLLECT_ANALYTICS": "false",
+           "SENTRY_DSN": "", "FRONTEND_SENTRY_DSN": ""}
     (root / "media").mkdir(exist_ok=True)
     log = open(root / "server.log", "wb")
     process = subprocess.Popen(
