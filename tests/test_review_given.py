@@ -219,6 +219,20 @@ def test_labelstudio_disabling_a_given_keyframe_is_an_absence(tmp_path):
     assert found[1].box_xywh == pytest.approx((16.0, 10.0, 20.0, 20.0))
 
 
+def test_labelstudio_switching_a_given_keyframe_back_on_is_a_correction(tmp_path):
+    """The prediction hid the object after source frame 5 (enabled: false); the reviewer switched it on."""
+    tasks = build_labelstudio_tasks(VIDEO, [shifted_track()], frames=SHIFTED)
+
+    def show(seq):
+        assert seq[1]["frame"] == 6 and seq[1]["enabled"] is False
+        seq[1]["enabled"] = True
+
+    path = tmp_path / "export.json"
+    path.write_text(json.dumps(labelstudio_export(tasks, show)))
+    found = read_labelstudio_corrections(path, video=VIDEO, tracks=[shifted_track()], frames=SHIFTED)
+    assert [c.frame for c in found] == [5] and found[0].box_xywh == pytest.approx((12.0, 10.0, 20.0, 20.0))
+
+
 # --------------------------------------------------------------------------- what the task needs
 
 

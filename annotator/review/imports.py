@@ -573,8 +573,9 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
             enabled = item.get("enabled", True) is not False
             if given is not None:
                 # Changed relative to the prediction: the box differs from what Label Studio showed there.
-                box_changed = not _same_box(given.shown(frame + 1), xywh)
                 was_hidden_after = frame + 1 in given.at and not given.at[frame + 1][1]
+                # A keyframe switched back on shows the object after it: its box anchors the re-track from there.
+                box_changed = not _same_box(given.shown(frame + 1), xywh) or (enabled and was_hidden_after)
             else:
                 box_changed = run.box_changed(frame, xywh)
                 was_hidden_after = False
