@@ -33,7 +33,7 @@ from annotator.atomic import atomic_path, write_text_atomic
 from annotator.config import RunConfig
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports import write_exports
+from annotator.exports import ExportOptions, record_review_exports, write_exports
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
@@ -171,6 +171,7 @@ def annotate(
     force: bool = False,
     show_progress: bool = True,
     corrections: Sequence[Correction] | None = None,
+    media_url: str | None = None,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
 
@@ -178,6 +179,9 @@ def annotate(
     and tracks the run will have, before any tracking (so that a correction
     of a frame outside ``--start``/``--stop`` fails at once); the caller
     applies them afterwards with :func:`annotator.review.apply_corrections`.
+    ``media_url`` is the video's URL written into ``labelstudio.json``
+    (``--media-url``; see :class:`annotator.exports.ExportOptions`), kept in
+    run.json for the re-tracks.
 
     Raises
     ------
@@ -216,11 +220,12 @@ def annotate(
                             width=source.width, height=source.height)
     _prepare_output_dir(out_dir, force=force)
     with _exclusive(out_dir):
-        return _run_into(out_dir, source, targets, config, formats, input_path, show_progress)
+        return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
+                         ExportOptions(media_url=media_url))
 
 
 def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
-              formats: Sequence[str], input_path: Path, show_progress: bool) -> AnnotateResult:
+              formats: Sequence[str], input_path: Path, show_progress: bool, options: ExportOptions) -> AnnotateResult:
     remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
     # The run is written to a staging folder inside out_dir and moved into place when it is written completely,
     # so that an earlier run there stays whole until then, and stays at all if this one is cut short (Ctrl-C).
@@ -248,7 +253,7 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
             result.exit_code = EXIT_INTERRUPTED
             result.message = (f"interrupted after {plural(run.frames_processed, 'frame')} of {source.path}; "
                               f"their results were written to {destination}{kept}")
-        _write_outputs(result, source, targets, config, formats, input_path)
+        _write_outputs(result, source, targets, config, formats, input_path, options)
         try:
             with ctrl_c_ignored():
                 if destination == out_dir and _holds_run(out_dir / INCOMPLETE_DIR):
@@ -367,7 +372,7 @@ def ctrl_c_ignored():
 
 
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
-                   formats: Sequence[str], input_path: Path) -> None:
+                   formats: Sequence[str], input_path: Path, options: ExportOptions) -> None:
     run, out_dir = result.run, result.out_dir
     outputs = result.outputs
     if run.frames_processed == 0:
@@ -377,7 +382,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
     # The store first and always, whatever --formats says: every export below is a view of it.
     store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step, tracks=run.tracks)
     outputs["store"] = [write_store(out_dir / STORE_NAME, store)]
-    outputs.update(write_exports(out_dir, store, formats))
+    outputs.update(write_exports(out_dir, store, formats, options))
     if run.overlay_path is not None:
         outputs["overlay"] = [run.overlay_path]
     run_info = {
@@ -416,6 +421,10 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         "complete": run.decode_error is None and not run.interrupted,
         "interrupted": run.interrupted,
         "formats": list(formats),
+        # Options of the views that a re-track must write again the same way.
+        **({"export_options": {"media_url": options.media_url}} if options.media_url is not None else {}),
+        # What the review files gave a reviewer, to tell their edits from the run's own keyframes.
+        **({"review_exports": record} if (record := record_review_exports(None, store, formats)) else {}),
     }
     # Each track as the forward pass from its first frame, for the first re-track to reuse (run.json's config as
     # it will read back, so that the re-track's fingerprint is the same). Imported here: the review package

@@ -163,12 +163,13 @@ def _merged_coco(stores: Sequence[RunStore]) -> dict[str, Any]:
     return merged
 
 
-def _merged_labelstudio(stores: Sequence[RunStore]) -> list[dict[str, Any]]:
+def _merged_labelstudio(stores: Sequence[RunStore], media_url: str | None = None) -> list[dict[str, Any]]:
     """One Label Studio task list for the whole batch: every item's task, in manifest order."""
-    from annotator.exports.labelstudio import build_labelstudio_tasks
+    from annotator.exports.labelstudio import build_labelstudio_tasks, media_url_for
 
     return [task for store in stores for task in build_labelstudio_tasks(
-        store.video, store.tracks, frames=range(store.start, store.stop, store.step))]
+        store.video, store.tracks, frames=range(store.start, store.stop, store.step),
+        video_url=media_url_for(media_url, store.video.path))]
 
 
 def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
@@ -181,7 +182,7 @@ def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
 def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, ItemOutcome], *, out_dir: Path,
                         seconds: float, manifest: str | None, formats: Sequence[str], seed: int | None,
                         config_values: Mapping[str, Any] | None, preset: str | None, settings: Mapping[str, Any],
-                        interrupted: bool) -> BatchResult:
+                        interrupted: bool, media_url: str | None = None) -> BatchResult:
     """Write every batch-level file from all planned items (reused ones included) and say what the run did."""
     from annotator.exports.coco import save_coco
 
@@ -220,7 +221,7 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
         paths["coco"] = out_dir / "annotations.json"
     if "labelstudio" in formats:
         write_text_atomic(out_dir / "labelstudio.json",
-                          json.dumps(_merged_labelstudio(stores), indent=2, ensure_ascii=False, allow_nan=False) + "\n")
+                          json.dumps(_merged_labelstudio(stores, media_url), indent=2, ensure_ascii=False, allow_nan=False) + "\n")
         paths["labelstudio"] = out_dir / "labelstudio.json"
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
     paths["summary"] = out_dir / "summary.json"

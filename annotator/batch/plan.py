@@ -63,6 +63,8 @@ class ItemJob:
     config: RunConfig
     folder: str
     formats: tuple[str, ...]
+    #: ``--media-url`` (ends in / or =: each item's labelstudio.json gets its video's file name appended).
+    media_url: str | None = None
     threads: int | None = None  # numba threads for this item; None leaves the worker's setting
 
 
@@ -128,6 +130,7 @@ def is_item_finished(job: ItemJob, run: Mapping[str, Any] | None) -> bool:
             and normalised_json(run["targets"]) == normalised_json(_expected_targets(job.targets))
             and normalised_json(run["config"]) == normalised_json(job.config.to_dict())
             and list(run["formats"]) == list(job.formats)
+            and (run.get("export_options") or {}).get("media_url") == job.media_url
             # An image folder tracked before EXIF orientations were applied may hold boxes in sideways frames.
             and (not Path(job.input_path).is_dir() or recorded_input.get("exif_orientation") == "applied")
         )
@@ -169,6 +172,7 @@ def plan_batch(
     start: int | None = None,
     stop: int | None = None,
     step: int | None = None,
+    media_url: str | None = None,
 ) -> list[PlannedItem]:
     """Resolve every item's settings and decide which finished outputs to keep.
 
@@ -204,7 +208,7 @@ def plan_batch(
         item_step = item.step if item.step is not None else (step or 1)
         job = ItemJob(item_id=item.id, input_path=str(item.input_path), targets=tuple(item.targets),
                       start=item_start, stop=item_stop, step=item_step, config=config,
-                      folder=str(out_dir / item.id), formats=tuple(formats))
+                      folder=str(out_dir / item.id), formats=tuple(formats), media_url=media_url)
         reuse = not force and is_item_finished(job, read_run_json(job.folder))
         planned.append(PlannedItem(item, job, reuse, _estimate_frames(item, item_start, item_stop, item_step)))
     if errors:

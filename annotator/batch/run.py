@@ -120,6 +120,7 @@ def run_batch(
     show_progress: bool = True,
     manifest: str | None = None,
     stream: TextIO | None = None,
+    media_url: str | None = None,
 ) -> BatchResult:
     """Run every item, skipping finished ones; write the batch-level files.
 
@@ -182,7 +183,8 @@ def run_batch(
     n_workers = workers or default_workers()
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
     planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,
-                         preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step)
+                         preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step,
+                         media_url=media_url)
     _refuse_unsafe_out_dir(out_dir, planned)
     _prepare_out_dir(out_dir)
     started = time.perf_counter()
@@ -210,7 +212,7 @@ def run_batch(
             progress.close()
         result = write_batch_outputs(planned, outcomes, out_dir=out_dir, seconds=time.perf_counter() - started,
                                      manifest=manifest, formats=formats, seed=seed, config_values=config_values,
-                                     preset=preset, settings=settings, interrupted=interrupted)
+                                     preset=preset, settings=settings, interrupted=interrupted, media_url=media_url)
     if interrupted:
         raise KeyboardInterrupt
     return result

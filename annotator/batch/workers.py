@@ -182,7 +182,8 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
             if folder.is_dir():
                 _clear_item_folder(folder, output_stem(Path(job.input_path)))
             result = annotate(job.input_path, job.targets, job.config, out_dir=folder, start=job.start,
-                              stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False)
+                              stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False,
+                              media_url=job.media_url)
             outcome.frames = result.run.frames_processed
             if result.exit_code == EXIT_OK:
                 outcome.status = "done"

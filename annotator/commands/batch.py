@@ -9,7 +9,7 @@ import typer
 
 from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
-from annotator.errors import EXIT_OK, EXIT_USAGE, ToolError, require_extra
+from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError, require_extra
 from annotator.wording import plural
 
 
@@ -25,6 +25,10 @@ def batch_command(
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Base seed (default 0); each item's seed derives from it and the item id."),
     formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats", help="Comma-separated outputs per item, as for a single video (otb, coco, flags, overlay, report, cvat, mot, labelstudio, yolo)."),
+    media_url: Optional[str] = typer.Option(
+        None, "--media-url", metavar="URL", help="Where a Label Studio server finds the videos, ending in / or = "
+                                                 "(e.g. /data/local-files/?d=videos/): each task's data.video is it "
+                                                 "followed by the video's file name (docs/review-tools.md)."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay videos (faster)."),
     force: bool = typer.Option(False, "--force", help="Redo every item, finished ones included."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line and no summary (errors and warnings still show)."),
@@ -44,12 +48,17 @@ def batch_command(
             items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest)
             file_values = load_config_file(config_file) if config_file is not None else {}
             chosen = [f.strip() for f in formats.split(",") if f.strip()]
+            if media_url is not None and not media_url.endswith(("/", "=")):
+                raise ToolError(f"--media-url {media_url!r} would give every video of the batch the same URL: end it "
+                                "with / or = (e.g. /data/local-files/?d=videos/), and each video's file name is "
+                                "appended", EXIT_VALUE)
             if no_render:
                 chosen = [f for f in chosen if f != "overlay"]
             result = run_batch(items, out_dir=out, config_values=file_values,
                                config_source=str(config_file or "command line"), preset=preset, seed=seed,
                                formats=chosen, force=force, start=start, stop=stop, workers=workers,
-                               scheduler=scheduler, show_progress=not quiet, manifest=str(otb_root or manifest))
+                               scheduler=scheduler, show_progress=not quiet, manifest=str(otb_root or manifest),
+                               media_url=media_url)
         except InvalidManifestError as exc:
             if debug:
                 raise

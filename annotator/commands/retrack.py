@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from annotator.commands.common import fail
+from annotator.commands.common import fail, one_line_warnings
 from annotator.errors import EXIT_INTERRUPTED, EXIT_VALUE, ToolError
 
 
@@ -26,6 +26,9 @@ def retrack_command(
     input_path: Optional[Path] = typer.Option(
         None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "
                               "the content hash in run.json, then recorded there)."),
+    media_url: Optional[str] = typer.Option(
+        None, "--media-url", metavar="URL", help="A new URL of the video for labelstudio.json (as on the main "
+                                                 "command), kept in run.json for later rounds."),
     no_render: bool = typer.Option(False, "--no-render", help="This round only: do not re-render the overlay video "
                                    "(it is decoded and encoded in full, which on a long video takes much of a "
                                    "round). It is removed, as it would show the old boxes, and the report has no "
@@ -44,8 +47,10 @@ def retrack_command(
         method = merge or DEFAULT_MERGE
         if method not in MERGES:
             raise ToolError(f"--merge {merge!r} is not known: choose from {', '.join(MERGES)}", EXIT_VALUE)
-        result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
-                                   verify_input=not no_verify, input_path=input_path, render=not no_render)
+        with one_line_warnings():  # a reviewer's file read with a warning (FiftyOne's trailing outside keyframe)
+            result = apply_corrections(output_dir, corrections, merge=method, show_progress=not quiet,
+                                       verify_input=not no_verify, input_path=input_path, render=not no_render,
+                                       media_url=media_url)
     except ToolError as error:
         fail(error, debug)
     except KeyboardInterrupt:

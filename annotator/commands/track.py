@@ -33,6 +33,11 @@ def track_command(
                                 help="Comma-separated outputs: otb, coco, flags, overlay, report, and for review tools "
                                      "cvat (cvat.xml), mot (mot/gt/), labelstudio (labelstudio.json), yolo (yolo/). "
                                      "The track store tracks.npz is always written."),
+    media_url: Optional[str] = typer.Option(
+        None, "--media-url", metavar="URL",
+        help="The video's URL written into labelstudio.json (data.video), where a Label Studio server plays it, "
+             "e.g. /data/local-files/?d=videos/clip.mp4 with a local-files storage (docs/review-tools.md); a URL "
+             "ending in / or = gets the video's file name. Default: the video's path, which a server cannot play."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
     force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
     corrections: Optional[Path] = typer.Option(
@@ -83,14 +88,16 @@ def track_command(
             fixes = read_corrections(corrections)  # a malformed file, or one that does not fit, fails before tracking
         with one_line_warnings():
             result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step,
-                              formats=chosen, force=force, show_progress=not quiet, corrections=fixes)
+                              formats=chosen, force=force, show_progress=not quiet, corrections=fixes,
+                              media_url=media_url)
         review = None
         if corrections is not None and result.exit_code == EXIT_OK:
             from annotator.review import apply_corrections
 
             try:
-                review = apply_corrections(result.out_dir, corrections, show_progress=not quiet, verify_input=False,
-                                           input_checked=True)
+                with one_line_warnings():
+                    review = apply_corrections(result.out_dir, corrections, show_progress=not quiet,
+                                               verify_input=False, input_checked=True)
             except ToolError as exc:
                 raise ToolError(
                     f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "

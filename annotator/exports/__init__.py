@@ -14,10 +14,11 @@ from annotator.exports.flags import FLAGS_HEADER, FlagTable, FlagsFormatError, r
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import build_mot_gt, write_mot
 from annotator.exports.otb import otb_sequence_names, write_otb_results
-from annotator.exports.views import FILE_EXPORTS, write_exports
+from annotator.exports.views import FILE_EXPORTS, ExportOptions, record_review_exports, write_exports
 from annotator.exports.yolo import build_yolo_labels, write_yolo
 
 __all__ = [
+    "ExportOptions",
     "FILE_EXPORTS",
     "FLAGS_HEADER",
     "FlagTable",
@@ -31,6 +32,7 @@ __all__ = [
     "merge_coco",
     "otb_sequence_names",
     "read_flags_csv",
+    "record_review_exports",
     "save_coco",
     "write_coco",
     "write_cvat_xml",

@@ -53,7 +53,7 @@ from annotator.exports._review import (
 )
 from annotator.tracks import TrackResult, VideoInfo
 
-__all__ = ["CVAT_VERSION", "build_cvat_xml", "write_cvat_xml"]
+__all__ = ["CVAT_VERSION", "build_cvat_xml", "cvat_keyframes", "write_cvat_xml"]
 
 CVAT_VERSION = "1.1"
 _COORD_DECIMALS = 2  # CVAT dumps "{:.2f}"; more would not survive a round trip through CVAT anyway
@@ -130,7 +130,8 @@ def _box_element(frame: int, box_xywh: np.ndarray, *, outside: bool, occluded: b
             "</box>"]
 
 
-def _track_elements(number_: int, track: TrackResult, frames: range) -> list[str]:
+def _track_rows(track: TrackResult, frames: range) -> list[tuple[int, np.ndarray, bool, bool, bool, float]]:
+    """Each ``<box>`` of a track: ``(frame, box_xywh, outside, occluded, keyframe, score)``; [] for a track never seen."""
     shown = visible(track)
     if not shown.any():
         return []  # no box anywhere: CVAT has nothing to draw, and a track needs coordinates
@@ -141,20 +142,58 @@ def _track_elements(number_: int, track: TrackResult, frames: range) -> list[str
     keys = review_keyframes(track)
     changes = np.concatenate([[True], shown[1:] != shown[:-1]])  # object leaves or comes back
     scores = review_scores(track)
-    lines = [f"<track id=\"{number_}\" label={quoteattr(track.label)} source=\"auto\">"]
-    for i, frame in enumerate(track.frame_indices):
-        lines += ["  " + s for s in _box_element(
-            int(frame), track.boxes_xywh[source_row[i]], outside=not shown[i],
-            occluded=bool(track.occluded[i] and shown[i]), keyframe=bool(keys[i] or changes[i]),
-            score=float(scores[i]))]
+    rows = [(int(frame), track.boxes_xywh[source_row[i]], not bool(shown[i]), bool(track.occluded[i] and shown[i]),
+             bool(keys[i] or changes[i]), float(scores[i])) for i, frame in enumerate(track.frame_indices)]
     last = int(track.frame_indices[-1])
     if shown[-1] and last != frames[-1]:
         # Without this CVAT would keep showing the last box to the end of the task.
-        lines += ["  " + s for s in _box_element(
-            last + frames.step, track.boxes_xywh[source_row[-1]], outside=True, occluded=False, keyframe=True,
-            score=float(scores[-1]))]
+        rows.append((last + frames.step, track.boxes_xywh[source_row[-1]], True, False, True, float(scores[-1])))
+    return rows
+
+
+def _corners(box_xywh: np.ndarray) -> list[float]:
+    """``xtl, ytl, xbr, ybr`` as written (rounded to the file's decimals)."""
+    x, y, w, h = (float(v) for v in box_xywh)
+    return [round(v, _COORD_DECIMALS) for v in (x, y, x + w, y + h)]
+
+
+def _track_elements(number_: int, track: TrackResult, frames: range) -> list[str]:
+    rows = _track_rows(track, frames)
+    if not rows:
+        return []
+    lines = [f"<track id=\"{number_}\" label={quoteattr(track.label)} source=\"auto\">"]
+    for frame, box, outside, occluded, keyframe, score in rows:
+        lines += ["  " + s for s in _box_element(frame, box, outside=outside, occluded=occluded, keyframe=keyframe,
+                                                 score=score)]
     lines.append("</track>")
     return lines
+
+
+def cvat_keyframes(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: range | None = None
+                   ) -> list[dict[str, object]]:
+    """The keyframes :func:`build_cvat_xml` writes, as a record of what a reviewer is given.
+
+    A reviewer's CVAT file holds these keyframes too; only those a person
+    changed are corrections (:func:`annotator.review.imports.read_cvat_corrections`).
+    The record is kept in ``run.json`` (``review_exports``), since the run's
+    tracks, and so its ``cvat.xml``, change with every re-track.
+
+    Returns
+    -------
+    list of dict
+        One ``{"track_id": int, "keyframes": [[frame, xtl, ytl, xbr, ybr] or [frame] (outside), ...]}`` per
+        track written, in the file's order; coordinates as written (2 decimals).
+    """
+    tracks = list(tracks)
+    frames = check_frame_range(video, tracks, frames)
+    record = []
+    for track in tracks:
+        rows = _track_rows(track, frames)
+        if rows:
+            record.append({"track_id": int(track.track_id),
+                           "keyframes": [[frame] if outside else [frame, *_corners(box)]
+                                         for frame, box, outside, _, keyframe, _ in rows if keyframe]})
+    return record
 
 
 def build_cvat_xml(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: range | None = None) -> str:

@@ -1,16 +1,14 @@
 """Label Studio video object tracking tasks (``labelstudio.json``): one ``videorectangle`` region per track.
 
-Import the file into a project with this labeling config (one ``<Label>`` per
-label of the run)::
+Import the file into a project whose labeling config is the one written
+beside it, ``labelstudio_config.xml`` (:func:`build_labelstudio_config`: the
+``<Labels>`` of the run, the ``<Video>`` with the video's frame rate, which
+Label Studio needs to map its frame numbers to time, and the
+``<VideoRectangle>``).
 
-    <View>
-      <Video name="video" value="$video" framerate="FPS"/>
-      <VideoRectangle name="box" toName="video"/>
-      <Labels name="videoLabels" toName="video"><Label value="object"/></Labels>
-    </View>
-
-The file is a list with one task: ``data.video`` (the video's path or the
-URL given; point it at where Label Studio can play the video),
+The file is a list with one task: ``data.video`` (the URL given with
+``--media-url``, else the video's path, which a Label Studio server cannot
+play: see ``docs/review-tools.md``),
 ``data.sptpt`` (the video's name, size, frame count and fps and the
 processed range, which the importer checks), and the tracks as
 ``predictions`` (pre-annotations a reviewer accepts and edits).
@@ -46,19 +44,22 @@ from __future__ import annotations
 import json
 import os
 from typing import Any, Sequence
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, clip_xywh, review_keyframes
+from annotator.exports._review import check_frame_range, clip_xywh, labels_in_order, number, review_keyframes
 from annotator.tracks import TrackResult, VideoInfo
 
-__all__ = ["LS_FROM_NAME", "LS_TO_NAME", "LS_MODEL_VERSION", "build_labelstudio_tasks", "write_labelstudio",
-           "labelstudio_region_id"]
+__all__ = ["LS_FROM_NAME", "LS_TO_NAME", "LS_LABELS_NAME", "LS_MODEL_VERSION", "build_labelstudio_config",
+           "build_labelstudio_tasks", "media_url_for", "write_labelstudio", "labelstudio_region_id"]
 
 #: ``name`` of the ``<VideoRectangle>`` and of the ``<Video>`` tag in the labeling config.
 LS_FROM_NAME = "box"
 LS_TO_NAME = "video"
+#: ``name`` of the ``<Labels>`` tag.
+LS_LABELS_NAME = "videoLabels"
 LS_MODEL_VERSION = "sptpt-annotate"
 _PERCENT_DECIMALS = 6  # 1e-6 % of a 4K frame is 4e-5 px: the round trip through percent stays exact enough
 
@@ -127,6 +128,38 @@ def _sequence(track: TrackResult, video: VideoInfo, frames: range, max_error_px:
     return sequence
 
 
+def media_url_for(media_url: str | None, video_path: str) -> str | None:
+    """``data.video`` for ``--media-url``: the URL as given, or with the video's file name appended when it ends
+    with ``/`` or ``=`` (a folder, or ``/data/local-files/?d=videos/``, shared by a batch's videos)."""
+    if media_url is None:
+        return None
+    return media_url + os.path.basename(video_path) if media_url.endswith(("/", "=")) else media_url
+
+
+def build_labelstudio_config(video: VideoInfo, tracks: Sequence[TrackResult]) -> str:
+    """The labeling config of a Label Studio project for :func:`build_labelstudio_tasks` (``labelstudio_config.xml``).
+
+    ``<Labels>`` lists the run's labels (in the COCO exporter's order),
+    ``<Video framerate>`` is the video's frame rate (Label Studio turns time
+    into frame numbers with it: a wrong one shifts every box), and the
+    ``<VideoRectangle>`` and ``<Video>`` names are those the task's regions use.
+
+    Returns
+    -------
+    str
+        The XML, ending with a newline; paste it into the project's
+        Settings > Labeling Interface > Code, or send it as ``label_config``.
+    """
+    labels = labels_in_order(list(tracks)) or ["object"]
+    lines = ["<View>", f'  <Labels name="{LS_LABELS_NAME}" toName="{LS_TO_NAME}" allowEmpty="true">']
+    lines += [f"    <Label value={quoteattr(label)}/>" for label in labels]
+    lines += ["  </Labels>",
+              f'  <Video name="{LS_TO_NAME}" value="$video" framerate="{number(video.fps, 6)}"/>',
+              f'  <VideoRectangle name="{LS_FROM_NAME}" toName="{LS_TO_NAME}"/>',
+              "</View>"]
+    return "\n".join(lines) + "\n"
+
+
 def build_labelstudio_tasks(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: range | None = None,
                             video_url: str | None = None, max_error_px: float = 2.0) -> list[dict[str, Any]]:
     """The Label Studio task list of one video (layout in the module docstring).
@@ -185,8 +218,13 @@ def build_labelstudio_tasks(video: VideoInfo, tracks: Sequence[TrackResult], *, 
 
 def write_labelstudio(path: str | os.PathLike, video: VideoInfo, tracks: Sequence[TrackResult], *,
                       frames: range | None = None, video_url: str | None = None,
-                      max_error_px: float = 2.0) -> list[dict[str, Any]]:
-    """Write :func:`build_labelstudio_tasks` to ``path`` (``<out>/labelstudio.json``) atomically; return the tasks."""
+                      max_error_px: float = 2.0, config_path: str | os.PathLike | None = None) -> list[dict[str, Any]]:
+    """Write :func:`build_labelstudio_tasks` to ``path`` (``<out>/labelstudio.json``) atomically; return the tasks.
+
+    With ``config_path``, the labeling config (:func:`build_labelstudio_config`) is written there too.
+    """
     tasks = build_labelstudio_tasks(video, tracks, frames=frames, video_url=video_url, max_error_px=max_error_px)
+    if config_path is not None:
+        write_text_atomic(config_path, build_labelstudio_config(video, tracks))
     write_text_atomic(path, json.dumps(tasks, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
     return tasks

@@ -9,13 +9,28 @@ dispatch on the file type and hand any of them to
 be read) with a one-line message naming the file.
 
 A reviewer's file holds the run's own keyframes too (first frame, flagged
-spans, ...), so only what **differs from the run** is a correction: a box
-more than :data:`SAME_BOX_PX` from the run's box at that frame, a box where
-the run had the object absent, or an absence where the run had a box.
+spans, ...), so only what a person **changed relative to what the tool gave
+them** is a correction: a keyframe more than :data:`SAME_BOX_PX` from the
+given keyframe at that frame, or hidden or shown where it was not. What was
+given is, for Label Studio, the prediction the annotation started from (its
+``parent_prediction``, which the export carries); for CVAT, the keyframes of
+the ``cvat.xml`` the run wrote (every version is kept in run.json's
+``review_exports``; the file is compared with the version it matches best).
+So the same file brought back twice adds nothing the second time, although
+the run's tracks, and its own keyframes, changed in between. A keyframe at a
+frame where the tool gave none (a reviewer added it), or a file with no such
+record (a run written before it, an annotation made from scratch), is
+compared with the run's current box: a box more than :data:`SAME_BOX_PX`
+from it, a box where the run had the object absent, or an absence where the
+run had a box.
 
 **CVAT for video 1.1** (the run's ``cvat.xml`` after review, dumped by
-CVAT): boxes with ``keyframe="1"``; ``outside="1"`` marks the object absent
-from that frame on. Frames are source indices (CVAT dumps absolute frame
+CVAT, or exported by FiftyOne or Datumaro as CVAT for video): boxes with
+``keyframe="1"``; ``outside="1"`` marks the object absent from that frame
+on. An ``outside`` keyframe just past the processed range (FiftyOne ends
+every track so) is skipped with a warning. "CVAT for images" (one
+``<image>`` per frame, Datumaro's ``cvat`` format) is refused with a line
+that says to export "CVAT for video 1.1". Frames are source indices (CVAT dumps absolute frame
 numbers); the file's ``start_frame`` and ``frame_filter`` must match the
 run's range, its ``size`` the run's processed frame count and its
 ``original_size`` the frame size, or it is another task's file. Tracks are
@@ -37,19 +52,21 @@ import json
 import math
 import os
 import re
+import warnings
 import xml.etree.ElementTree as ET
 from xml.parsers import expat
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from annotator.corrections import Correction
-from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports._review import check_frame_range, clip_xywh, visible
 from annotator.exports.labelstudio import labelstudio_region_id
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult, VideoInfo
+from annotator.wording import plural
 
 __all__ = ["SAME_BOX_PX", "read_cvat_corrections", "read_labelstudio_corrections"]
 
@@ -161,8 +178,49 @@ def _meta_int(task: ET.Element, key: str, where: str) -> int | None:
         raise ToolError(f"{where}: <{key}> must be an integer, got {text.strip()!r}", EXIT_VALUE) from None
 
 
+_Given = dict[int, dict[int, "tuple[float, ...] | None"]]  # track_id -> frame -> corners, None for outside
+
+
+def _given_versions(exported: Sequence[Any] | None) -> list[_Given]:
+    """run.json's ``review_exports.cvat`` as lookups; versions that do not parse are left out (written by hand)."""
+    versions: list[_Given] = []
+    for version in exported or []:
+        try:
+            versions.append({int(t["track_id"]): {int(k[0]): (tuple(float(v) for v in k[1:5]) if len(k) == 5 else None)
+                                                  for k in t["keyframes"]} for t in version})
+        except (KeyError, TypeError, ValueError, IndexError):
+            continue
+    return versions
+
+
+def _same_corners(a: tuple[float, ...] | None, b: tuple[float, ...] | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX
+
+
+def _same_as_given(given: tuple[float, ...] | None, box: tuple[float, ...] | None, video: VideoInfo) -> bool:
+    """Whether a file's keyframe is the one given, as written or as CVAT clips it to the image on upload."""
+    if _same_corners(given, box):
+        return True
+    if given is None or box is None:
+        return False
+    clipped = clip_xywh((given[0], given[1], given[2] - given[0], given[3] - given[1]), video.width, video.height)
+    return clipped is not None and _same_corners(
+        (clipped[0], clipped[1], clipped[0] + clipped[2], clipped[1] + clipped[3]), box)
+
+
+def _corners_or_none(box: ET.Element) -> tuple[float, ...] | None:
+    if box.get("outside") == "1":
+        return None
+    try:
+        return tuple(float(box.get(k, "")) for k in ("xtl", "ytl", "xbr", "ybr"))
+    except ValueError:
+        return (math.nan,) * 4  # malformed: matches nothing, refused with its line below
+
+
 def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: Sequence[TrackResult],
-                          frames: range | None = None) -> list[Correction]:
+                          frames: range | None = None, exported: Sequence[Any] | None = None) -> list[Correction]:
     """Read a reviewed CVAT for video 1.1 XML and return its corrections of the run, in file order.
 
     Parameters
@@ -175,6 +233,11 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
         The run's tracks, in the order they were exported.
     frames : range or None
         The run's processed range (``run.json``'s ``range``); None for the whole video.
+    exported : sequence or None
+        The keyframes of each ``cvat.xml`` the run wrote (run.json's
+        ``review_exports["cvat"]``, :func:`annotator.exports.cvat.cvat_keyframes`);
+        a keyframe the reviewer left as given is no correction. None: compare
+        every keyframe with the run's tracks.
 
     Returns
     -------
@@ -196,6 +259,10 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
     def where(element: ET.Element) -> str:
         return f"{path}:{lines.get(id(element), 1)}"
 
+    if root.tag == "annotations" and root.find("track") is None and root.find("image") is not None:
+        raise ToolError(f"{where(root.find('image'))}: this is a \"CVAT for images\" file (one <image> per frame, no "
+                        "<track>), which loses the tracks: export the task as \"CVAT for video 1.1\" (in Datumaro, "
+                        "FiftyOne or CVAT) and give that file", EXIT_VALUE)
     if root.tag != "annotations" or root.find("meta") is None:
         raise ToolError(f"{where(root)}: expected <annotations> with <meta>, the CVAT for video 1.1 layout, got "
                         f"<{root.tag}>", EXIT_VALUE)
@@ -215,6 +282,11 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
     if match is None:
         raise ToolError(f"{where(task)}: <frame_filter> {step_text!r} is not 'step=N' or empty", EXIT_VALUE)
     step = int(match.group(1) or 1)
+    if width is None or height is None:
+        raise ToolError(f"{where(task)}: the file has no <original_size> (the frame width and height) in its "
+                        "<meta>, so it cannot be checked against the run's video: export the task as \"CVAT for "
+                        "video 1.1\", which writes it, or add <original_size><width>"
+                        f"{video.width}</width><height>{video.height}</height></original_size> to <task>", EXIT_VALUE)
     found = (f"{size} frames of {width}x{height} from frame {start if start is not None else '?'} every {step}")
     expected = f"{len(frames)} frames of {video.width}x{video.height} from frame {frames.start} every {frames.step}"
     if (size != len(frames) or (width, height) != (video.width, video.height) or step != frames.step
@@ -229,6 +301,23 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
         raise ToolError(f"{where(root)}: the file has {len(xml_tracks)} tracks, the run {len(tracks)}: corrections "
                         "can only move, hide or show the run's tracks; delete added tracks or rerun with new "
                         "targets", EXIT_VALUE)
+    # The version of the run's cvat.xml this file was made from: the one whose keyframes it keeps the most of,
+    # less those it has at a frame where that version had another (on a tie, the latest). The run's own
+    # keyframes count for the version they were written in; a reviewer's correction, once applied, is also a
+    # keyframe of every later version, which the mismatches then weigh against.
+    versions = _given_versions(exported)
+    given: _Given | None = None
+    if versions:
+        keyframes = [(track.track_id, _int_or(box.get("frame")), _corners_or_none(box))
+                     for element, track in zip(xml_tracks, tracks) for box in element if box.get("keyframe") == "1"]
+
+        def score(version: _Given) -> int:
+            held = [(version[t][f], c) for t, f, c in keyframes if f in version.get(t, {})]
+            kept = sum(1 for g, c in held if _same_as_given(g, c, video))
+            return kept - (len(held) - kept)
+
+        given = max(reversed(versions), key=score)
+    past_end: list[str] = []
     corrections: list[Correction] = []
     for element, track in zip(xml_tracks, tracks):
         if element.get("label") != track.label:
@@ -252,20 +341,35 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
             except ValueError:
                 raise ToolError(f"{where(box)}: a <box> needs an integer frame and numeric xtl, ytl, xbr, ybr, got "
                                 f"{dict(box.attrib)!r}", EXIT_VALUE) from None
+            if frame not in frames and box.get("outside") == "1" and frames[-1] < frame <= frames[-1] + frames.step:
+                past_end.append(where(box))  # ends the track after the range: changes nothing the run holds
+                continue
             if frame not in frames:
                 raise ToolError(f"{where(box)}: frame {frame} is not one of the run's processed frames (from "
                                 f"{frames.start} to {frames[-1]} every {frames.step})", EXIT_VALUE)
+            track_given = given.get(track.track_id, {}) if given is not None else {}
+            if frame in track_given:
+                if (_same_as_given(track_given[frame], _corners_or_none(box), video)
+                        and not (hidden and box.get("outside") != "1")):
+                    continue  # the tool's own keyframe, left as it was (unless it ends a new absence)
+                changed = True  # a keyframe the tool gave, changed by a person
+            else:
+                changed = False  # a keyframe a person added: compared with the run below
             if box.get("outside") == "1":
-                if run.absence_changed(frame):
+                if changed or run.absence_changed(frame):
                     corrections.append(Correction(frame=frame, box_xywh=None, track_id=track.track_id,
                                                   where=where(box)))
                     hidden = True
                 continue
             x0, y0, x1, y1 = corners
             xywh = _checked_box((x0, y0, x1 - x0, y1 - y0), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
-            if hidden or run.box_changed(frame, xywh):
+            if hidden or changed or run.box_changed(frame, xywh):
                 corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where(box)))
             hidden = False
+    if past_end:
+        warnings.warn(f"{past_end[0]}: {plural(len(past_end), 'outside keyframe')} just past the run's last processed "
+                      f"frame {frames[-1]} (as FiftyOne ends its tracks) skipped: the tracks end with the range anyway",
+                      InputWarning, stacklevel=2)
     return corrections
 
 
@@ -294,19 +398,84 @@ def _keyframe_order(item: Any) -> int:
         return 0
 
 
-def _regions(task: dict) -> tuple[list[dict], str]:
-    """The videorectangle results of a task's latest usable annotation, else of its latest prediction."""
+def _rectangles(entry: Any) -> list[dict]:
+    results = entry.get("result") if isinstance(entry, dict) else None
+    return [r for r in results if isinstance(r, dict) and r.get("type") == "videorectangle"] \
+        if isinstance(results, list) else []
+
+
+def _regions(task: dict) -> tuple[list[dict], str, dict]:
+    """The videorectangle results of a task's latest usable annotation, else of its latest prediction; the key
+    they came from and their annotation (or prediction)."""
     for key in ("annotations", "completions", "predictions"):
         listed = task.get(key)
         entries = [e for e in listed if isinstance(e, dict) and not e.get("was_cancelled")] \
             if isinstance(listed, list) else []
         for entry in reversed(entries):  # Label Studio lists them oldest first
-            results = entry.get("result")
-            result = [r for r in results if isinstance(r, dict) and r.get("type") == "videorectangle"] \
-                if isinstance(results, list) else []
+            result = _rectangles(entry)
             if result:
-                return result, key
-    return [], ""
+                return result, key, entry
+    return [], "", {}
+
+
+def _parent_regions(task: dict, annotation: dict) -> list[dict] | None:
+    """The regions of the prediction an annotation started from (``parent_prediction``), None when it names none
+    that the export holds."""
+    parent = annotation.get("parent_prediction")
+    if isinstance(parent, dict):  # an id in Label Studio 1.23; some exports may nest the prediction itself
+        return _rectangles(parent) or None
+    nested = annotation.get("prediction")  # Label Studio's JSON export nests the parent prediction here
+    if isinstance(nested, dict) and parent is not None and nested.get("id") == parent:
+        return _rectangles(nested) or None
+    predictions = task.get("predictions")
+    for prediction in predictions if isinstance(predictions, list) else []:
+        if isinstance(prediction, dict) and parent is not None and prediction.get("id") == parent:
+            return _rectangles(prediction) or None
+    return None
+
+
+class _GivenSequence:
+    """The keyframes of a prediction region, and the box Label Studio shows from them at any frame."""
+
+    def __init__(self, sequence: Any, video: VideoInfo) -> None:
+        self.video = video
+        self.items: list[tuple[int, Box, bool]] = []
+        for item in sequence if isinstance(sequence, list) else []:
+            try:
+                box = self.pixels([float(item[k]) for k in ("x", "y", "width", "height")])
+                self.items.append((int(item["frame"]), box, item.get("enabled", True) is not False))
+            except (KeyError, TypeError, ValueError):
+                continue  # the tool wrote it: a malformed one was edited by hand, and matches nothing
+        self.items.sort(key=lambda k: k[0])
+        self.at = {frame: (box, enabled) for frame, box, enabled in self.items}
+
+    def pixels(self, pct: Sequence[float]) -> Box:
+        w, h = self.video.width, self.video.height
+        return (pct[0] * w / 100.0, pct[1] * h / 100.0, pct[2] * w / 100.0, pct[3] * h / 100.0)
+
+    def shown(self, frame: int) -> Box | None:
+        """The box shown at a 1-based frame: an ``enabled`` keyframe's box, interpolated linearly towards the
+        next keyframe; none after an ``enabled: false`` one or before the first."""
+        before = [k for k in self.items if k[0] <= frame]
+        if not before:
+            return None
+        f0, box0, enabled = before[-1]
+        if f0 == frame:
+            return box0
+        if not enabled:
+            return None
+        after = [k for k in self.items if k[0] > frame]
+        if not after:
+            return box0
+        f1, box1, _ = after[0]
+        t = (frame - f0) / (f1 - f0)
+        return tuple(a + t * (b - a) for a, b in zip(box0, box1))
+
+
+def _same_box(a: Box | None, b: Box | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX
 
 
 def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: Sequence[TrackResult],
@@ -328,16 +497,18 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
                         "Studio's JSON export of the project", EXIT_VALUE) from None
     tasks = data if isinstance(data, list) else [data]
     with_regions = [(t, *_regions(t)) for t in tasks if isinstance(t, dict)]
-    with_regions = [(t, r, k) for t, r, k in with_regions if r]
+    with_regions = [(t, r, k, e) for t, r, k, e in with_regions if r]
     if not with_regions:
         raise ToolError(f"{path}:1: no task with video rectangles (results of type 'videorectangle'): expected "
                         "Label Studio's JSON export (not JSON-MIN or CSV) of the project holding this run's "
                         "labelstudio.json", EXIT_VALUE)
     if len(with_regions) > 1:
-        names = [str(t.get("id", "?")) for t, _, _ in with_regions]
+        names = [str(t.get("id", "?")) for t, _, _, _ in with_regions]
         raise ToolError(f"{path}:1: {len(with_regions)} tasks (ids {', '.join(names)}) have video rectangles; "
                         "corrections apply to one run: export only this run's task", EXIT_VALUE)
-    task, regions, _ = with_regions[0]
+    task, regions, key, entry = with_regions[0]
+    # What the reviewer was given: the prediction the annotation started from (Label Studio keeps its id).
+    parent = _parent_regions(task, entry) if key != "predictions" else None
     data = task.get("data")
     info = data.get("sptpt") if isinstance(data, dict) else None
     sptpt_key = '"sptpt"'
@@ -363,10 +534,15 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
                         f"are not the exporter's ('track-<id>'): corrections can only move, hide or show the run's "
                         "tracks", EXIT_VALUE)
 
+    given_by_id = {r.get("id"): r for r in parent or [] if isinstance(r.get("id"), str)}
     corrections: list[Correction] = []
-    for region, track in matched:
+    for number_, (region, track) in enumerate(matched):
         region_id = region.get("id")
         line = _json_line(text, json.dumps(region_id)) if region_id is not None else 1
+        given_region = given_by_id.get(region_id) if isinstance(region_id, str) and region_id in given_by_id else (
+            parent[number_] if parent is not None and len(parent) == len(matched) and not given_by_id else None)
+        given = _GivenSequence((given_region.get("value") or {}).get("sequence"), video) \
+            if isinstance(given_region, dict) else None
         value = region.get("value")
         if not isinstance(value, dict):
             raise ToolError(f"{path}:{line}: region {region_id!r} has no 'value' object with its keyframes "
@@ -394,14 +570,24 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
             xywh = _checked_box((pct[0] * video.width / 100.0, pct[1] * video.height / 100.0,
                                  pct[2] * video.width / 100.0, pct[3] * video.height / 100.0), where,
                                 f"x={pct[0]:g}% y={pct[1]:g}% width={pct[2]:g}% height={pct[3]:g}%")
-            if hidden or run.box_changed(frame, xywh):
+            enabled = item.get("enabled", True) is not False
+            if given is not None:
+                # Changed relative to the prediction: the box differs from what Label Studio showed there.
+                was_hidden_after = frame + 1 in given.at and not given.at[frame + 1][1]
+                # A keyframe switched back on shows the object after it: its box anchors the re-track from there.
+                box_changed = not _same_box(given.shown(frame + 1), xywh) or (enabled and was_hidden_after)
+            else:
+                box_changed = run.box_changed(frame, xywh)
+                was_hidden_after = False
+            if hidden or box_changed:
                 corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where))
             hidden = False
-            if item.get("enabled", True) is False:
+            if not enabled:
                 # Hidden from the next processed frame until the next keyframe.
                 after = _next_processed(frames, frame)
                 next_key = int(items[n + 1]["frame"]) - 1 if n + 1 < len(items) else None
-                if after is not None and (next_key is None or after < next_key) and run.absence_changed(after):
+                news = not was_hidden_after if given is not None else after is not None and run.absence_changed(after)
+                if after is not None and (next_key is None or after < next_key) and news:
                     corrections.append(Correction(frame=after, box_xywh=None, track_id=track.track_id, where=where))
                     hidden = True
     return corrections
@@ -418,12 +604,13 @@ def _looks_like_labelstudio(text: str) -> bool:
 
 
 def read_run_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: Sequence[TrackResult],
-                         frames: range) -> list[Correction]:
+                         frames: range, exported: Mapping[str, Any] | None = None) -> list[Correction]:
     """Corrections from any file a reviewer may bring back, by its content.
 
     CVAT for video XML and Label Studio exports are compared with the run's
-    tracks (only what differs is a correction); a CSV or a COCO file holds
-    corrections only (:func:`annotator.corrections.read_corrections`).
+    tracks (only what a person changed is a correction; ``exported`` is
+    run.json's ``review_exports``); a CSV or a COCO file holds corrections
+    only (:func:`annotator.corrections.read_corrections`).
     """
     from annotator.corrections import read_corrections
 
@@ -434,7 +621,8 @@ def read_run_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: S
         head = ""
     start = head.lstrip()
     if start.startswith("<"):
-        return read_cvat_corrections(path, video=video, tracks=tracks, frames=frames)
+        return read_cvat_corrections(path, video=video, tracks=tracks, frames=frames,
+                                     exported=(exported or {}).get("cvat"))
     if start.startswith("[") or (start.startswith("{") and _looks_like_labelstudio(_read_text(path, "Label Studio export"))):
         return read_labelstudio_corrections(path, video=video, tracks=tracks, frames=frames)
     return read_corrections(path)

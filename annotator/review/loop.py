@@ -67,7 +67,7 @@ from annotator.annotate import ctrl_c_ignored, json_default
 from annotator.atomic import write_text_atomic
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
-from annotator.exports import write_exports
+from annotator.exports import ExportOptions, record_review_exports, write_exports
 from annotator.frames import DecodeError
 from annotator.progress import Progress
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
@@ -148,6 +148,7 @@ def apply_corrections(
     input_path: str | os.PathLike | None = None,
     input_checked: bool = False,
     render: bool = True,
+    media_url: str | None = None,
 ) -> ReviewResult:
     """Apply a corrections file to the run in ``out_dir``, re-track what they affect, rewrite every output.
 
@@ -182,6 +183,9 @@ def apply_corrections(
         or thumbnails, and the next re-track that renders writes it again.
         The overlay is decoded and encoded in full every time: on a long
         video, most of a round's time.
+    media_url : str, optional
+        A new URL of the video for ``labelstudio.json`` (``--media-url``),
+        recorded in run.json; None keeps the run's.
 
     Returns
     -------
@@ -198,7 +202,10 @@ def apply_corrections(
     corrections_path = Path(corrections_path)
     run = load_run(out_dir)
     corrections = read_run_corrections(corrections_path, video=run.video, tracks=run.tracks,
-                                       frames=range(run.store.start, run.store.stop, run.store.step))
+                                       frames=range(run.store.start, run.store.stop, run.store.step),
+                                       exported=run.info.get("review_exports"))
+    if media_url is not None:
+        run.info["export_options"] = {**(run.info.get("export_options") or {}), "media_url": media_url}
     resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
     source = open_run_source(run, verify_input=verify_input, input_path=input_path, input_checked=input_checked)
@@ -236,7 +243,7 @@ def apply_corrections(
         # A run whose overlay a --no-render round removed gets it back from the next round that renders.
         overlay_missing = render and "overlay" in run.formats and (
             not (out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
-        if not retrack.changed and not rewrite_unchanged and not overlay_missing:
+        if not retrack.changed and not rewrite_unchanged and not overlay_missing and media_url is None:
             return result
         result.written, result.overlay_removed = _write_all(
             run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
@@ -374,8 +381,9 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     if passes is not None:  # else the file is left as it was: still right for the recorded input
         written["passes"] = [write_pass_cache(tmp / PASSES_NAME, keep_anchored(passes, tracks),
                                               _fingerprint(run)).relative_to(tmp)]
+    options = ExportOptions(media_url=(run.info.get("export_options") or {}).get("media_url"))
     written.update({name: [p.relative_to(tmp) for p in paths]
-                    for name, paths in write_exports(tmp, store, formats).items()})
+                    for name, paths in write_exports(tmp, store, formats, options).items()})
     thumbnails: list[SpanThumbnail] = []
     rendered = "overlay" in formats and render
     if rendered:
@@ -397,6 +405,9 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
         written["overlay"] = [Path(OVERLAY_NAME)]
     info = dict(run.info)
     info["tracks"] = [track_summary(t) for t in tracks]
+    review_exports = record_review_exports(info.get("review_exports"), store, formats)
+    if review_exports:
+        info["review_exports"] = review_exports
     info["review"] = _review_section(run, retrack, corrections_path, merge, rendered)
     if "report" in formats:
         timings = info.get("timings") or {}
