@@ -13,7 +13,7 @@ person with a fixed amount of time gets exactly that many frames).
 
 Reasons (the ``reason`` column of flags.csv, ``+``-joined)
 ----------------------------------------------------------
-See :data:`REASONS`, the one place they are explained; the README and the
+See :data:`REASONS`, the one place they are explained; docs/flags.md and the
 report show the same text.
 """
 

@@ -102,7 +102,7 @@ def by_expected_errors(spans: Sequence[FlaggedSpan]) -> list[FlaggedSpan]:
 def reason_legend(tracks: Sequence[TrackResult]) -> list[tuple[str, str]]:
     """``(reason, explanation)`` for every reason the tracks' flags use, in :data:`REASONS` order.
 
-    Only the reasons present: the full list is in the README, and the page
+    Only the reasons present: the full list is in docs/flags.md, and the page
     should explain what it shows. A reason this version does not know (a
     store written by another version) is listed without an explanation
     rather than hidden.
