@@ -68,7 +68,7 @@ from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
 from annotator.failure import FEATURES, feature_matrix, load_model  # noqa: E402
-from annotator.failure.fit import fit_model, fit_pass_agreement  # noqa: E402
+from sptpt_dev.failure_fit import fit_model, fit_pass_agreement  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
 from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402

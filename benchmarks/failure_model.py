@@ -15,7 +15,7 @@ reads every item's track store and ground truth (every frame of every sequence; 
 session) the runs stopped at frame 150), and reports, on held-out videos only (each sequence scored by a
 model fitted on the other videos: Jogging.1 and Jogging.2 are one video, held out together; until the 6th
 session on 2026-11-27 the folds were sequences), its flag threshold chosen for the targets on those alone by
-``annotator.failure.fit.choose_threshold``: AUROC of p_fail for failure frames
+``sptpt_dev.failure_fit.choose_threshold``: AUROC of p_fail for failure frames
 (IoU < 0.5), expected calibration error, and the flags' precision, recall,
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
@@ -23,7 +23,7 @@ measures each signal group's worth (AUROC with the group left out) and the
 tracker's own confidence as a baseline. ``--select-groups`` lets each fold
 leave out the signal groups that backward elimination picks on its training
 sequences (nested), and the shipped model those it picks on all of them. The
-regression is L1-regularised (``annotator.failure.fit``), which sets the weight
+regression is L1-regularised (``sptpt_dev.failure_fit``), which sets the weight
 of a signal that does not pay to exactly 0 by itself; the shipped model is
 fitted without ``--select-groups`` since then (RESULTS.md, "Failure model:
 sparse"). Before, with L2, it was fitted with it (HISTORY.md, "the track's own
@@ -31,7 +31,7 @@ past"). Forward selection was tried and did worse held out (HISTORY.md, "Forward
 selection"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
-predictions (``annotator.failure.fit``). ``--write`` refits on everything,
+predictions (``sptpt_dev.failure_fit``). ``--write`` refits on everything,
 writes ``annotator/data/failure_model.json`` and the calibration plot, and
 records the figures in ``benchmarks/RESULTS.md``.
 """
@@ -57,7 +57,7 @@ sys.path.insert(0, str(ROOT))
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
 from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
-from annotator.failure.fit import (  # noqa: E402
+from sptpt_dev.failure_fit import (  # noqa: E402
     MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,
     group_features, video)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel  # noqa: E402
@@ -401,6 +401,9 @@ def main() -> int:
                         help="batch runs of sequences no choice has seen (globs): fit the procedure on --runs, score "
                              "it once on these, print and (--record) record the figures; nothing else is measured")
     parser.add_argument("--record", action="store_true", help="with --test-runs: record the RESULTS.md section")
+    parser.add_argument("--quick", action="store_true",
+                        help="only the held-out figures and the per-sequence table (no group worth, no signal cost); "
+                             "not with --write")
     parser.add_argument("--C", default=C_GRID,
                         help="inverse L1 strength of the logistic regression, or a comma-separated grid: each held-out "
                              "fold then chooses its own on its training videos (nested leave-one-video-out), "
@@ -415,6 +418,8 @@ def main() -> int:
     args = parser.parse_args()
     started = time.time()
     C = checked_C_and_workers(parser, args)
+    if args.quick and args.write:
+        parser.error("--quick measures less than --write records: give one of them")
     C = C[0] if len(C) == 1 else C
     samples, aucs, confidence = load_samples(args.runs, args.otb)
     drop = dropped_features(parser, args.drop)
@@ -447,6 +452,12 @@ def main() -> int:
     # The same held-out p_fail flagged at other thresholds: what each would give a reviewer, frame by frame.
     sweep = {t: flag_metrics([(s, p, g, t) for s, p, g, _ in results], aucs, params) for t in SWEEP_THRESHOLDS}
     pooled_p, pooled_y = pooled(results)
+    if args.quick:
+        print("\n".join(summary_lines(prob, flags, per_sequence(results, params))))
+        print("\n".join(per_sequence_table(per_sequence(results, params))))
+        print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}; fold thresholds "
+              f"{ {n: i['flag_threshold'] for n, i in fold_info.items()} }")
+        return 0
 
     # Baseline: the tracker's own confidence, where it is on the subspace scale.
     base = []

@@ -5,8 +5,8 @@
 The same runs as ``benchmarks/failure_model.py`` (its docstring has the batch commands). For each penalty and
 each C of ``--C``, every video is scored by a model fitted on the other videos, every signal offered, C fixed
 (not chosen per fold), recalibrated and its threshold chosen on its own training videos, exactly as
-``annotator.failure.fit.fit_model`` does it; only the regression differs. L1 is the product's
-(``annotator.failure.fit._fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
+``sptpt_dev.failure_fit.fit_model`` does it; only the regression differs. L1 is the product's
+(``sptpt_dev.failure_fit._fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
 Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md ("Failure model: sparse").
 
 This is how the penalty was chosen (2026-11-27, 6th session), on the sequences whose held-out figures
@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import annotator.failure.fit as fit  # noqa: E402
+import sptpt_dev.failure_fit as fit  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
 from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,  # noqa: E402
                                       load_samples, mean_std, per_seed_probability, run_preset)

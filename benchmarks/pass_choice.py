@@ -64,7 +64,7 @@ from annotator.atomic import write_text_atomic  # noqa: E402
 from annotator.config import RunConfig  # noqa: E402
 from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
-from annotator.failure.fit import fit_pass_choice  # noqa: E402
+from sptpt_dev.failure_fit import fit_pass_choice  # noqa: E402
 from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS  # noqa: E402
 from annotator.flagging import FlagParams  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402

@@ -28,10 +28,11 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))  # sptpt_dev: in the source tree, not in the installed package
 
 from _results import machine_line, update_section  # noqa: E402
 
-from annotator.synthetic import make_clip  # noqa: E402
+from sptpt_dev.synthetic import make_clip  # noqa: E402
 
 
 def write_video(path: Path, clip_frames: np.ndarray, repeats: int, fps: float = 25.0) -> None:

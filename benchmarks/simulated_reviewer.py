@@ -89,13 +89,14 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))  # sptpt_dev: in the source tree, not in the installed package
 
 from _results import machine_line, update_section  # noqa: E402
 from _sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
 from annotator.failure import FailureModelError, load_model  # noqa: E402
-from annotator.failure.fit import video  # noqa: E402
+from sptpt_dev.failure_fit import video  # noqa: E402
 from annotator.failure.model import MODEL_PATH  # noqa: E402
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402

@@ -13,15 +13,18 @@ start can also be scored with ``sptpt-annotate eval``.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import imageio_ffmpeg
 import numpy as np
 
-from annotator.otb import write_otb_boxes
-from annotator.synthetic import make_clip
-
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # sptpt_dev lives in the source tree, not in the installed package
+
+from annotator.otb import write_otb_boxes  # noqa: E402
+from sptpt_dev.synthetic import make_clip  # noqa: E402
+
 FPS = 25
 #: The look-alike meets the object 40% into a 120-frame path (frame 48), where the ``robust`` tracker follows it
 #: (later meetings, 0.5 to 0.7, it shakes off within a few frames). The sample keeps the first 100 frames: the track

@@ -28,7 +28,7 @@ from annotator.cli import main
 from annotator.config import load_config_file
 from annotator.frames import open_frames
 from annotator.manifest import read_manifest
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 
 SIZE, OBJECT = (96, 72), (24, 20)
 GOOD = ("v0", "v1", "v2")

@@ -29,7 +29,7 @@ from annotator.exports import read_flags_csv
 from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 
 from test_report import parse, seek_seconds, shows_frame
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from _benchmark_scripts import load_script
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from sptpt.params import get_preset, params_from_mapping
 
 

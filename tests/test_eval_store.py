@@ -18,7 +18,7 @@ from annotator.cli import _with_default_command, app
 from annotator.evaluation import EvaluationError, evaluate_result_file, evaluate_results_dir, evaluate_sequence
 from annotator.otb import write_otb_boxes
 from annotator.store import STORE_NAME, RunStore, write_store
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
 
 VIDEO = VideoInfo(path="Alpha", name="Alpha", width=96, height=72, fps=30.0, frame_count=20)

@@ -26,13 +26,13 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
+from sptpt_dev.failure_fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
                                    UNCHOSEN_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups,
                                    choose_threshold, fit_model, fit_pass_agreement, group_features,
                                    leave_one_video_out, platt, video)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from sptpt.contrast import colour_contrast
 
 FAIL_AT = 12
@@ -475,7 +475,7 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     assert "calibration" not in raw.info
     # The threshold is chosen on the recalibrated held-out predictions: a recalibration that shifts p_fail up
     # moves the threshold up with it (the same frames flagged), while the raw model's stays unchosen.
-    monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
+    monkeypatch.setattr("sptpt_dev.failure_fit.platt", lambda p, failed: (1.0, 2.0))
     shifted = fit_model(samples, C=0.1)
     assert np.all(shifted.p_fail(features) > raw.p_fail(features))
     assert raw.threshold == UNCHOSEN_THRESHOLD and "threshold" not in raw.info
@@ -811,7 +811,7 @@ def test_both_sequences_of_one_video_are_held_out_together():
 def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_other(monkeypatch):
     # Every nested fit (the choice of C, the recalibration, the threshold) must hold out whole videos too. Each
     # sample carries its own value in since_anchor, so the rows a fit sees tell which sequences it trained on.
-    import annotator.failure.fit as fit
+    import sptpt_dev.failure_fit as fit
 
     a, b, c, d = small_samples()
     column = FEATURES.index("since_anchor")

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.contrast import colour_contrast

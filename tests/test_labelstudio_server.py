@@ -27,7 +27,7 @@ from typer.testing import CliRunner
 from _labelstudio_env import BUILD_COMMAND, LABELSTUDIO_ENV, labelstudio_executable
 from annotator.cli import _with_default_command, app
 from annotator.store import STORE_NAME, read_store
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from test_retrack import snapshot
 
 USER, PASSWORD, TOKEN = "reviewer@example.com", "sptpt-review-47", "sptpt47token0123456789"

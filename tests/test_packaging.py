@@ -20,8 +20,6 @@ DISTRIBUTION = {"cv2": "opencv-python-headless", "sklearn": "scikit-learn", "yam
                 "imageio_ffmpeg": "imageio-ffmpeg", "distributed": "dask"}
 #: Runtime modules that import an optional extra's package, and the extra.
 OPTIONAL = {"distributed": "cluster", "matplotlib": "plots"}
-#: Modules only the benchmarks and tests import (annotator.failure.fit fits the failure model).
-NOT_RUNTIME = {"annotator/failure/fit.py", "annotator/synthetic.py"}
 
 
 def _requirement_name(requirement: str) -> str:
@@ -33,8 +31,6 @@ def _requirement_name(requirement: str) -> str:
 def _third_party_imports() -> set[str]:
     names: set[str] = set()
     for path in [*ROOT.glob("annotator/**/*.py"), *ROOT.glob("sptpt/**/*.py")]:
-        if str(path.relative_to(ROOT)) in NOT_RUNTIME:
-            continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Import):
                 names.update(alias.name.split(".")[0] for alias in node.names)

@@ -46,7 +46,7 @@ from annotator.review import (
     same_box,
 )
 from annotator.review.merge import track_p_fail
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 
 CONFIG = resolve_config({"seed": 1, "tracker": {"n_particles": 60, "n_negatives": 20}})
 CLIP = make_clip(16, size=(96, 72), object_size=(24, 20))

@@ -263,7 +263,7 @@ def test_media_url(url, expected):
 def cvat_run(tmp_path_factory):
     import cv2
 
-    from annotator.synthetic import make_clip
+    from sptpt_dev.synthetic import make_clip
     from test_review_loop_tools import _run
 
     root = tmp_path_factory.mktemp("given")

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from annotator.cli import _with_default_command, app
 from annotator.errors import EXIT_VALUE
 from annotator.store import STORE_NAME, read_store
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from test_review_imports import edit_box
 from test_retrack import snapshot
 

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
-from annotator.synthetic import _texture, make_clip
+from sptpt_dev.synthetic import _texture, make_clip
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.tracker import Tracker

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from annotator.synthetic import _texture
+from sptpt_dev.synthetic import _texture
 from sptpt.affine import state_from_box_xywh
 from sptpt.params import get_preset
 from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histograms

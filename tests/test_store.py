@@ -25,7 +25,7 @@ from annotator.exports import FILE_EXPORTS, write_exports
 from annotator.pipeline import Target
 from annotator.review import load_run
 from annotator.store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
 from test_exports import GOLDEN, VIDEO, make_tracks
 from test_retrack import CONFIG, GT, _write_folder, csv_row, snapshot

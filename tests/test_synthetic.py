@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from sptpt.boxes import iou_xywh
 
 KW = dict(size=(160, 120), object_size=(24, 20), seed=7, occlusion=None)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from annotator.synthetic import make_clip
+from sptpt_dev.synthetic import make_clip
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
