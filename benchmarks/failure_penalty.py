@@ -7,7 +7,7 @@ each C of ``--C``, every video is scored by a model fitted on the other videos, 
 (not chosen per fold), recalibrated and its threshold chosen on its own training videos, exactly as
 ``sptpt_dev.failure_fit.fit_model`` does it; only the regression differs. L1 is the product's
 (``sptpt_dev.failure_fit._fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
-Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md ("Failure model: sparse").
+Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md (section "failure-penalty").
 
 This is how the penalty was chosen (2026-11-27, 6th session), on the sequences whose held-out figures
 ``failure_model.py`` reports: those figures measure the procedure, not the choice of it (RESULTS.md says so).

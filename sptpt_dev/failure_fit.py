@@ -88,7 +88,7 @@ def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray
 
     Z, mean, scale = _standardised(X)
     # L1 (lasso): most signals repeat what another says, and the model ranks unseen videos better when it weighs a
-    # few of them and gives the rest weight exactly 0 than when it gives all of them small weights (RESULTS.md,
+    # few of them and gives the rest weight exactly 0 than when it gives all of them small weights (HISTORY.md,
     # "Failure model: sparse"). liblinear penalises the intercept as a weight on a
     # constant column of intercept_scaling; at 100 the penalty on it is negligible. Its coordinate descent visits
     # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
