@@ -279,16 +279,19 @@ def per_sequence_table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def summary_lines(prob, flags, rows: list[dict]) -> list[str]:
+def summary_lines(prob, flags, rows: list[dict], *, auroc_target: float) -> list[str]:
+    """The figures as printed: mean ± std over seeds, with their targets (AUROC: issue #9's 0.90 held out on the
+    videos fitted on, issue #43's 0.92 on unseen ones)."""
     over = [r["sequence"] for r in rows if r["over_flagged"]]
     return [
         f"{'metric':<40} {'mean ± std over seeds':>24}   target",
-        f"{'AUROC of p_fail':<40} {fmt(mean_std(prob, 'auroc')):>24}   >= 0.92",
+        f"{'AUROC of p_fail':<40} {fmt(mean_std(prob, 'auroc')):>24}   >= {auroc_target:.2f}",
         f"{'expected calibration error (10 bins)':<40} {fmt(mean_std(prob, 'ece')):>24}   <= 0.05",
         f"{'flag precision':<40} {fmt(mean_std(flags, 'precision')):>24}   >= 0.70",
         f"{'flag recall':<40} {fmt(mean_std(flags, 'recall')):>24}   >= 0.80",
         f"{'  counting keyframe requests as caught':<40} {fmt(mean_std(flags, 'recall_keyframes')):>24}",
         f"{'flagged share':<40} {fmt(mean_std(flags, 'flagged_share')):>24}",
+        f"{'onset recall':<40} {fmt(mean_std(flags, 'onset_recall')):>24}",
         f"{'flagged share, sequences AUC >= 0.6':<40} {fmt(mean_std(flags, 'good_flagged_share')):>24}   <= 0.10",
         f"{'failure rate (IoU < 0.5)':<40} {fmt(mean_std(prob, 'failure_rate')):>24}",
         f"sequences under {RARELY_WRONG:.0%} wrong flagged over {FLAGGED_CAP:.0%}: {', '.join(over) or 'none'}",
@@ -365,7 +368,7 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
           f"{len(samples)} runs given), C = {chosen_C}, threshold "
           f"{model.threshold:g}, dropped {','.join(drop) or 'nothing'}; weighs {', '.join(weighed)}")
     print(f"scored on {len({s.sequence for s in test})} unseen sequences ({len(test)} runs):")
-    print("\n".join(summary_lines(prob, flags, rows)))
+    print("\n".join(summary_lines(prob, flags, rows, auroc_target=0.92)))
     print("\n".join(per_sequence_table(rows)))
     if not args.record:
         return 0
@@ -485,9 +488,10 @@ def main() -> int:
     # The same held-out p_fail flagged at other thresholds: what each would give a reviewer, frame by frame.
     sweep = {t: flag_metrics([(s, p, g, t) for s, p, g, _ in results], aucs, params) for t in SWEEP_THRESHOLDS}
     pooled_p, pooled_y = pooled(results)
+    sequence_rows = per_sequence(results, params)
+    print("\n".join(summary_lines(prob, flags, sequence_rows, auroc_target=0.90)))
+    print("\n".join(per_sequence_table(sequence_rows)))
     if args.quick:
-        print("\n".join(summary_lines(prob, flags, per_sequence(results, params))))
-        print("\n".join(per_sequence_table(per_sequence(results, params))))
         print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}; fold thresholds "
               f"{ {n: i['flag_threshold'] for n, i in fold_info.items()} }")
         return 0
@@ -515,20 +519,6 @@ def main() -> int:
         single[name] = max(a, 1 - a) if np.isfinite(a) else float("nan")
 
     thresholds = {name: info["flag_threshold"] for name, info in fold_info.items()}
-    lines = [
-        f"{'metric':<40} {'mean ± std over seeds':>24}   target",
-        f"{'AUROC of p_fail (held-out)':<40} {fmt(mean_std(prob, 'auroc')):>24}   >= 0.90",
-        f"{'expected calibration error (10 bins)':<40} {fmt(mean_std(prob, 'ece')):>24}   <= 0.05",
-        f"{'flag precision':<40} {fmt(mean_std(flags, 'precision')):>24}   >= 0.70",
-        f"{'flag recall':<40} {fmt(mean_std(flags, 'recall')):>24}   >= 0.80",
-        f"{'flagged share':<40} {fmt(mean_std(flags, 'flagged_share')):>24}",
-        f"{'onset recall':<40} {fmt(mean_std(flags, 'onset_recall')):>24}",
-        f"{'flagged share, sequences AUC >= 0.6':<40} {fmt(mean_std(flags, 'good_flagged_share')):>24}   <= 0.10",
-        f"{'failure rate (IoU < 0.5)':<40} {fmt(mean_std(prob, 'failure_rate')):>24}",
-    ]
-    print("\n".join(lines))
-    sequence_rows = per_sequence(results, params)
-    print("\n".join(per_sequence_table(sequence_rows)))
     for t, m in sweep.items():
         print(f"threshold {t:g}: precision {fmt(mean_std(m, 'precision'))}, recall {fmt(mean_std(m, 'recall'))}, "
               f"flagged share {fmt(mean_std(m, 'flagged_share'))}, on AUC >= 0.6 {fmt(mean_std(m, 'good_flagged_share'))}")
