@@ -35,7 +35,11 @@ REASONS: Mapping[str, str] = {
     "doubt:candidates": "many candidate boxes scored alike: the tracker cannot tell the object from its surroundings",
     "doubt:motion": "the box jumped or changed size more than the object plausibly moves",
     "doubt:drift": "the box's size or shape drifted from the first frame's, or it is far from the last human box",
-    "doubt:flow": "optical flow moved the previous box somewhere else, or could not follow its points",
+    "doubt:flow": "optical flow moved the previous box somewhere else, could not follow its points, or the box "
+                  "slid away from them over the last frames",
+    "doubt:extent": "the motion around the box disagrees with its size: points just outside it move with it (the "
+                    "object reaches past the box), points inside it move with the background (the box holds "
+                    "background), or its size changed unlike the object's",
     "doubt:appearance": "the image under the box no longer looks like the object in the first frame, or like the "
                         "object earlier in the track",
     "doubt:contrast": "the box's colours hardly differ from those around it: it may sit on background",

@@ -221,7 +221,7 @@ def slow_ncc_memory(patches: list, position: int, every: int, size: int) -> floa
 @pytest.mark.parametrize("size", [200, 3])
 def test_the_memory_signal_equals_its_definition_frame_by_frame(clip, monkeypatch, size):
     import annotator.failure.signals as signals_module
-    from annotator.failure.signals import MEMORY_EVERY, _grey, _patch
+    from annotator.failure.signals import MEMORY_EVERY, _patch, grey_of
 
     monkeypatch.setattr(signals_module, "MEMORY_SIZE", size)
     rng = np.random.default_rng(11)
@@ -229,7 +229,7 @@ def test_the_memory_signal_equals_its_definition_frame_by_frame(clip, monkeypatc
     boxes = [clip.boxes_xywh[k % len(clip.frames)] + np.r_[rng.normal(0, 3, 2), 0, 0] for k in range(95)]
     for k in (30, 33, 50):  # off the image: no patch to compare (33) or to remember (30, 50)
         boxes[k] = np.array([400.0, 400.0, 20.0, 20.0])
-    patches = [_patch(_grey(f), b) for f, b in zip(frames, boxes)]
+    patches = [_patch(grey_of(f), b) for f, b in zip(frames, boxes)]
     got = measure(clip, boxes, frames)["ncc_memory"]
     assert got[0] == 1.0
     expected = [slow_ncc_memory(patches, k, MEMORY_EVERY, size) for k in range(1, len(frames))]
@@ -832,3 +832,74 @@ def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_o
     assert len(seen) > 20
     assert all((1.0 in marks) == (2.0 in marks) for marks in seen)  # J.1 and J.2 together, or neither
     assert {1.0, 2.0, 3.0} in seen and {3.0, 4.0} in seen  # folds without D, and without J
+
+
+def _moving_scene(frames: int = 16, speed=(3.0, 2.0)):
+    """Frames of a textured object (40 x 32 px) moving at ``speed`` px a frame over a still textured background,
+    and its true boxes: textures everywhere, so every flow point has something to track."""
+    rng = np.random.default_rng(7)
+    background = cv2.GaussianBlur(rng.integers(0, 256, (180, 240, 3), dtype=np.uint8), (0, 0), 1.5)
+    texture = cv2.GaussianBlur(rng.integers(0, 256, (32, 40, 3), dtype=np.uint8), (0, 0), 1.0)
+    shown, boxes = [], []
+    for k in range(frames):
+        x, y = 60 + speed[0] * k, 60 + speed[1] * k
+        frame = background.copy()
+        frame[int(y):int(y) + 32, int(x):int(x) + 40] = texture
+        shown.append(frame)
+        boxes.append([int(x), int(y), 40.0, 32.0])
+    return shown, np.array(boxes, dtype=np.float64)
+
+
+def _motion(frames, boxes) -> dict[str, np.ndarray]:
+    from annotator.failure.signals import MotionMeter, grey_of
+
+    meter = MotionMeter()
+    meter.first(grey_of(frames[0]), boxes[0])
+    rows = [meter.next(grey_of(frames[k]), boxes[k]) for k in range(1, len(frames))]
+    return {name: np.array([row[name] for row in rows]) for name in rows[0]}
+
+
+def _scaled(boxes: np.ndarray, factor: float) -> np.ndarray:
+    centre = boxes[:, :2] + boxes[:, 2:] / 2
+    return np.concatenate([centre - boxes[:, 2:] * factor / 2, boxes[:, 2:] * factor], axis=1)
+
+
+def test_motion_signals_tell_a_right_box_from_a_drifting_small_or_large_one():
+    frames, truth = _moving_scene()
+    right = _motion(frames, truth)
+    # The box lags ever further behind the object (0.5 px a frame): no single frame shows it, ten frames do.
+    lagging = truth - np.arange(len(truth))[:, None] * [0.5, 0.5, 0, 0]
+    lag = _motion(frames, lagging)
+    small, large = _motion(frames, _scaled(truth, 0.6)), _motion(frames, _scaled(truth, 1.6))
+    # The right box moves as its points do, at their scale, with its ring still and its points with it.
+    assert right["flow_drift"].max() < 0.05 and right["flow_scale_drift"].max() < 0.05
+    assert right["ring_with_box"].max() < 0.2 and right["box_with_background"].max() < 0.1
+    assert lag["flow_drift"][-1] > 0.1 > 0.05 > right["flow_drift"].max()
+    assert lag["flow_drift"][-1] > lag["flow_drift"][1] * 3  # it adds up over the window
+    # Too small: the object reaches past the box, its ring moves with it. Too large: the box holds background.
+    assert small["ring_with_box"][2:].min() > 0.5 > right["ring_with_box"].max()
+    assert large["box_with_background"][2:].min() > 0.3 > right["box_with_background"].max()
+    # A box that grows while its points keep their scale.
+    growing = _scaled(truth, 1.0) * 1.0
+    growing[:, 2:] *= (1.03 ** np.arange(len(truth)))[:, None]
+    assert _motion(frames, growing)["flow_scale_drift"][-1] > 0.2
+
+
+def test_motion_extent_is_not_measured_where_the_box_moves_as_the_background():
+    frames, truth = _moving_scene(speed=(0.0, 0.0))
+    still = _motion(frames, truth)
+    assert np.isnan(still["ring_with_box"]).all() and np.isnan(still["box_with_background"]).all()
+    assert still["flow_drift"].max() < 0.05
+
+
+def test_signal_meter_measures_the_motion_signals_of_the_motion_meter():
+    """The tool's SignalMeter reports MotionMeter's signals as they are: what benchmarks/motion_signals.py
+    measures again from a stored track's frames and boxes is what tracking stored."""
+    frames, truth = _moving_scene()
+    boxes = _scaled(truth, 0.8)
+    meter = SignalMeter()
+    meter.first(frames[0], boxes[0])
+    rows = [meter.next(frames[k], boxes[k], log_likelihood=5.0, scoring="subspace", accepted=True)
+            for k in range(1, len(frames))]
+    for name, values in _motion(frames, boxes).items():
+        np.testing.assert_array_equal(np.array([row[name] for row in rows]), values, err_msg=name)

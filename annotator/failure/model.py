@@ -116,6 +116,7 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "ncc_memory_w5": "appearance",
     "run_iou": "runs", "run_iou_w5": "runs", "run_support": "runs", "run_support_w5": "runs",
     "contrast": "contrast", "contrast_w5": "contrast",
+    "flow_drift": "flow", "flow_scale_drift": "extent", "ring_with_box": "extent", "box_with_background": "extent",
 }
 
 

@@ -69,7 +69,7 @@ import numpy as np
 from sptpt.boxes import iou_xywh
 from sptpt.contrast import colour_contrast
 
-__all__ = ["NEUTRAL", "SIGNALS", "STAND_IN", "SignalMeter", "particle_stats"]
+__all__ = ["NEUTRAL", "SIGNALS", "STAND_IN", "MotionMeter", "SignalMeter", "grey_of", "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -101,6 +101,18 @@ SIGNALS: Mapping[str, str] = {
     "contrast": "1 - Bhattacharyya coefficient of the HSV colour histograms inside the box and in a ring of the "
                 "box's own area around it, in [0, 1] (NaN, not measured, on a box a person gave and where the box or "
                 "the ring has fewer than 100 pixels in the image: too few to compare histograms)",
+    "flow_drift": "how far the box's centre moved beyond the median flow of the points in the box, added up as "
+                  "a vector over the pass's last 10 frames, in box sizes: a slow slide off the object that no "
+                  "single frame shows (0 on a pass's first frame)",
+    "flow_scale_drift": "|log| of how much the box's size changed beyond the flow's scale change of its points, "
+                        "added up over the pass's last 10 frames (0 on a pass's first frame)",
+    "ring_with_box": "share of the flow points on a ring just outside the box (1.3 times its size) that move as "
+                     "the box moved rather than with the background (the median flow of a ring at 2.2 times), "
+                     "over the pass's last 10 frames: high when the object reaches past the box (NaN, not "
+                     "measured, where the box moved as the background did)",
+    "box_with_background": "share of the flow points in the box that move with the background rather than as the "
+                           "box moved, over the pass's last 10 frames: high when the box holds background (NaN "
+                           "where the box moved as the background did)",
 }
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
@@ -112,6 +124,9 @@ NEUTRAL: Mapping[str, float] = {
     "run_iou": math.nan, "run_support": math.nan,
     # Not measured on a box a person gave (as re-tracking stores its anchors), nor on rows no pass scored.
     "contrast": math.nan,
+    "flow_drift": 0.0, "flow_scale_drift": 0.0,
+    # Not measured where nothing moves apart from the background (and on a box a person gave).
+    "ring_with_box": math.nan, "box_with_background": math.nan,
 }
 #: Signals newer than some stores, each with the measured signal a stored row that lacks it reads in its place
 #: (``annotator.review.merge.filled_signals``) instead of its neutral value. ``ncc_memory``'s neutral 1, a perfect
@@ -129,9 +144,19 @@ MEMORY_EVERY = 10
 #: ``ncc_memory``: patches remembered at most; when full, every other is forgotten and the spacing doubles, so the
 #: memory spans the whole pass in bounded space (200 patches of 32 x 32, and their stacked copy: 3.3 MB).
 MEMORY_SIZE = 200
+#: Frames of a pass over which the motion signals add up (``flow_drift``, ``flow_scale_drift``) or are averaged.
+MOTION_WINDOW = 10
+#: The rings of flow points around the previous box, as multiples of its size: just outside it, and the
+#: background's (far enough that a box somewhat too small still leaves the object inside it).
+NEAR_RING, FAR_RING = 1.3, 2.2
+#: The box's move and the background's motion are told apart when they differ by this many box sizes.
+SEPARABLE = 0.02
+#: A flow point is reliable when its forward-backward error is under this many box sizes.
+FB_LIMIT = 0.05
 
 
-def _grey(frame_rgb: np.ndarray) -> np.ndarray:
+def grey_of(frame_rgb: np.ndarray) -> np.ndarray:
+    """The grey image the signals are measured on."""
     return cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2GRAY)
 
 
@@ -232,14 +257,16 @@ class SignalMeter:
         self._prev_box: np.ndarray | None = None
         self._prev_patch: np.ndarray | None = None
         self._memory = _PatchMemory()
+        self._motion = MotionMeter()
 
     def first(self, frame_rgb: np.ndarray, box_xywh) -> dict[str, float]:
-        grey = _grey(frame_rgb)
+        grey = grey_of(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
         self._first_box, self._first_patch = box, _patch(grey, box)
         self._prev_grey, self._prev_box, self._prev_patch = grey, box, self._first_patch
         self._memory = _PatchMemory()
         self._memory.add(self._first_patch)
+        self._motion.first(grey, box)
         measured = 1.0 if self._first_patch is not None else 0.0
         return {**NEUTRAL, "ncc_first": measured, "ncc_memory": measured}
 
@@ -248,13 +275,13 @@ class SignalMeter:
              run_boxes_xywh: np.ndarray | None = None) -> dict[str, float]:
         if self._prev_grey is None:
             raise RuntimeError("SignalMeter.next() before first(): start the pass with first(frame, box)")
-        grey = _grey(frame_rgb)
+        grey = grey_of(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
         prev, first = self._prev_box, self._first_box
         size = math.sqrt(max(prev[2] * prev[3], 1e-9))
         jump = math.hypot(box[0] + box[2] / 2 - prev[0] - prev[2] / 2, box[1] + box[3] / 2 - prev[1] - prev[3] / 2)
         area = max(box[2] * box[3], 1e-9)
-        flow_iou, flow_fb, flow_kept = self._flow(grey, prev, box)
+        motion = self._motion.next(grey, box)
         patch = _patch(grey, box)
         gap, spread = particle_stats(particles_xywh, particle_scores, box)
         ll = float(log_likelihood) if np.isfinite(log_likelihood) else -50.0
@@ -272,9 +299,7 @@ class SignalMeter:
             "scale_drift": float(min(abs(math.log(area / max(first[2] * first[3], 1e-9))), 5.0)),
             "aspect_drift": float(min(abs(math.log((box[3] / max(box[2], 1e-9))
                                                    / (first[3] / max(first[2], 1e-9)))), 5.0)),
-            "flow_iou": flow_iou,
-            "flow_fb": flow_fb,
-            "flow_kept": flow_kept,
+            **motion,
             "ncc_first": _ncc(patch, self._first_patch),
             "ncc_prev": _ncc(patch, self._prev_patch),
             "ncc_memory": self._memory.median_ncc(patch),
@@ -286,24 +311,90 @@ class SignalMeter:
         self._memory.add(patch)
         return signals
 
-    def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray) -> tuple[float, float, float]:
-        """Median flow of a point grid in the previous box: (IoU with ``box``, FB error, share kept)."""
+
+def _grid_points(box: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``(64, 2)`` points: an 8x8 grid over ``box``, clipped to the image."""
+    x, y, w, h = box
+    xs = np.clip(x + (np.arange(_GRID) + 0.5) * w / _GRID, 0, width - 1)
+    ys = np.clip(y + (np.arange(_GRID) + 0.5) * h / _GRID, 0, height - 1)
+    return np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+
+
+def _ring_points(box: np.ndarray, factor: float, count: int) -> np.ndarray:
+    """``(count, 2)`` points spaced evenly along the border of ``box`` scaled by ``factor`` about its centre."""
+    x, y, w, h = box
+    cx, cy, w, h = x + w / 2, y + h / 2, w * factor, h * factor
+    s = (np.arange(count) + 0.5) / count * 2 * (w + h)  # arc length along the border, from the top-left corner
+    px = np.select([s < w, s < w + h, s < 2 * w + h], [s, w, 2 * w + h - s], 0.0)
+    py = np.select([s < w, s < w + h, s < 2 * w + h], [0.0, s - w, h], 2 * (w + h) - s)
+    return np.stack([cx - w / 2 + px, cy - h / 2 + py], axis=1)
+
+
+class MotionMeter:
+    """The signals of :data:`MOTION_SIGNALS`: the box against the optical flow, independent of appearance.
+
+    Pyramidal Lucas-Kanade flow of three sets of points of the previous box, tracked forward and back in one
+    call: an 8x8 grid over the box (its median flow is the object's motion: ``flow_*``), a ring just outside
+    it (:data:`NEAR_RING`) and a ring well outside it (:data:`FAR_RING`, the background's motion). They need
+    only the frames and the boxes, so a stored track's can be measured again from its video
+    (``benchmarks/failure_model.py --motion``), bit for bit.
+    """
+
+    def __init__(self) -> None:
+        self._prev_grey: np.ndarray | None = None
+        self._prev_box: np.ndarray | None = None
+        self._steps: deque[tuple[float, float, float]] = deque(maxlen=MOTION_WINDOW)
+        self._extent: deque[tuple[float, float]] = deque(maxlen=MOTION_WINDOW)
+
+    def first(self, grey: np.ndarray, box: np.ndarray) -> None:
+        self._prev_grey, self._prev_box = grey, np.asarray(box, dtype=np.float64)
+        self._steps.clear()
+        self._extent.clear()
+
+    def next(self, grey: np.ndarray, box: np.ndarray) -> dict[str, float]:
+        prev, box = self._prev_box, np.asarray(box, dtype=np.float64)
+        signals, motion, extent = self._flow(grey, prev, box)
+        if motion is not None:
+            # What the box did beyond what the flow says: its centre's move and its size's log change.
+            dx, dy, scale = motion
+            size, prev_size = math.sqrt(max(box[2] * box[3], 1e-9)), math.sqrt(max(prev[2] * prev[3], 1e-9))
+            self._steps.append((box[0] + box[2] / 2 - prev[0] - prev[2] / 2 - dx,
+                                box[1] + box[3] / 2 - prev[1] - prev[3] / 2 - dy,
+                                math.log(size / prev_size) - math.log(max(scale, 1e-6))))
+        self._extent.append(extent)
+        steps, extents = np.array(self._steps).reshape(-1, 3), np.array(self._extent).reshape(-1, 2)
+        size = math.sqrt(max(box[2] * box[3], 1e-9))
+        signals["flow_drift"] = float(min(math.hypot(*steps[:, :2].sum(axis=0)) / size, 10.0))
+        signals["flow_scale_drift"] = float(min(abs(steps[:, 2].sum()), 5.0))
+        signals["ring_with_box"] = _nanmean(extents[:, 0])
+        signals["box_with_background"] = _nanmean(extents[:, 1])
+        self._prev_grey, self._prev_box = grey, box
+        return signals
+
+    def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray
+              ) -> tuple[dict[str, float], tuple[float, float, float] | None, tuple[float, float]]:
+        """``(flow signals, the object's (dx, dy, scale) or None, extent shares)`` of the points of ``prev``."""
         height, width = grey.shape
         x, y, w, h = prev
-        xs = np.clip(x + (np.arange(_GRID) + 0.5) * w / _GRID, 0, width - 1)
-        ys = np.clip(y + (np.arange(_GRID) + 0.5) * h / _GRID, 0, height - 1)
+        no_extent = (math.nan, math.nan)
         if w < 2 or h < 2 or x >= width or y >= height or x + w <= 0 or y + h <= 0:
-            return 1.0, 0.0, 1.0
-        points = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2).astype(np.float32)
+            return {"flow_iou": 1.0, "flow_fb": 0.0, "flow_kept": 1.0}, None, no_extent
+        grid = _grid_points(prev, width, height)
+        near, far = (_inside(_ring_points(prev, f, n), width, height) for f, n in ((NEAR_RING, 16), (FAR_RING, 24)))
+        points = np.concatenate([grid, near, far]).reshape(-1, 1, 2).astype(np.float32)
         forward, ok_f, _ = cv2.calcOpticalFlowPyrLK(self._prev_grey, grey, points, None, **_LK)
         back, ok_b, _ = cv2.calcOpticalFlowPyrLK(grey, self._prev_grey, forward, None, **_LK)
-        ok = (ok_f.ravel() == 1) & (ok_b.ravel() == 1)
+        ok_all = (ok_f.ravel() == 1) & (ok_b.ravel() == 1)
+        fb_all = np.linalg.norm((points - back).reshape(-1, 2), axis=1)
+        flows = (forward - points).reshape(-1, 2).astype(np.float64)
+        g, n = len(grid), len(near)
+        ok, fb = ok_all[:g], fb_all[:g]
         if ok.sum() < 4:
-            return 0.0, 1.0, float(ok.mean())
-        fb = np.linalg.norm((points - back).reshape(-1, 2), axis=1)
+            return {"flow_iou": 0.0, "flow_fb": 1.0, "flow_kept": float(ok.mean())}, None, no_extent
         median_fb = float(np.median(fb[ok]))
         kept = ok & (fb <= median_fb)
-        p0, p1 = points.reshape(-1, 2)[kept].astype(np.float64), forward.reshape(-1, 2)[kept].astype(np.float64)
+        p0 = points[:g].reshape(-1, 2)[kept].astype(np.float64)
+        p1 = forward[:g].reshape(-1, 2)[kept].astype(np.float64)
         dx, dy = np.median(p1 - p0, axis=0)
         i, j = np.triu_indices(len(p0), 1)
         d0 = np.linalg.norm(p0[i] - p0[j], axis=1)
@@ -313,4 +404,43 @@ class SignalMeter:
         cx, cy = x + w / 2 + dx, y + h / 2 + dy
         moved = np.array([cx - w * scale / 2, cy - h * scale / 2, w * scale, h * scale])
         size = math.sqrt(max(w * h, 1e-9))
-        return float(np.nan_to_num(iou_xywh(moved, box), nan=0.0)), float(min(median_fb / size, 10.0)), float(kept.mean())
+        signals = {"flow_iou": float(np.nan_to_num(iou_xywh(moved, box), nan=0.0)),
+                   "flow_fb": float(min(median_fb / size, 10.0)), "flow_kept": float(kept.mean())}
+        box_move = box[:2] + box[2:] / 2 - prev[:2] - prev[2:] / 2
+        reliable = ok_all & (fb_all <= FB_LIMIT * size)
+        return signals, (float(dx), float(dy), scale), _extent_shares(flows, reliable, box_move, g, n, size)
+
+
+def _inside(points: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The points inside the image."""
+    keep = (points[:, 0] >= 0) & (points[:, 0] <= width - 1) & (points[:, 1] >= 0) & (points[:, 1] <= height - 1)
+    return points[keep]
+
+
+def _extent_shares(flows: np.ndarray, reliable: np.ndarray, box_move: np.ndarray, grid: int, near: int,
+                   size: float) -> tuple[float, float]:
+    """``(ring_with_box, box_with_background)`` of one frame; NaN where the box's move and the background's
+    cannot be told apart (they differ by less than :data:`SEPARABLE` box sizes) or too few points were tracked.
+
+    Each reliably tracked point is classed by whether its flow is nearer the box's move (the tracker's, not
+    the points' median: a box twice too large holds mostly background) or the far ring's median flow: the
+    share of the near ring that moves with the box (the object reaches past the box), and the share of the
+    box that moves with the background (the box holds background, or is not on the object).
+    """
+    inner, ring, far = flows[:grid], flows[grid:grid + near], flows[grid + near:]
+    ok_inner, ok_ring, ok_far = reliable[:grid], reliable[grid:grid + near], reliable[grid + near:]
+    if ok_inner.sum() < 8 or ok_ring.sum() < 4 or ok_far.sum() < 4:
+        return math.nan, math.nan
+    background = np.median(far[ok_far], axis=0)
+    if np.linalg.norm(box_move - background) < SEPARABLE * size:
+        return math.nan, math.nan
+
+    def with_box(f: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(f - box_move, axis=1) < np.linalg.norm(f - background, axis=1)
+
+    return float(with_box(ring[ok_ring]).mean()), float(1.0 - with_box(inner[ok_inner]).mean())
+
+
+def _nanmean(values: np.ndarray) -> float:
+    measured = values[~np.isnan(values)]
+    return float(measured.mean()) if len(measured) else math.nan
