@@ -41,6 +41,7 @@ from annotator.progress import CountNote, Progress
 from annotator.report import render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
+from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs",
            "ctrl_c_ignored", "remove_staging_folders", "RESULT_FILES"]
@@ -129,7 +130,7 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
     for target in targets:
         x, y, w, h = target.box_xywh
         text = f"--box {x:g},{y:g},{w:g},{h:g} (0-based)"
-        if x >= source.width or y >= source.height or x + w <= 0 or y + h <= 0:
+        if lies_outside(target.box_xywh, source.width, source.height):
             raise ToolError(
                 f"{text} lies outside the {source.width}x{source.height} first frame "
                 f"of {source.path}: give pixel coordinates of the object in frame {source.start}"
@@ -138,7 +139,8 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
             warnings.warn(f"{text} is only {w:g}x{h:g} px: the tracker needs about {SMALL_BOX_PX}x{SMALL_BOX_PX} px "
                           "of object to follow it; check the box (x,y is the top-left corner, then width, height)",
                           InputWarning, stacklevel=3)
-        visible = (min(x + w, source.width) - max(x, 0.0)) * (min(y + h, source.height) - max(y, 0.0)) / (w * h)
+        x0, y0, x1, y1 = clip_xyxy(xywh_to_xyxy(target.box_xywh), source.width, source.height)
+        visible = (x1 - x0) * (y1 - y0) / (w * h)
         if visible < MIN_VISIBLE_SHARE:
             warnings.warn(f"{text} lies {100 * (1 - visible):.0f}% outside the {source.width}x{source.height} frame: "
                           "the tracker learns the object from the part inside; check the box", InputWarning,

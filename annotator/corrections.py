@@ -47,6 +47,7 @@ import numpy as np
 
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.text import TEXT_ENCODINGS, read_text
+from sptpt.boxes import lies_outside
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]
 
@@ -354,8 +355,8 @@ def resolve_corrections(
             raise ToolError(f"{c.where}: frame {c.frame} was not processed by the run ({_describe(frame_indices)}): "
                             "give a source frame index from the 'frame' column of flags.csv", EXIT_VALUE)
         if c.box_xywh is not None:
-            x, y, w, h = c.box_xywh
-            if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+            if lies_outside(c.box_xywh, width, height):
+                x, y, w, h = c.box_xywh
                 raise ToolError(f"{c.where}: box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} frame: "
                                 "give 0-based pixel coordinates, or leave x,y,w,h empty to mark the object absent",
                                 EXIT_VALUE)
