@@ -16,7 +16,6 @@ import hashlib
 import json
 import os
 import platform
-import re
 import shutil
 import signal
 import tempfile
@@ -43,7 +42,7 @@ from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
-__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs",
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
            "ctrl_c_ignored", "remove_staging_folders", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
@@ -68,23 +67,6 @@ class AnnotateResult:
     outputs: dict[str, list[Path]] = field(default_factory=dict)
     exit_code: int = 0
     message: str = ""
-
-
-def parse_box(text: str, *, origin: int = 0, name: str = "--box") -> tuple[float, float, float, float]:
-    """Parse ``"x,y,w,h"`` into a 0-based box; ``origin=1`` takes OTB-style 1-based coordinates."""
-    # Commas as documented; also semicolons, and the spaces or tabs of a row copied from a whitespace-separated file.
-    parts = [p for p in re.split(r"\s*[,;]\s*|\s+", str(text).strip())]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        values = []
-    if len(values) != 4 or not all(np.isfinite(values)):
-        raise ToolError(f"{name} {text!r} is not four numbers x,y,w,h: give e.g. {name} 120,80,40,60", EXIT_VALUE)
-    x, y, w, h = values
-    if w <= 0 or h <= 0:
-        raise ToolError(f"{name} {text!r} has zero or negative size (w={w:g}, h={h:g}): width and height must be > 0",
-                        EXIT_VALUE)
-    return (x - origin, y - origin, w, h)
 
 
 def default_output_dir(input_path: Path) -> Path:

@@ -386,8 +386,8 @@ def test_manifest_errors_stop_the_batch_before_any_work(tmp_path, capsys):
         main(["batch", str(manifest), "--out", str(tmp_path / "out")])
     assert info.value.code == 4
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"sptpt-annotate: error: {manifest}:2: box '1,2,3' is not four numbers x,y,w,h: give e.g. "
-                   "\"120,80,40,60\" (0-based pixels)",
+    assert err == [f"sptpt-annotate: error: {manifest}:2: box '1,2,3' is not four numbers x,y,w,h (it has 3 values): "
+                   "give e.g. 120,80,40,60",
                    f"sptpt-annotate: error: {manifest}:4: no video given: give the path of a video file or image "
                    "folder as video"]
     assert not (tmp_path / "out").exists()
