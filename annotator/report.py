@@ -6,46 +6,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-import jinja2
 import numpy as np
 from markupsafe import Markup
 
 from annotator.atomic import write_text_atomic
 from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
+from annotator.pages import REPORT_TEMPLATE, template_environment
 from annotator.pipeline import SpanThumbnail
 from annotator.tracks import TrackResult
 from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",
-           "track_summary", "render_report", "template_environment", "templates_dir"]
-
-REPORT_TEMPLATE = "report.html.j2"
-
-
-def templates_dir() -> Path:
-    """The folder holding the Jinja2 templates.
-
-    An installed package carries them as ``annotator/templates`` (pyproject.toml maps the source tree's top-level
-    ``templates/`` there); a source checkout or an editable install reads ``templates/`` beside the package.
-    """
-    package = Path(__file__).resolve().parent
-    candidates = [package / "templates", package.parent / "templates"]
-    for candidate in candidates:
-        if (candidate / REPORT_TEMPLATE).is_file():
-            return candidate
-    raise FileNotFoundError(f"report template {REPORT_TEMPLATE} not found in {' or '.join(map(str, candidates))}; "
-                            "reinstall sptpt-annotate")
-
-
-def template_environment() -> jinja2.Environment:
-    """The one Jinja2 environment of every HTML page: HTML autoescaped, an undefined name an error."""
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(str(templates_dir())),
-        autoescape=jinja2.select_autoescape(["html", "j2"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    env.filters["plural"] = plural
-    return env
+           "track_summary", "render_report"]
 
 
 @dataclass(frozen=True)
