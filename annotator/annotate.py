@@ -12,23 +12,18 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import errno
-import hashlib
 import json
 import os
 import platform
 import shutil
-import signal
 import tempfile
-import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
-
 from annotator import __version__
-from annotator.atomic import atomic_path, write_text_atomic
+from annotator.atomic import atomic_path, ctrl_c_ignored, write_text_atomic
 from annotator.config import RunConfig
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
@@ -37,13 +32,15 @@ from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import CountNote, Progress
+from annotator.provenance import content_hash, json_default
 from annotator.report import render_report, track_summary
+from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
-           "ctrl_c_ignored", "remove_staging_folders", "RESULT_FILES"]
+           "remove_staging_folders", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
@@ -127,19 +124,6 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
             warnings.warn(f"{text} lies {100 * (1 - visible):.0f}% outside the {source.width}x{source.height} frame: "
                           "the tracker learns the object from the part inside; check the box", InputWarning,
                           stacklevel=3)
-
-
-def content_hash(path: Path) -> str:
-    """SHA-256 of a file, or of an image folder's names and bytes in order."""
-    digest = hashlib.sha256()
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-    for file in files:
-        if path.is_dir():
-            digest.update(str(file.relative_to(path)).encode())
-        with open(file, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
-    return "sha256:" + digest.hexdigest()
 
 
 def annotate(
@@ -342,19 +326,6 @@ def _exclusive(out_dir: Path):
         os.close(fd)
 
 
-@contextlib.contextmanager
-def ctrl_c_ignored():
-    """Ignore Ctrl-C while a run is moved into place (well under a second), so the folder is never half old."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
                    formats: Sequence[str], input_path: Path, options: ExportOptions) -> None:
     run, out_dir = result.run, result.out_dir
@@ -411,10 +382,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         **({"review_exports": record} if (record := record_review_exports(None, store, formats)) else {}),
     }
     # Each track as the forward pass from its first frame, for the first re-track to reuse (run.json's config as
-    # it will read back, so that the re-track's fingerprint is the same). Imported here: the review package
-    # imports this module.
-    from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
-
+    # it will read back, so that the re-track's fingerprint is the same).
     first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
     written_config = json.loads(json.dumps(run_info["config"], default=json_default))
     outputs["passes"] = [write_pass_cache(out_dir / PASSES_NAME, first_passes, pass_fingerprint(
@@ -458,16 +426,3 @@ def previous_outputs(out_dir: Path) -> set[str]:
     root = out_dir.resolve()
     return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts
             and (out_dir / n).resolve().is_relative_to(root)}
-
-
-def json_default(value):
-    """``json.dumps`` fallback for NumPy scalars and arrays and paths (run.json)."""
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -13,11 +13,11 @@ from annotator.atomic import write_text_atomic
 from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
 from annotator.pages import REPORT_TEMPLATE, template_environment
 from annotator.pipeline import SpanThumbnail
-from annotator.tracks import TrackResult
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",
-           "track_summary", "render_report"]
+           "track_summary", "corrections_section", "render_report"]
 
 
 @dataclass(frozen=True)
@@ -217,6 +217,32 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
     return "".join(parts)
 
 
+def corrections_section(review: dict[str, Any], tracks: Sequence[TrackResult], fps: float) -> dict[str, Any]:
+    """What the report's Corrections section shows, from run.json's ``review`` section after a re-track.
+
+    Every human correction in force (the keyframes a person gave, not the first-frame boxes), each with the
+    overlay time that shows it, and the anchors and segments of the last re-track, as text.
+    """
+
+    def fmt(box) -> str:
+        return "absent" if box is None else ", ".join(f"{v:.1f}" for v in box)
+
+    anchors = sorted(
+        ({"track_id": t.track_id, "frame": int(t.frame_indices[p]),
+          "box": fmt(None if t.outside[p] else t.boxes_xywh[p]), "source": t.keyframe_source[p],
+          "seconds": _seek_seconds(int(p), fps)}
+         for t in tracks for p in np.flatnonzero(t.keyframe) if t.keyframe_source[p] != KEYFRAME_GIVEN),
+        key=lambda a: (a["frame"], a["track_id"]))
+    last = review["retracks"][-1] if review.get("retracks") else None
+    if last is not None:
+        last = {**last,
+                "anchors": [{**a, "before": fmt(a["box_before"]), "after": fmt(a["box_after"]),
+                             "iou_text": "" if a["iou"] is None else f"{a['iou']:.2f}"} for a in last["anchors"]],
+                "segments": [{**s, "iou_text": "" if s["mean_iou"] is None else f"{s['mean_iou']:.2f}"}
+                             for s in last["segments"]]}
+    return {"anchors": anchors, "last": last, "count": len(review.get("retracks", []))}
+
+
 def render_report(
     path: Path,
     *,
@@ -235,9 +261,9 @@ def render_report(
     listed by expected errors, highest first; each shows the thumbnail in
     ``thumbnails`` at its worst frame (or, failing that, any one inside it),
     and clicking the thumbnail seeks to that frame. ``review``
-    adds the Corrections section after a re-track (built by
-    :mod:`annotator.review`: the corrections in force and what the last
-    re-track changed).
+    adds the Corrections section after a re-track
+    (:func:`corrections_section`: the corrections in force and what the
+    last re-track changed).
 
     The input path shown is the absolute one recorded in run.json
     (``run_info["input"]["path"]``), the same before and after a re-track;

@@ -199,7 +199,7 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     assert not is_item_finished(job, {**run, "complete": False})
     assert not is_item_finished(job, {**run, "input": {**run["input"], "content_hash": "sha256:0"}})
     # An image folder tracked before EXIF orientations were applied is redone (its boxes may be sideways).
-    from annotator.annotate import content_hash
+    from annotator.provenance import content_hash
 
     images = dataset / "as_images"
     images.mkdir(exist_ok=True)
