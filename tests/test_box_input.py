@@ -86,7 +86,7 @@ def reference(text: str, name: str):
 
 @pytest.mark.parametrize("text", [*AS_TYPED, "10;20;30;40", "10 20 30 40", "1,2,3"])
 def test_the_command_line_reads_a_box_as_the_parser_does(text, tmp_path, monkeypatch, capsys):
-    import annotator.annotate
+    import annotator.job
 
     got = []
 
@@ -94,7 +94,7 @@ def test_the_command_line_reads_a_box_as_the_parser_does(text, tmp_path, monkeyp
         got.extend(t.box_xywh for t in targets)
         raise SystemExit(0)
 
-    monkeypatch.setattr(annotator.annotate, "annotate", capture)
+    monkeypatch.setattr(annotator.job, "annotate", capture)
     with pytest.raises(SystemExit) as caught:
         main([str(tmp_path / "clip.mp4"), "--box", text, "--quiet"])
     expected = reference(text, "--box")

@@ -27,7 +27,7 @@ from pycocotools.coco import COCO
 
 import annotator
 import annotator.pipeline as pipeline_module
-from annotator.annotate import annotate
+from annotator.job import annotate
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_OK, EXIT_PARTIAL, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv

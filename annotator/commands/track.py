@@ -55,7 +55,7 @@ def track_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
-    from annotator.annotate import annotate
+    from annotator.job import annotate
     from annotator.box_input import parse_box
     from annotator.config import ConfigError, load_config_file, resolve_config
     from annotator.pipeline import Target
