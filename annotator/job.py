@@ -13,6 +13,7 @@ import contextlib
 import datetime as _dt
 import errno
 import json
+import numbers
 import os
 import platform
 import shutil
@@ -24,7 +25,8 @@ from typing import Sequence
 
 from annotator import __version__
 from annotator.atomic import atomic_path, ctrl_c_ignored, write_text_atomic
-from annotator.config import RunConfig
+from annotator.box_input import parse_box
+from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports import ExportOptions, record_review_exports, write_exports
@@ -57,13 +59,28 @@ STAGING_PREFIX = ".sptpt-run."
 
 @dataclass
 class AnnotateResult:
-    """What a run wrote, and how it ended."""
+    """What a run wrote, and how it ended.
+
+    Attributes
+    ----------
+    out_dir : Path
+        The output folder.
+    run : TrackingRun
+        The tracking as it ran: tracks, timings, a decode error or an interruption.
+    outputs : dict of str to list of Path
+        The files written, by kind (``store``, ``otb``, ``coco``, ``flags``, ``overlay``, ``report``, ...).
+    exit_code, message : int, str
+        0 and "" for a finished run; else the exit code the command line ends with and why.
+    store : RunStore or None
+        The run's track store, as written to ``tracks.npz``: every per-frame value, every export a view of it.
+    """
 
     out_dir: Path
     run: TrackingRun
     outputs: dict[str, list[Path]] = field(default_factory=dict)
     exit_code: int = 0
     message: str = ""
+    store: RunStore | None = None
 
 
 def default_output_dir(input_path: Path) -> Path:
@@ -128,8 +145,8 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
 
 def annotate(
     input_path: str | os.PathLike,
-    targets: Sequence[Target],
-    config: RunConfig,
+    targets: Target | Sequence[Target] | Sequence[float] | str | Sequence[Sequence[float] | str],
+    config: RunConfig | None = None,
     *,
     out_dir: str | os.PathLike | None = None,
     start: int = 0,
@@ -142,6 +159,25 @@ def annotate(
     media_url: str | None = None,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
+
+    What ``sptpt-annotate VIDEO --box ...`` runs, and each item of a batch.
+
+    Parameters
+    ----------
+    input_path : path-like
+        A video file or a folder of images.
+    targets : box, Target, or a sequence of them
+        The objects' first-frame boxes. A box is four numbers ``x, y, w, h`` (0-based pixels) or the text
+        ``"x,y,w,h"``, read as ``--box`` reads it (:func:`annotator.box_input.parse_box`); boxes get the track
+        ids 1, 2, ... in order and the label ``object``. A :class:`~annotator.pipeline.Target` gives its own.
+    config : RunConfig, optional
+        From :func:`annotator.config.resolve_config`; by default ``resolve_config()``, what the command line uses
+        without options (the default preset, seed 0).
+    out_dir : path-like, optional
+        By default ``<input>_sptpt/`` beside the input.
+    start, stop, step, formats, force, show_progress
+        As the command line's ``--start``, ``--stop``, ``--step``, ``--formats``, ``--force`` and (not)
+        ``--quiet``.
 
     ``corrections``, when given, are only checked here against the frames
     and tracks the run will have, before any tracking (so that a correction
@@ -159,6 +195,8 @@ def annotate(
         ``exit_code`` and ``message``, after the outputs are written.
     """
     input_path = Path(input_path)
+    targets = _as_targets(targets)
+    config = resolve_config() if config is None else config
     unknown = sorted(set(formats) - set(ALL_FORMATS))
     if unknown:
         raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
@@ -190,6 +228,14 @@ def annotate(
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
                          ExportOptions(media_url=media_url))
+
+
+def _as_targets(given) -> list[Target]:
+    """``annotate``'s ``targets`` as a list of Targets: one box or Target, or a sequence of them."""
+    if isinstance(given, (str, Target)) or (len(given) and all(isinstance(v, numbers.Real) for v in given)):
+        given = [given]
+    return [item if isinstance(item, Target) else Target(parse_box(item, name="box"), track_id=position)
+            for position, item in enumerate(given, start=1)]
 
 
 def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
@@ -337,6 +383,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
     # The store first and always, whatever --formats says: every export below is a view of it.
     store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step, tracks=run.tracks)
     outputs["store"] = [write_store(out_dir / STORE_NAME, store)]
+    result.store = store
     outputs.update(write_exports(out_dir, store, formats, options))
     if run.overlay_path is not None:
         outputs["overlay"] = [run.overlay_path]

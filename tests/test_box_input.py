@@ -155,3 +155,36 @@ def test_a_corrections_row_reads_a_box_as_the_parser_does(text, tmp_path):
         with pytest.raises(ToolError) as caught:
             read_corrections(path)
         assert str(caught.value) == f"{path}:2: {expected}; leave x,y,w,h all empty to mark the object absent"
+
+
+@pytest.mark.parametrize("text", [*AS_TYPED, "10;20;30;40", "1,2,3"])
+def test_the_python_api_reads_a_box_as_the_parser_does(text, tmp_path):
+    from annotator import annotate
+    from annotator.errors import EXIT_INPUT
+
+    expected = reference(text, "box")
+    with pytest.raises(ToolError) as caught:
+        annotate(tmp_path / "missing.mp4", text, show_progress=False)
+    if isinstance(expected, tuple):
+        assert caught.value.exit_code == EXIT_INPUT and "no such file" in str(caught.value)  # the box is taken
+    else:
+        assert str(caught.value) == expected
+
+
+@pytest.mark.parametrize(
+    "given, boxes",
+    [
+        ((1, 2, 3, 4), [(1.0, 2.0, 3.0, 4.0)]),
+        ("1 2 3 4", [(1.0, 2.0, 3.0, 4.0)]),
+        (np.array([1.0, 2.0, 3.0, 4.0]), [(1.0, 2.0, 3.0, 4.0)]),
+        ([(1, 2, 3, 4), "5,6,7,8"], [(1.0, 2.0, 3.0, 4.0), (5.0, 6.0, 7.0, 8.0)]),
+        (np.array([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]]), [(1.0, 2.0, 3.0, 4.0), (5.0, 6.0, 7.0, 8.0)]),
+    ],
+)
+def test_annotate_takes_one_box_or_a_list_of_them(given, boxes):
+    from annotator.job import _as_targets
+    from annotator.pipeline import Target
+
+    assert _as_targets(given) == [Target(box, track_id=i, label="object") for i, box in enumerate(boxes, start=1)]
+    mine = Target((1.0, 2.0, 3.0, 4.0), track_id=7, label="car")
+    assert _as_targets(mine) == [mine] and _as_targets([mine]) == [mine]
