@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import tempfile
+import threading
 from pathlib import Path
 from typing import IO, Iterator
 
-__all__ = ["atomic_path", "atomic_open", "write_text_atomic", "write_bytes_atomic"]
+__all__ = ["atomic_path", "atomic_open", "ctrl_c_ignored", "write_text_atomic", "write_bytes_atomic"]
 
 # mkstemp creates files readable by the owner only; outputs get the usual umask permissions.
 _UMASK = os.umask(0)
@@ -67,3 +69,19 @@ def write_bytes_atomic(target: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``target`` atomically."""
     with atomic_open(target, "wb") as handle:
         handle.write(data)
+
+
+@contextlib.contextmanager
+def ctrl_c_ignored() -> Iterator[None]:
+    """Ignore Ctrl-C while a run is moved into place (well under a second), so the folder is never half old.
+
+    Only in the main thread, where Python handles signals; elsewhere a no-op.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

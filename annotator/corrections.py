@@ -36,17 +36,18 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from annotator.box_input import Box, BoxError, parse_box
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.text import TEXT_ENCODINGS, read_text
+from sptpt.boxes import lies_outside
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]
 
@@ -54,8 +55,6 @@ __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"
 CSV_HEADER = ("frame", "x", "y", "w", "h", "track_id")
 # Header names accepted for the optional last column.
 _TRACK_NAMES = ("track_id", "track", "id")
-
-Box = tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -137,16 +136,6 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
 # --------------------------------------------------------------------------- CSV
 
 
-def _number(text: str, where: str, column: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
-        raise ToolError(f"{where}: column {column!r} must be a number, got {text!r}", EXIT_VALUE)
-    return value
-
-
 def _integer(text: str, where: str, column: str, minimum: int) -> int:
     try:
         value = int(text)
@@ -157,12 +146,12 @@ def _integer(text: str, where: str, column: str, minimum: int) -> int:
     return value
 
 
-def _box(values: Sequence[float], where: str) -> Box:
-    x, y, w, h = (float(v) for v in values)
-    if w <= 0 or h <= 0:
-        raise ToolError(f"{where}: box {x:g},{y:g},{w:g},{h:g} has zero or negative size (w={w:g}, h={h:g}): "
-                        "width and height must be > 0; leave x,y,w,h all empty to mark the object absent", EXIT_VALUE)
-    return (x, y, w, h)
+def _box(value: Any, name: str, where: str, absent: str) -> Box:
+    """:func:`annotator.box_input.parse_box`, its message behind ``FILE:LINE`` and followed by how to say absent."""
+    try:
+        return parse_box(value, name=name)
+    except BoxError as exc:
+        raise ToolError(f"{where}: {exc}; {absent}", EXIT_VALUE) from None
 
 
 def _is_header(row: list[str]) -> bool:
@@ -198,7 +187,7 @@ def _read_csv(path: Path, text: str) -> list[Correction]:
             raise ToolError(f"{where}: x,y,w,h must be four numbers, or all four empty to mark the object absent; "
                             f"got {','.join(fields[1:5])!r}", EXIT_VALUE)
         else:
-            box = _box([_number(c, where, name) for c, name in zip(coords, "xywh")], where)
+            box = _box(",".join(coords), "box", where, "leave x,y,w,h all empty to mark the object absent")
         track = None
         if len(fields) == 6 and fields[5]:
             track = _integer(fields[5], where, "track_id", 1)
@@ -281,12 +270,7 @@ def _read_coco(path: Path, text: str) -> list[Correction]:
         if attributes.get("outside") is True:
             box = None
         else:
-            bbox = ann.get("bbox")
-            if not isinstance(bbox, list) or len(bbox) != 4 or not all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in bbox):
-                raise ToolError(f"{where}: bbox must be four numbers [x, y, w, h] (0-based pixels), got {bbox!r}; "
-                                "set attributes.outside to true to mark the object absent", EXIT_VALUE)
-            box = _box(bbox, where)
+            box = _box(ann.get("bbox"), "bbox", where, "set attributes.outside to true to mark the object absent")
         corrections.append(Correction(frame=frame, box_xywh=box, track_id=track, where=where))
     return corrections
 
@@ -354,8 +338,8 @@ def resolve_corrections(
             raise ToolError(f"{c.where}: frame {c.frame} was not processed by the run ({_describe(frame_indices)}): "
                             "give a source frame index from the 'frame' column of flags.csv", EXIT_VALUE)
         if c.box_xywh is not None:
-            x, y, w, h = c.box_xywh
-            if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+            if lies_outside(c.box_xywh, width, height):
+                x, y, w, h = c.box_xywh
                 raise ToolError(f"{c.where}: box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} frame: "
                                 "give 0-based pixel coordinates, or leave x,y,w,h empty to mark the object absent",
                                 EXIT_VALUE)

@@ -3,7 +3,8 @@
 A manifest lists *items*. The minimal item is the same in every format: a
 ``video`` (a video file or a folder of images, relative paths resolving
 against the manifest's folder) and a ``box`` ``"x,y,w,h"`` (0-based pixels of
-the object in the first processed frame). Optional fields:
+the object in the first processed frame, read as ``--box`` reads it:
+:func:`annotator.box_input.parse_box`). Optional fields:
 
 ``boxes``
     Several objects: a list of boxes, each ``"x,y,w,h"``, a list of four
@@ -57,7 +58,6 @@ import csv
 import dataclasses
 import difflib
 import json
-import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -66,6 +66,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import yaml
 
+from annotator.box_input import Box, BoxError, parse_box
 from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
@@ -250,26 +251,12 @@ def _closest(key: str, valid: Sequence[str]) -> str:
     return f"did you mean {close[0]!r}?" if close else f"valid fields: {', '.join(valid)}"
 
 
-def _parse_box(value: Any, name: str, errs: _RowErrors) -> tuple[float, float, float, float] | None:
-    if isinstance(value, str):
-        parts = [p.strip() for p in value.split(",")]
-        try:
-            numbers = [float(p) for p in parts]
-        except ValueError:
-            numbers = []
-    elif isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                   for v in value):
-        numbers = [float(v) for v in value]
-    else:
-        numbers = []
-    if len(numbers) != 4 or not all(math.isfinite(v) for v in numbers):
-        errs.add(name, f"{name} {value!r} is not four numbers x,y,w,h: give e.g. \"120,80,40,60\" (0-based pixels)")
+def _parse_box(value: Any, name: str, errs: _RowErrors) -> Box | None:
+    try:
+        return parse_box(value, name=name)
+    except BoxError as exc:
+        errs.add(name, str(exc))
         return None
-    x, y, w, h = numbers
-    if w <= 0 or h <= 0:
-        errs.add(name, f"{name} {value!r} has zero or negative size (w={w:g}, h={h:g}): width and height must be > 0")
-        return None
-    return (x, y, w, h)
 
 
 def _parse_int(value: Any, name: str, errs: _RowErrors, *, minimum: int) -> int | None:
@@ -664,7 +651,7 @@ def items_from_otb_root(root: str | os.PathLike) -> list[BatchItem]:
             errs.add("box", "the ground truth has no row: the first frame needs a box x,y,w,h")
             box = None
         else:
-            box = _parse_box([float(v) for v in boxes[0]], "first ground-truth box", errs)
+            box = _parse_box(boxes[0], "first ground-truth box", errs)
         if box is None:
             errors.extend(errs.errors)
             continue

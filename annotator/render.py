@@ -29,6 +29,7 @@ import numpy as np
 
 from annotator.atomic import atomic_path
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from sptpt.boxes import xywh_to_xyxy
 
 __all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks", "label_text"]
 
@@ -402,10 +403,10 @@ class OverlayRenderer:
     def _box_corners(box: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]] | None:
         if not np.all(np.isfinite(box)):
             return None
-        x, y, w, h = box
+        left, top, right, bottom = xywh_to_xyxy(box).tolist()
         # The box covers pixels x .. x+w-1; cv2 limits coordinates, so clamp far-away ones ourselves.
-        x0, y0 = round(x), round(y)
-        x1, y1 = round(x + w) - 1, round(y + h) - 1
+        x0, y0 = round(left), round(top)
+        x1, y1 = round(right) - 1, round(bottom) - 1
         clamp = lambda v: int(min(max(v, -(1 << 15)), 1 << 15))  # noqa: E731
         return (clamp(x0), clamp(y0)), (clamp(max(x1, x0)), clamp(max(y1, y0)))
 

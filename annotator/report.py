@@ -6,46 +6,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-import jinja2
 import numpy as np
 from markupsafe import Markup
 
 from annotator.atomic import write_text_atomic
 from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
+from annotator.pages import REPORT_TEMPLATE, template_environment
 from annotator.pipeline import SpanThumbnail
-from annotator.tracks import TrackResult
+from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",
-           "track_summary", "render_report", "template_environment", "templates_dir"]
-
-REPORT_TEMPLATE = "report.html.j2"
-
-
-def templates_dir() -> Path:
-    """The folder holding the Jinja2 templates.
-
-    An installed package carries them as ``annotator/templates`` (pyproject.toml maps the source tree's top-level
-    ``templates/`` there); a source checkout or an editable install reads ``templates/`` beside the package.
-    """
-    package = Path(__file__).resolve().parent
-    candidates = [package / "templates", package.parent / "templates"]
-    for candidate in candidates:
-        if (candidate / REPORT_TEMPLATE).is_file():
-            return candidate
-    raise FileNotFoundError(f"report template {REPORT_TEMPLATE} not found in {' or '.join(map(str, candidates))}; "
-                            "reinstall sptpt-annotate")
-
-
-def template_environment() -> jinja2.Environment:
-    """The one Jinja2 environment of every HTML page: HTML autoescaped, an undefined name an error."""
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(str(templates_dir())),
-        autoescape=jinja2.select_autoescape(["html", "j2"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    env.filters["plural"] = plural
-    return env
+           "track_summary", "corrections_section", "render_report"]
 
 
 @dataclass(frozen=True)
@@ -245,6 +217,32 @@ def _timeline_svg(track: TrackResult, fps: float, *, width: int = 900, height: i
     return "".join(parts)
 
 
+def corrections_section(review: dict[str, Any], tracks: Sequence[TrackResult], fps: float) -> dict[str, Any]:
+    """What the report's Corrections section shows, from run.json's ``review`` section after a re-track.
+
+    Every human correction in force (the keyframes a person gave, not the first-frame boxes), each with the
+    overlay time that shows it, and the anchors and segments of the last re-track, as text.
+    """
+
+    def fmt(box) -> str:
+        return "absent" if box is None else ", ".join(f"{v:.1f}" for v in box)
+
+    anchors = sorted(
+        ({"track_id": t.track_id, "frame": int(t.frame_indices[p]),
+          "box": fmt(None if t.outside[p] else t.boxes_xywh[p]), "source": t.keyframe_source[p],
+          "seconds": _seek_seconds(int(p), fps)}
+         for t in tracks for p in np.flatnonzero(t.keyframe) if t.keyframe_source[p] != KEYFRAME_GIVEN),
+        key=lambda a: (a["frame"], a["track_id"]))
+    last = review["retracks"][-1] if review.get("retracks") else None
+    if last is not None:
+        last = {**last,
+                "anchors": [{**a, "before": fmt(a["box_before"]), "after": fmt(a["box_after"]),
+                             "iou_text": "" if a["iou"] is None else f"{a['iou']:.2f}"} for a in last["anchors"]],
+                "segments": [{**s, "iou_text": "" if s["mean_iou"] is None else f"{s['mean_iou']:.2f}"}
+                             for s in last["segments"]]}
+    return {"anchors": anchors, "last": last, "count": len(review.get("retracks", []))}
+
+
 def render_report(
     path: Path,
     *,
@@ -263,9 +261,9 @@ def render_report(
     listed by expected errors, highest first; each shows the thumbnail in
     ``thumbnails`` at its worst frame (or, failing that, any one inside it),
     and clicking the thumbnail seeks to that frame. ``review``
-    adds the Corrections section after a re-track (built by
-    :mod:`annotator.review`: the corrections in force and what the last
-    re-track changed).
+    adds the Corrections section after a re-track
+    (:func:`corrections_section`: the corrections in force and what the
+    last re-track changed).
 
     The input path shown is the absolute one recorded in run.json
     (``run_info["input"]["path"]``), the same before and after a re-track;

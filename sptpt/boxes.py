@@ -1,14 +1,66 @@
-"""The overlap of two boxes (the one IoU of the tracker, the tool and its benchmarks), and the mean of several.
+"""Box geometry, once for the tracker and the tool: corners, clipping to the frame, overlap, the mean of several.
 
 A box ``(x, y, w, h)`` covers ``[x, x + w) x [y, y + h)`` with continuous areas, as got10k ``rect_iou`` and
-pysot ``overlap_ratio`` score it (and OTB's ``calcRectInt``, see ``annotator.evaluation.metrics``). It lives here,
-in the tracker's library, because the tracker needs it too, and the tool may import the library but not the
-other way round.
+pysot ``overlap_ratio`` score it (and OTB's ``calcRectInt``, see ``annotator.evaluation.metrics``); its corners
+``(x0, y0, x1, y1)`` are ``(x, y, x + w, y + h)``. A frame of ``W x H`` pixels covers ``[0, W] x [0, H]``.
+Everything lives here, in the tracker's library, because the tracker needs it too, and the tool may import the
+library but not the other way round.
 """
 
 from __future__ import annotations
 
+import math
+from typing import Sequence
+
 import numpy as np
+
+__all__ = ["clip_xywh", "clip_xyxy", "iou_xywh", "lies_outside", "mean_box", "xywh_to_xyxy", "xyxy_to_xywh"]
+
+
+def xywh_to_xyxy(boxes_xywh) -> np.ndarray:
+    """Corners ``(x0, y0, x1, y1) = (x, y, x + w, y + h)`` of boxes on the last axis: ``(..., 4)`` float64."""
+    boxes = np.asarray(boxes_xywh, dtype=np.float64)
+    return np.concatenate([boxes[..., :2], boxes[..., :2] + boxes[..., 2:]], axis=-1)
+
+
+def xyxy_to_xywh(boxes_xyxy) -> np.ndarray:
+    """Boxes ``(x, y, w, h) = (x0, y0, x1 - x0, y1 - y0)`` from corners on the last axis: ``(..., 4)`` float64."""
+    corners = np.asarray(boxes_xyxy, dtype=np.float64)
+    return np.concatenate([corners[..., :2], corners[..., 2:] - corners[..., :2]], axis=-1)
+
+
+def clip_xyxy(box_xyxy: Sequence[float], width: float, height: float) -> tuple[float, float, float, float]:
+    """The corners of one box's intersection with the ``width x height`` frame, as Python floats.
+
+    Empty (nothing of the box inside) when ``x1 <= x0`` or ``y1 <= y0``; a NaN corner stays NaN.
+    """
+    x0, y0, x1, y1 = (float(v) for v in box_xyxy)
+    return max(x0, 0.0), max(y0, 0.0), min(x1, float(width)), min(y1, float(height))
+
+
+def clip_xywh(box_xywh: Sequence[float], width: float, height: float, *,
+              decimals: int | None = None) -> tuple[float, float, float, float] | None:
+    """One ``xywh`` box clipped to the frame, as Python floats; None when not finite or nothing of it is inside.
+
+    ``decimals`` rounds the clipped corners, then the width and height, to that many decimals (as a file
+    writes them), before the emptiness test, so that a box rounded away to nothing is None too.
+    """
+    if not all(math.isfinite(float(v)) for v in box_xywh):
+        return None
+    x0, y0, x1, y1 = clip_xyxy(xywh_to_xyxy(box_xywh).tolist(), width, height)
+    if decimals is not None:
+        x0, y0, x1, y1 = (round(v, decimals) for v in (x0, y0, x1, y1))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    if decimals is None:
+        return (x0, y0, x1 - x0, y1 - y0)
+    return (x0, y0, round(x1 - x0, decimals), round(y1 - y0, decimals))
+
+
+def lies_outside(box_xywh: Sequence[float], width: float, height: float) -> bool:
+    """Whether no part of one ``xywh`` box (with a positive width and height) lies inside the frame."""
+    x0, y0, x1, y1 = xywh_to_xyxy(box_xywh).tolist()
+    return x0 >= width or y0 >= height or x1 <= 0 or y1 <= 0
 
 
 def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -21,8 +73,8 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    a_x2, a_y2 = a[..., 0] + a[..., 2], a[..., 1] + a[..., 3]
-    b_x2, b_y2 = b[..., 0] + b[..., 2], b[..., 1] + b[..., 3]
+    a_x2, a_y2 = np.moveaxis(xywh_to_xyxy(a)[..., 2:], -1, 0)
+    b_x2, b_y2 = np.moveaxis(xywh_to_xyxy(b)[..., 2:], -1, 0)
     inter_w = np.clip(np.minimum(a_x2, b_x2) - np.maximum(a[..., 0], b[..., 0]), 0.0, None)
     inter_h = np.clip(np.minimum(a_y2, b_y2) - np.maximum(a[..., 1], b[..., 1]), 0.0, None)
     inter = inter_w * inter_h

@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rgb_to_lab", "rgb_to_lab_templates", "rgb_to_hsi"]
+__all__ = ["RGB_TO_XYZ", "SRGB_TO_LINEAR", "WHITE", "rgb_to_lab", "rgb_to_lab_templates", "rgb_to_hsi"]
 
-# sRGB (D65) -> XYZ matrix and reference white of the official SNIC code.
-_RGB_TO_XYZ = np.array(
+# sRGB (D65) -> XYZ matrix and reference white of the official SNIC code. Public, with SRGB_TO_LINEAR below:
+# the Lab kernels take them as arguments, and sptpt.superpixels passes them too.
+RGB_TO_XYZ = np.array(
     [
         [0.4124564, 0.3575761, 0.1804375],
         [0.2126729, 0.7151522, 0.0721750],
         [0.0193339, 0.1191920, 0.9503041],
     ]
 )
-_WHITE = np.array([0.950456, 1.0, 1.088754])
+WHITE = np.array([0.950456, 1.0, 1.088754])
 _EPSILON = 0.008856
 _KAPPA = 903.3
 
@@ -30,7 +31,7 @@ def _srgb_to_linear_table() -> np.ndarray:
 
 
 # Inputs are uint8, so the inverse gamma is a 256-entry lookup.
-_SRGB_TO_LINEAR = _srgb_to_linear_table()
+SRGB_TO_LINEAR = _srgb_to_linear_table()
 
 
 def rgb_to_lab_templates(images: np.ndarray) -> np.ndarray:
@@ -41,7 +42,7 @@ def rgb_to_lab_templates(images: np.ndarray) -> np.ndarray:
     """
     from sptpt._kernels.color import rgb_to_lab_batch
 
-    return rgb_to_lab_batch(np.ascontiguousarray(images), _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE)
+    return rgb_to_lab_batch(np.ascontiguousarray(images), SRGB_TO_LINEAR, RGB_TO_XYZ, WHITE)
 
 
 def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
@@ -59,8 +60,8 @@ def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     rgb = np.asarray(rgb)
     if rgb.dtype != np.uint8 or rgb.shape[-1:] != (3,):
         raise TypeError(f"rgb must be a uint8 array of shape (..., 3), got {rgb.dtype} {rgb.shape}")
-    linear = _SRGB_TO_LINEAR[rgb]
-    xyz = linear @ _RGB_TO_XYZ.T / _WHITE
+    linear = SRGB_TO_LINEAR[rgb]
+    xyz = linear @ RGB_TO_XYZ.T / WHITE
     f = np.where(xyz > _EPSILON, np.cbrt(xyz), (_KAPPA * xyz + 16.0) / 116.0)
     lab = np.empty_like(f)
     lab[..., 0] = 116.0 * f[..., 1] - 16.0

@@ -17,6 +17,8 @@ import math
 import cv2
 import numpy as np
 
+from sptpt.boxes import xywh_to_xyxy
+
 __all__ = ["colour_contrast", "most_contrasted"]
 
 # The ring is the box scaled by sqrt(2) per side, minus the box: as many pixels around the box as in it.
@@ -46,8 +48,9 @@ def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
         return math.nan
     crop = np.ascontiguousarray(frame_rgb[ry0:ry1, rx0:rx1])
     inner = np.zeros(crop.shape[:2], np.uint8)
-    bx0, by0 = max(int(round(x)) - rx0, 0), max(int(round(y)) - ry0, 0)
-    bx1, by1 = max(int(round(x + w)) - rx0, 0), max(int(round(y + h)) - ry0, 0)
+    x0, y0, x1, y1 = xywh_to_xyxy((x, y, w, h)).tolist()
+    bx0, by0 = max(int(round(x0)) - rx0, 0), max(int(round(y0)) - ry0, 0)
+    bx1, by1 = max(int(round(x1)) - rx0, 0), max(int(round(y1)) - ry0, 0)
     inner[by0:by1, bx0:bx1] = 1
     ring = (1 - inner).astype(np.uint8)
     if inner.sum() < _MIN_PIXELS or ring.sum() < _MIN_PIXELS:

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from sptpt._kernels.snic import MAX_PIXELS, snic_batch, snic_batch_rgb
-from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_lab
+from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE, rgb_to_lab
 
 __all__ = ["SEEDINGS", "seed_grid", "snic", "snic_lab"]
 
@@ -280,9 +280,9 @@ def _grow_rgb(images: np.ndarray, seeds: np.ndarray, compactness: float) -> np.n
         np.ascontiguousarray(seeds, dtype=np.int64),
         _spatial_weight(compactness, len(seeds), height, width),
         numba.get_num_threads(),
-        _SRGB_TO_LINEAR,
-        _RGB_TO_XYZ,
-        _WHITE,
+        SRGB_TO_LINEAR,
+        RGB_TO_XYZ,
+        WHITE,
     )
 
 

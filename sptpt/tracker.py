@@ -27,7 +27,7 @@ from threadpoolctl import ThreadpoolController
 
 from sptpt._kernels import map_on_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
-from sptpt.boxes import iou_xywh, mean_box
+from sptpt.boxes import iou_xywh, lies_outside, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
 from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
@@ -612,7 +612,7 @@ def _validate_box(box_xywh, frame_shape: tuple[int, int]) -> np.ndarray:
     if w <= 0 or h <= 0:
         raise ValueError(f"box_xywh must have positive width and height, got w={w:g}, h={h:g}")
     height, width = frame_shape
-    if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+    if lies_outside(box, width, height):
         raise ValueError(
             f"box_xywh {box.tolist()} lies outside the {width}x{height} frame: "
             "give 0-based pixel coordinates of a box that overlaps the frame"

@@ -199,7 +199,7 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     assert not is_item_finished(job, {**run, "complete": False})
     assert not is_item_finished(job, {**run, "input": {**run["input"], "content_hash": "sha256:0"}})
     # An image folder tracked before EXIF orientations were applied is redone (its boxes may be sideways).
-    from annotator.annotate import content_hash
+    from annotator.provenance import content_hash
 
     images = dataset / "as_images"
     images.mkdir(exist_ok=True)
@@ -386,8 +386,8 @@ def test_manifest_errors_stop_the_batch_before_any_work(tmp_path, capsys):
         main(["batch", str(manifest), "--out", str(tmp_path / "out")])
     assert info.value.code == 4
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"sptpt-annotate: error: {manifest}:2: box '1,2,3' is not four numbers x,y,w,h: give e.g. "
-                   "\"120,80,40,60\" (0-based pixels)",
+    assert err == [f"sptpt-annotate: error: {manifest}:2: box '1,2,3' is not four numbers x,y,w,h (it has 3 values): "
+                   "give e.g. 120,80,40,60",
                    f"sptpt-annotate: error: {manifest}:4: no video given: give the path of a video file or image "
                    "folder as video"]
     assert not (tmp_path / "out").exists()

@@ -318,12 +318,12 @@ def test_debug_shows_the_traceback_and_keeps_the_exit_code(work):
     (OSError(5, "Input/output error"), 1, "sptpt-annotate: internal error: OSError: [Errno 5] Input/output error"),
 ])
 def test_a_full_disk_is_an_output_error_not_a_bug(clip, monkeypatch, capsys, error, code, needle):
-    import annotator.annotate
+    import annotator.job
 
     def full(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(annotator.annotate, "annotate", full)
+    monkeypatch.setattr(annotator.job, "annotate", full)
     with pytest.raises(SystemExit) as caught:
         main([str(clip), "--box", "1,2,3,4", "--quiet"])
     assert caught.value.code == code
@@ -385,7 +385,7 @@ def test_ctrl_c_during_force_keeps_the_earlier_finished_run(config_file, work):
 
 
 def test_a_second_run_into_a_folder_in_use_stops_with_one_line(clip, config_file, work):
-    from annotator.annotate import _exclusive
+    from annotator.job import _exclusive
 
     out = work / "busy"
     out.mkdir()
@@ -402,7 +402,7 @@ def test_results_reach_a_subfolder_on_another_file_system_and_a_failed_move_keep
                                                                                           monkeypatch):
     import errno
 
-    import annotator.annotate as annotate_module
+    import annotator.job as job_module
 
     out = work / "moved"
     replace = os.replace
@@ -424,7 +424,7 @@ def test_results_reach_a_subfolder_on_another_file_system_and_a_failed_move_keep
             raise OSError(errno.ENOSPC, "No space left on device", str(target))
         replace(source, target)
 
-    monkeypatch.setattr(annotate_module, "_move", full_disk)
+    monkeypatch.setattr(job_module, "_move", full_disk)
     failed = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--force",
                     "--formats", "otb", "--quiet")
     assert failed.exit_code == 5 and failed.stderr.count("\n") == 1, failed.stderr

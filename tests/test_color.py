@@ -7,7 +7,7 @@ import pytest
 from skimage.color import rgb2lab
 
 from sptpt._kernels.color import MEMO_BITS, lab_image_memo, new_lab_memo
-from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_hsi, rgb_to_lab, rgb_to_lab_templates
+from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE, rgb_to_hsi, rgb_to_lab, rgb_to_lab_templates
 
 
 def test_lab_is_close_to_skimage_which_differs_only_in_the_white_point():
@@ -33,7 +33,7 @@ def test_memoised_lab_is_bit_identical_to_the_batch_kernel():
     memo = new_lab_memo()
     for image in images:
         out = np.empty(image.size, dtype=np.float64)
-        lab_image_memo(image, _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE, memo, out)
+        lab_image_memo(image, SRGB_TO_LINEAR, RGB_TO_XYZ, WHITE, memo, out)
         expected = rgb_to_lab_templates(image[None])[0]
         np.testing.assert_array_equal(out.reshape(image.shape), expected)
 

@@ -49,8 +49,8 @@ def test_csv_without_header_or_track_column(tmp_path):
         ("1,1,2,3,4\n-1,1,2,3,4\n", 2, "must be an integer >= 0"),
         ("7,1,,3,4\n", 1, "all four empty"),
         ("7,1,2,0,4\n", 1, "zero or negative size"),
-        ("7,1,2,3,abc\n", 1, "column 'h' must be a number, got 'abc'"),
-        ("7,1,2,3,nan\n", 1, "column 'h' must be a number"),
+        ("7,1,2,3,abc\n", 1, "box '1,2,3,abc' is not four numbers x,y,w,h (h is 'abc')"),
+        ("7,1,2,3,nan\n", 1, "(h is 'nan')"),
         ("7,1,2,3,4,0\n", 1, "column 'track_id' must be an integer >= 1"),
         ("frame,left,top,w,h\n7,1,2,3,4\n", 1, "expected the header"),
         ("# c\n\nx,y\n", 3, "expected the header"),
@@ -137,7 +137,8 @@ def test_coco_outside_keyframe_is_an_absence(tmp_path):
         ('{"images": [\n{"id": 1}\n],\n"annotations": [\n{"id": 1, "image_id": 1, "bbox": [1,2,3,4], '
          '"attributes": {"keyframe": true}}\n]}', 5, "no 'frame_index'"),
         ('{"images": [\n{"id": 1, "frame_index": 0}\n],\n"annotations": [\n{"id": 7, "image_id": 1},\n'
-         '{"id": 8, "image_id": 1, "bbox": [1,2,3], "attributes": {"keyframe": true}}\n]}', 6, "bbox must be four"),
+         '{"id": 8, "image_id": 1, "bbox": [1,2,3], "attributes": {"keyframe": true}}\n]}', 6,
+         "bbox [1, 2, 3] is not four numbers"),
         ('{"images": [], "annotations": {}}', 1, "expected a COCO object"),
         ('{"images": [\n{"id": [1], "frame_index": 0}\n], "annotations": []}', 2, "an image 'id' must be"),
         ('{"images": [\n{"id": 1, "frame_index": 0}\n],\n"annotations": [\n{"id": 1, "image_id": [1], '

@@ -27,7 +27,7 @@ from pycocotools.coco import COCO
 
 import annotator
 import annotator.pipeline as pipeline_module
-from annotator.annotate import annotate, parse_box
+from annotator.job import annotate
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_OK, EXIT_PARTIAL, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
@@ -395,47 +395,6 @@ def test_an_empty_label_is_refused_before_any_work(scripted, clip, tmp_path):
         annotate(clip, [Target((20.0, 70.0, 20.0, 20.0), 1, " ")], CONFIG, out_dir=tmp_path / "out")
     assert caught.value.exit_code == EXIT_VALUE and "--label ' ' of box 1 is empty" in str(caught.value)
     assert not (tmp_path / "out").exists()
-
-
-# --------------------------------------------------------------------------- boxes
-
-
-@pytest.mark.parametrize(
-    "text, origin, expected",
-    [
-        ("10,20,30,40", 0, (10.0, 20.0, 30.0, 40.0)),
-        (" 10, 20 ,30,40 ", 0, (10.0, 20.0, 30.0, 40.0)),
-        ("10;20;30;40", 0, (10.0, 20.0, 30.0, 40.0)),
-        ("10 20 30 40", 0, (10.0, 20.0, 30.0, 40.0)),
-        ("10\t20\t30\t40", 0, (10.0, 20.0, 30.0, 40.0)),
-        ("10.5,20.25,30,40", 0, (10.5, 20.25, 30.0, 40.0)),
-        ("-5,-5,30,40", 0, (-5.0, -5.0, 30.0, 40.0)),  # partly outside is allowed
-        ("11,21,30,40", 1, (10.0, 20.0, 30.0, 40.0)),  # OTB 1-based
-    ],
-)
-def test_parse_box(text, origin, expected):
-    assert parse_box(text, origin=origin) == expected
-
-
-@pytest.mark.parametrize(
-    "text, needle",
-    [
-        ("10,20,30", "not four numbers"),
-        ("10,20,30,40,50", "not four numbers"),
-        ("10,,20,30", "not four numbers"),
-        ("10 20 30", "not four numbers"),
-        ("a,b,c,d", "not four numbers"),
-        ("", "not four numbers"),
-        ("nan,1,2,3", "not four numbers"),
-        ("1,2,inf,3", "not four numbers"),
-        ("10,20,0,40", "zero or negative size"),
-        ("10,20,30,-1", "zero or negative size"),
-    ],
-)
-def test_parse_box_errors(text, needle):
-    with pytest.raises(ToolError) as caught:
-        parse_box(text)
-    assert caught.value.exit_code == EXIT_VALUE and needle in str(caught.value) and "--box" in str(caught.value)
 
 
 def test_a_lost_track_asks_for_keyframes_in_flags_csv_the_report_and_run_json(scripted, clip, tmp_path):

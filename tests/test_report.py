@@ -410,3 +410,13 @@ def test_mean_confidence_is_over_the_frames_with_a_box():
     track = make_track(1, range(6), "..OO..", p_fail=np.full(6, 0.2))
     assert track_summary(track)["mean_confidence"] == pytest.approx(0.8)
     assert np.isnan(track_summary(make_track(2, range(2), "OO"))["mean_confidence"])
+
+
+def test_the_report_and_the_batch_index_share_one_template_environment():
+    from annotator.pages import BATCH_TEMPLATE, REPORT_TEMPLATE, template_environment
+
+    env = template_environment()
+    assert template_environment() is env  # built once per process
+    for name in (REPORT_TEMPLATE, BATCH_TEMPLATE):
+        assert env.get_template(name).environment is env
+    assert env.filters["plural"] is plural and env.autoescape(REPORT_TEMPLATE)

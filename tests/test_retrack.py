@@ -21,7 +21,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from annotator.annotate import annotate
+from annotator.job import annotate
 from annotator.commands.retrack import retrack_command
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError

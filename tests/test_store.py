@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from annotator.annotate import annotate
+from annotator.job import annotate
 from annotator.commands.retrack import retrack_command
 from annotator.errors import EXIT_INPUT
 from annotator.exports import FILE_EXPORTS, write_exports

@@ -13,7 +13,7 @@ from scipy import ndimage
 
 from sptpt._kernels.color import MEMO_BITS
 from sptpt._kernels.snic import snic_batch, snic_batch_rgb, snic_image
-from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE, rgb_to_lab, rgb_to_lab_templates
+from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE, rgb_to_lab, rgb_to_lab_templates
 from sptpt.superpixels import seed_grid, snic, snic_lab
 
 # ---------------------------------------------------------------------------
@@ -335,7 +335,7 @@ def test_fused_rgb_kernel_equals_lab_kernel_bit_for_bit(n_chunks: int) -> None:
     seeds = seed_grid(32, 32, 30)
     weight = (20.0 * 20.0 * len(seeds)) / 1024
     expected = snic_batch(rgb_to_lab_templates(batch), seeds, weight, n_chunks)
-    labels = snic_batch_rgb(batch, seeds, weight, n_chunks, _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE)
+    labels = snic_batch_rgb(batch, seeds, weight, n_chunks, SRGB_TO_LINEAR, RGB_TO_XYZ, WHITE)
     np.testing.assert_array_equal(labels, expected)
 
 
@@ -443,9 +443,9 @@ def test_kernel_pool_survives_fork() -> None:
 def _snic_two_threads(images: np.ndarray) -> np.ndarray:
     from sptpt._kernels import run_in_chunks  # noqa: F401 - the pool lives there
     from sptpt._kernels.snic import snic_batch_rgb
-    from sptpt.color import _RGB_TO_XYZ, _SRGB_TO_LINEAR, _WHITE
+    from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE
     from sptpt.superpixels import _spatial_weight, seed_grid
 
     seeds = seed_grid(12, 12, 9)
     return snic_batch_rgb(images, seeds, _spatial_weight(20.0, len(seeds), 12, 12), 2,
-                          _SRGB_TO_LINEAR, _RGB_TO_XYZ, _WHITE)
+                          SRGB_TO_LINEAR, RGB_TO_XYZ, WHITE)

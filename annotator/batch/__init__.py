@@ -1,4 +1,4 @@
-"""Batch runs: every item of a manifest through :func:`annotator.annotate.annotate`, resumably, in parallel.
+"""Batch runs: every item of a manifest through :func:`annotator.job.annotate`, resumably, in parallel.
 
 Where things are
     :mod:`~annotator.batch.plan`

@@ -32,11 +32,11 @@ from annotator.atomic import write_text_atomic
 from annotator.batch.plan import PlannedItem, normalised_json, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
+from annotator.pages import BATCH_TEMPLATE, template_environment
 from annotator.store import STORE_NAME, RunStore, read_store
 
 #: Batch-level outputs in ``OUT``.
 BATCH_FILES = ("annotations.json", "summary.json", "report.html", "failures.jsonl")
-BATCH_TEMPLATE = "batch_report.html.j2"
 
 
 @dataclass
@@ -173,8 +173,6 @@ def _merged_labelstudio(stores: Sequence[RunStore], media_url: str | None = None
 
 
 def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
-    from annotator.report import template_environment
-
     page = template_environment().get_template(BATCH_TEMPLATE).render(summary=summary, rows=summary["items"])
     write_text_atomic(path, page)
 

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from annotator.allocator import keep_freed_memory
-from annotator.annotate import previous_outputs, remove_staging_folders
+from annotator.job import previous_outputs, remove_staging_folders
 from annotator.batch.plan import ItemJob
 from annotator.exports.otb import otb_result_globs
 from annotator.manifest import output_stem
@@ -118,10 +118,10 @@ def _install_frame_hook() -> None:
     in the same process are unaffected. Done once per process, and only
     while the name still refers to the original class.
     """
-    import annotator.annotate as annotate_module
+    import annotator.job as job_module
 
-    if annotate_module.Progress is Progress:
-        annotate_module.Progress = _ReportingProgress
+    if job_module.Progress is Progress:
+        job_module.Progress = _ReportingProgress
 
 
 def _peak_rss_mb() -> float | None:
@@ -166,7 +166,7 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
         Receives progress events ``("start", id, pid, total_frames)`` and
         ``("frames", id, done)``.
     """
-    from annotator.annotate import annotate
+    from annotator.job import annotate
 
     with _ITEM_LOCK:
         _install_frame_hook()

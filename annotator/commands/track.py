@@ -55,14 +55,15 @@ def track_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
-    from annotator.annotate import annotate, parse_box
+    from annotator.job import annotate
+    from annotator.box_input import parse_box
     from annotator.config import ConfigError, load_config_file, resolve_config
     from annotator.pipeline import Target
 
     try:
         if box_origin not in (0, 1):
             raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
-        boxes = [parse_box(b, origin=box_origin) for b in box]
+        boxes = [parse_box(b, name="--box", origin=box_origin) for b in box]
         if label and len(label) not in (1, len(boxes)):
             raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
                             EXIT_VALUE)

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -92,17 +91,6 @@ def labels_in_order(tracks: Sequence[TrackResult]) -> list[str]:
             names.append(track.label)
     return names
 
-
-def clip_xywh(box: Sequence[float], width: int, height: int) -> tuple[float, float, float, float] | None:
-    """A 0-based ``xywh`` box clipped to the image; None when NaN or nothing of it is inside."""
-    x, y, w, h = (float(v) for v in box)
-    if not all(math.isfinite(v) for v in (x, y, w, h)):
-        return None
-    x0, y0 = max(x, 0.0), max(y, 0.0)
-    x1, y1 = min(x + w, float(width)), min(y + h, float(height))
-    if x1 <= x0 or y1 <= y0:
-        return None
-    return (x0, y0, x1 - x0, y1 - y0)
 
 
 def number(value: float, decimals: int = 3) -> str:

@@ -33,7 +33,6 @@ stays compact.
 from __future__ import annotations
 
 import json
-import math
 import os
 from typing import Any, Mapping, Sequence
 
@@ -41,6 +40,7 @@ import numpy as np
 
 from annotator.atomic import write_text_atomic
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt.boxes import clip_xywh
 
 __all__ = ["DEFAULT_LABEL", "build_coco", "dumps_coco", "merge_coco", "save_coco", "write_coco"]
 
@@ -85,19 +85,6 @@ def _file_name(video: VideoInfo, frame_index: int) -> str:
     if video.frame_files is not None:
         return video.frame_files[frame_index]
     return f"{video.name}/{frame_index:06d}.jpg"
-
-
-def _clip_xywh(box: np.ndarray, width: int, height: int) -> list[float] | None:
-    """Clip a 0-based ``xywh`` box to the image; None when nothing of it is inside."""
-    x, y, w, h = (float(v) for v in box)
-    if not all(math.isfinite(v) for v in (x, y, w, h)):
-        return None
-    x0, y0 = max(x, 0.0), max(y, 0.0)
-    x1, y1 = min(x + w, float(width)), min(y + h, float(height))
-    x0, y0, x1, y1 = (round(v, _DECIMALS) for v in (x0, y0, x1, y1))
-    if x1 <= x0 or y1 <= y0:
-        return None
-    return [x0, y0, round(x1 - x0, _DECIMALS), round(y1 - y0, _DECIMALS)]
 
 
 def _check_positive_id(name: str, value: Any) -> int:
@@ -189,9 +176,10 @@ def build_coco(
         track = tracks[t]
         if track.outside[i]:
             continue
-        bbox = _clip_xywh(track.boxes_xywh[i], video.width, video.height)
-        if bbox is None:
+        clipped = clip_xywh(track.boxes_xywh[i], video.width, video.height, decimals=_DECIMALS)
+        if clipped is None:
             continue
+        bbox = list(clipped)
         score = round(float(track.confidence[i]), _SCORE_DECIMALS)
         cat = category_id[track.label]
         annotations.append(

@@ -52,6 +52,7 @@ from annotator.exports._review import (
     visible,
 )
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt.boxes import xywh_to_xyxy
 
 __all__ = ["CVAT_VERSION", "build_cvat_xml", "cvat_keyframes", "write_cvat_xml"]
 
@@ -117,10 +118,10 @@ def _meta(video: VideoInfo, frames: range, labels: list[str]) -> list[str]:
 
 def _box_element(frame: int, box_xywh: np.ndarray, *, outside: bool, occluded: bool, keyframe: bool,
                  score: float | None) -> list[str]:
-    x, y, w, h = (float(v) for v in box_xywh)
+    x0, y0, x1, y1 = xywh_to_xyxy(box_xywh).tolist()
     attrs = (
-        f'frame="{frame}" xtl="{x:.{_COORD_DECIMALS}f}" ytl="{y:.{_COORD_DECIMALS}f}" '
-        f'xbr="{x + w:.{_COORD_DECIMALS}f}" ybr="{y + h:.{_COORD_DECIMALS}f}" outside="{int(outside)}" '
+        f'frame="{frame}" xtl="{x0:.{_COORD_DECIMALS}f}" ytl="{y0:.{_COORD_DECIMALS}f}" '
+        f'xbr="{x1:.{_COORD_DECIMALS}f}" ybr="{y1:.{_COORD_DECIMALS}f}" outside="{int(outside)}" '
         f'occluded="{int(occluded)}" keyframe="{int(keyframe)}" z_order="0"'
     )
     if score is None:
@@ -153,8 +154,7 @@ def _track_rows(track: TrackResult, frames: range) -> list[tuple[int, np.ndarray
 
 def _corners(box_xywh: np.ndarray) -> list[float]:
     """``xtl, ytl, xbr, ybr`` as written (rounded to the file's decimals)."""
-    x, y, w, h = (float(v) for v in box_xywh)
-    return [round(v, _COORD_DECIMALS) for v in (x, y, x + w, y + h)]
+    return [round(v, _COORD_DECIMALS) for v in xywh_to_xyxy(box_xywh).tolist()]
 
 
 def _track_elements(number_: int, track: TrackResult, frames: range) -> list[str]:

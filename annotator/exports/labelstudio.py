@@ -49,8 +49,9 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, clip_xywh, labels_in_order, number, review_keyframes
+from annotator.exports._review import check_frame_range, labels_in_order, number, review_keyframes
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt.boxes import clip_xywh
 
 __all__ = ["LS_FROM_NAME", "LS_TO_NAME", "LS_LABELS_NAME", "LS_MODEL_VERSION", "build_labelstudio_config",
            "build_labelstudio_tasks", "media_url_for", "write_labelstudio", "labelstudio_region_id"]

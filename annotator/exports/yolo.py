@@ -30,8 +30,9 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, clip_xywh, labels_in_order, number
+from annotator.exports._review import check_frame_range, labels_in_order, number
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt.boxes import clip_xywh
 
 __all__ = ["yolo_frame_stem", "build_yolo_labels", "write_yolo"]
 

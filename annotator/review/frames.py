@@ -11,6 +11,7 @@ import numpy as np
 
 from annotator.errors import EXIT_INPUT, ToolError
 from annotator.frames import FrameSource, FrameSourceError, open_frames
+from annotator.provenance import content_hash
 from annotator.review.run import RUN_JSON, LoadedRun
 
 __all__ = ["BUFFER_BYTES", "SourceFrames", "checks_content_hash", "open_run_source"]
@@ -122,8 +123,6 @@ def checks_content_hash(run: LoadedRun, *, verify_input: bool, input_path: str |
 
 def _check_content_hash(path: Path, recorded: str, run: LoadedRun, *, moved: bool) -> bool:
     """True if ``path`` holds the bytes the run was made on, else a one-line error (``OSError`` if unreadable)."""
-    from annotator.annotate import content_hash
-
     if content_hash(path) != recorded:
         if moved:
             raise ToolError(f"--input {path} is not the input of this run (its content hash differs from the one "

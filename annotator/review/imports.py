@@ -62,11 +62,12 @@ import numpy as np
 
 from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports._review import check_frame_range, clip_xywh, visible
+from annotator.exports._review import check_frame_range, visible
 from annotator.exports.labelstudio import labelstudio_region_id
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult, VideoInfo
 from annotator.wording import plural
+from sptpt.boxes import clip_xywh, xywh_to_xyxy, xyxy_to_xywh
 
 __all__ = ["SAME_BOX_PX", "read_cvat_corrections", "read_labelstudio_corrections"]
 
@@ -205,9 +206,8 @@ def _same_as_given(given: tuple[float, ...] | None, box: tuple[float, ...] | Non
         return True
     if given is None or box is None:
         return False
-    clipped = clip_xywh((given[0], given[1], given[2] - given[0], given[3] - given[1]), video.width, video.height)
-    return clipped is not None and _same_corners(
-        (clipped[0], clipped[1], clipped[0] + clipped[2], clipped[1] + clipped[3]), box)
+    clipped = clip_xywh(xyxy_to_xywh(given), video.width, video.height)
+    return clipped is not None and _same_corners(tuple(xywh_to_xyxy(clipped).tolist()), box)
 
 
 def _corners_or_none(box: ET.Element) -> tuple[float, ...] | None:
@@ -362,7 +362,7 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
                     hidden = True
                 continue
             x0, y0, x1, y1 = corners
-            xywh = _checked_box((x0, y0, x1 - x0, y1 - y0), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
+            xywh = _checked_box(xyxy_to_xywh(corners).tolist(), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
             if hidden or changed or run.box_changed(frame, xywh):
                 corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where(box)))
             hidden = False

@@ -51,25 +51,22 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
-import hashlib
 import json
 import os
 import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
-
-import numpy as np
+from typing import Any
 
 from annotator import __version__
-from annotator.annotate import ctrl_c_ignored, json_default
-from annotator.atomic import write_text_atomic
+from annotator.atomic import ctrl_c_ignored, write_text_atomic
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions, record_review_exports, write_exports
 from annotator.frames import DecodeError
 from annotator.progress import Progress
+from annotator.provenance import content_hash, json_default
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
 from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
@@ -78,7 +75,6 @@ from annotator.review.pass_cache import (PASSES_NAME, keep_anchored, pass_finger
 from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import RUN_JSON, LoadedRun, load_run
 from annotator.store import STORE_NAME, RunStore, write_store
-from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from annotator.wording import plural
 
 __all__ = ["ReviewResult", "apply_corrections"]
@@ -123,14 +119,6 @@ class ReviewResult:
                 + ("; overlay.mp4 removed (--no-render): a retrack without --no-render (with this corrections file "
                    "again if nothing is new) renders it again" if self.overlay_removed else "")
                 + (f"\n{note}" if note else ""))
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return "sha256:" + digest.hexdigest()
 
 
 def _box_list(box) -> list[float] | None:
@@ -270,7 +258,7 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "tool_version": __version__,
             "corrections_file": str(corrections_path.resolve()),
-            "corrections_hash": _sha256(corrections_path),
+            "corrections_hash": content_hash(corrections_path),
             "merge": merge,
             "anchors": [c.to_dict() for c in retrack.anchors],
             "segments": [s.to_dict() for s in retrack.segments],
@@ -279,30 +267,6 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
             "seconds": round(retrack.seconds, 3),
         })
     return {"anchors": [anchors[k] for k in sorted(anchors)], "retracks": history}
-
-
-def _report_review(review: dict[str, Any], tracks: Sequence[TrackResult], fps: float) -> dict[str, Any]:
-    """What the report's Corrections section shows."""
-    from annotator.report import _seek_seconds
-
-    def fmt(box) -> str:
-        return "absent" if box is None else ", ".join(f"{v:.1f}" for v in box)
-
-    # Every human correction in force: the keyframes a person gave other than the first-frame boxes.
-    anchors = sorted(
-        ({"track_id": t.track_id, "frame": int(t.frame_indices[p]),
-          "box": fmt(None if t.outside[p] else t.boxes_xywh[p]), "source": t.keyframe_source[p],
-          "seconds": _seek_seconds(int(p), fps)}
-         for t in tracks for p in np.flatnonzero(t.keyframe) if t.keyframe_source[p] != KEYFRAME_GIVEN),
-        key=lambda a: (a["frame"], a["track_id"]))
-    last = review["retracks"][-1] if review.get("retracks") else None
-    if last is not None:
-        last = {**last,
-                "anchors": [{**a, "before": fmt(a["box_before"]), "after": fmt(a["box_after"]),
-                             "iou_text": "" if a["iou"] is None else f"{a['iou']:.2f}"} for a in last["anchors"]],
-                "segments": [{**s, "iou_text": "" if s["mean_iou"] is None else f"{s['mean_iou']:.2f}"}
-                             for s in last["segments"]]}
-    return {"anchors": anchors, "last": last, "count": len(review.get("retracks", []))}
 
 
 def _fingerprint(run: LoadedRun) -> str:
@@ -373,7 +337,7 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
     from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
-    from annotator.report import render_report, track_summary
+    from annotator.report import corrections_section, render_report, track_summary
 
     formats, tracks, video = run.formats, retrack.tracks, run.video
     store = RunStore(video=video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
@@ -418,7 +382,7 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                       "seconds_tracking": timings.get("seconds_tracking") or 0.0,
                       "seconds_outside": timings.get("seconds_outside_tracker") or 0.0},
             overlay_name=OVERLAY_NAME if rendered else None,
-            review=_report_review(info["review"], tracks, video.fps),
+            review=corrections_section(info["review"], tracks, video.fps),
         )
         written["report"] = [Path("report.html")]
     info["outputs"] = {k: [str(p) for p in v] for k, v in written.items()}

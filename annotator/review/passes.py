@@ -21,7 +21,7 @@ from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
 
-__all__ = ["DEFAULT_MAX_BUFFER_FRAMES", "ArrayFrames", "FrameProvider", "pass_seed"]
+__all__ = ["DEFAULT_MAX_BUFFER_FRAMES", "ArrayFrames", "FrameProvider", "SegmentRun", "pass_seed"]
 
 #: Frames a backward pass may hold in memory before it falls back to re-reading in chunks.
 DEFAULT_MAX_BUFFER_FRAMES = 512
@@ -68,7 +68,7 @@ def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, fi
 # --------------------------------------------------------------------------- the passes
 
 
-class _SegmentRun:
+class SegmentRun:
     """Runs the passes of one segment while frames stream by (or takes them from a pass cache)."""
 
     def __init__(self, segment: Segment, box_start: Box | None, box_stop: Box | None, frame_indices: np.ndarray,
@@ -218,13 +218,3 @@ class _SegmentRun:
                              particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
         target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
-
-
-def _merge_intervals(intervals: list[tuple[int, int]]) -> list[tuple[int, int]]:
-    merged: list[list[int]] = []
-    for lo, hi in sorted(intervals):
-        if merged and lo <= merged[-1][1]:
-            merged[-1][1] = max(merged[-1][1], hi)
-        else:
-            merged.append([lo, hi])
-    return [(lo, hi) for lo, hi in merged]

@@ -63,7 +63,7 @@ from annotator.config import RunConfig
 from annotator.failure import SIGNALS, load_model
 from annotator.review.merge import (DEFAULT_MERGE, MERGES, NO_SCORING, PASS_CHOICE, PASS_IOU, PassResult, merge_passes,
                                     reflag)
-from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, _merge_intervals, _SegmentRun
+from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, SegmentRun
 from annotator.review.segments import (
     AnchorChange,
     Box,
@@ -166,7 +166,7 @@ def retrack_tracks(
     height = np.inf if height is None else height
     track_ids = list(dict.fromkeys([*previous, *anchors]))
 
-    runs: list[_SegmentRun] = []
+    runs: list[SegmentRun] = []
     plans: dict[int, tuple[dict, list[Segment]]] = {}
     anchor_changes: list[AnchorChange] = []
     for tid in track_ids:
@@ -200,14 +200,14 @@ def retrack_tracks(
         plans[tid] = (current, segments)
         for seg in segments:
             box_stop = current.get(seg.stop) if seg.stop < n else None
-            runs.append(_SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
+            runs.append(SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
                                     max_buffer_frames, pass_cache))
 
     # One ordered sweep over the frames any pass needs.
     spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
     intervals = _merge_intervals([span for span, _ in spans])
     by_start = sorted(spans, key=lambda item: item[0][0])
-    active: list[tuple[tuple[int, int], _SegmentRun]] = []
+    active: list[tuple[tuple[int, int], SegmentRun]] = []
     nxt = 0
     planned = sum(r.planned for r in runs)
     for lo, hi in intervals:
@@ -231,7 +231,7 @@ def retrack_tracks(
     results: list[TrackResult] = []
     scorings: dict[int, np.ndarray] = {}
     changes: list[SegmentChange] = []
-    runs_by_track: dict[int, list[_SegmentRun]] = {}
+    runs_by_track: dict[int, list[SegmentRun]] = {}
     for run in runs:
         runs_by_track.setdefault(run.segment.track_id, []).append(run)
     for tid in track_ids:
@@ -339,3 +339,14 @@ def retrack_tracks(
 
 def _is_number(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating))
+
+
+def _merge_intervals(intervals: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Overlapping or touching ``[lo, hi)`` intervals joined, in increasing order."""
+    merged: list[list[int]] = []
+    for lo, hi in sorted(intervals):
+        if merged and lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    return [(lo, hi) for lo, hi in merged]

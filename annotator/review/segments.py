@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from annotator.tracks import TrackResult
-from sptpt.boxes import iou_xywh
+from sptpt.boxes import clip_xyxy, iou_xywh, xywh_to_xyxy
 
 __all__ = ["AnchorChange", "Box", "PreviousTrack", "Segment", "SegmentChange", "plan_segments", "same_box"]
 
@@ -115,12 +115,10 @@ def same_box(a: Box | None, b: Box | None, *, width: int, height: int, tol: floa
     """
     if a is None or b is None:
         return a is None and b is None
-
-    def clip(box):
-        x, y, w, h = box
-        return np.array([max(x, 0.0), max(y, 0.0), min(x + w, width), min(y + h, height)])
-
-    return bool(np.all(np.abs(clip(a) - clip(b)) <= tol))
+    # The corners of the part inside the frame, compared as they are (no test for an empty part): two boxes wholly
+    # outside are the same only where their corners are.
+    clipped_a, clipped_b = (np.array(clip_xyxy(xywh_to_xyxy(box), width, height)) for box in (a, b))
+    return bool(np.all(np.abs(clipped_a - clipped_b) <= tol))
 
 def _iou_or_none(a: Box | None, b: Box | None) -> float | None:
     if a is None or b is None or not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):

@@ -18,6 +18,8 @@ from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba
 
+__all__ = ["map_on_threads", "run_in_chunks"]
+
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 

@@ -12,25 +12,21 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import errno
-import hashlib
 import json
+import numbers
 import os
 import platform
-import re
 import shutil
-import signal
 import tempfile
-import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
-
 from annotator import __version__
-from annotator.atomic import atomic_path, write_text_atomic
-from annotator.config import RunConfig
+from annotator.atomic import atomic_path, ctrl_c_ignored, write_text_atomic
+from annotator.box_input import parse_box
+from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports import ExportOptions, record_review_exports, write_exports
@@ -38,12 +34,15 @@ from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import CountNote, Progress
+from annotator.provenance import content_hash, json_default
 from annotator.report import render_report, track_summary
+from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
 from annotator.store import STORE_NAME, RunStore, write_store
 from annotator.wording import plural
+from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
-__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "parse_box", "previous_outputs",
-           "ctrl_c_ignored", "remove_staging_folders", "RESULT_FILES"]
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
+           "remove_staging_folders", "RESULT_FILES"]
 
 OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
@@ -60,30 +59,28 @@ STAGING_PREFIX = ".sptpt-run."
 
 @dataclass
 class AnnotateResult:
-    """What a run wrote, and how it ended."""
+    """What a run wrote, and how it ended.
+
+    Attributes
+    ----------
+    out_dir : Path
+        The output folder.
+    run : TrackingRun
+        The tracking as it ran: tracks, timings, a decode error or an interruption.
+    outputs : dict of str to list of Path
+        The files written, by kind (``store``, ``otb``, ``coco``, ``flags``, ``overlay``, ``report``, ...).
+    exit_code, message : int, str
+        0 and "" for a finished run; else the exit code the command line ends with and why.
+    store : RunStore or None
+        The run's track store, as written to ``tracks.npz``: every per-frame value, every export a view of it.
+    """
 
     out_dir: Path
     run: TrackingRun
     outputs: dict[str, list[Path]] = field(default_factory=dict)
     exit_code: int = 0
     message: str = ""
-
-
-def parse_box(text: str, *, origin: int = 0, name: str = "--box") -> tuple[float, float, float, float]:
-    """Parse ``"x,y,w,h"`` into a 0-based box; ``origin=1`` takes OTB-style 1-based coordinates."""
-    # Commas as documented; also semicolons, and the spaces or tabs of a row copied from a whitespace-separated file.
-    parts = [p for p in re.split(r"\s*[,;]\s*|\s+", str(text).strip())]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        values = []
-    if len(values) != 4 or not all(np.isfinite(values)):
-        raise ToolError(f"{name} {text!r} is not four numbers x,y,w,h: give e.g. {name} 120,80,40,60", EXIT_VALUE)
-    x, y, w, h = values
-    if w <= 0 or h <= 0:
-        raise ToolError(f"{name} {text!r} has zero or negative size (w={w:g}, h={h:g}): width and height must be > 0",
-                        EXIT_VALUE)
-    return (x - origin, y - origin, w, h)
+    store: RunStore | None = None
 
 
 def default_output_dir(input_path: Path) -> Path:
@@ -129,7 +126,7 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
     for target in targets:
         x, y, w, h = target.box_xywh
         text = f"--box {x:g},{y:g},{w:g},{h:g} (0-based)"
-        if x >= source.width or y >= source.height or x + w <= 0 or y + h <= 0:
+        if lies_outside(target.box_xywh, source.width, source.height):
             raise ToolError(
                 f"{text} lies outside the {source.width}x{source.height} first frame "
                 f"of {source.path}: give pixel coordinates of the object in frame {source.start}"
@@ -138,30 +135,18 @@ def _check_boxes(targets: Sequence[Target], source: FrameSource) -> None:
             warnings.warn(f"{text} is only {w:g}x{h:g} px: the tracker needs about {SMALL_BOX_PX}x{SMALL_BOX_PX} px "
                           "of object to follow it; check the box (x,y is the top-left corner, then width, height)",
                           InputWarning, stacklevel=3)
-        visible = (min(x + w, source.width) - max(x, 0.0)) * (min(y + h, source.height) - max(y, 0.0)) / (w * h)
+        x0, y0, x1, y1 = clip_xyxy(xywh_to_xyxy(target.box_xywh), source.width, source.height)
+        visible = (x1 - x0) * (y1 - y0) / (w * h)
         if visible < MIN_VISIBLE_SHARE:
             warnings.warn(f"{text} lies {100 * (1 - visible):.0f}% outside the {source.width}x{source.height} frame: "
                           "the tracker learns the object from the part inside; check the box", InputWarning,
                           stacklevel=3)
 
 
-def content_hash(path: Path) -> str:
-    """SHA-256 of a file, or of an image folder's names and bytes in order."""
-    digest = hashlib.sha256()
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-    for file in files:
-        if path.is_dir():
-            digest.update(str(file.relative_to(path)).encode())
-        with open(file, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
-    return "sha256:" + digest.hexdigest()
-
-
 def annotate(
     input_path: str | os.PathLike,
-    targets: Sequence[Target],
-    config: RunConfig,
+    targets: Target | Sequence[Target] | Sequence[float] | str | Sequence[Sequence[float] | str],
+    config: RunConfig | None = None,
     *,
     out_dir: str | os.PathLike | None = None,
     start: int = 0,
@@ -174,6 +159,25 @@ def annotate(
     media_url: str | None = None,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
+
+    What ``sptpt-annotate VIDEO --box ...`` runs, and each item of a batch.
+
+    Parameters
+    ----------
+    input_path : path-like
+        A video file or a folder of images.
+    targets : box, Target, or a sequence of them
+        The objects' first-frame boxes. A box is four numbers ``x, y, w, h`` (0-based pixels) or the text
+        ``"x,y,w,h"``, read as ``--box`` reads it (:func:`annotator.box_input.parse_box`); boxes get the track
+        ids 1, 2, ... in order and the label ``object``. A :class:`~annotator.pipeline.Target` gives its own.
+    config : RunConfig, optional
+        From :func:`annotator.config.resolve_config`; by default ``resolve_config()``, what the command line uses
+        without options (the default preset, seed 0).
+    out_dir : path-like, optional
+        By default ``<input>_sptpt/`` beside the input.
+    start, stop, step, formats, force, show_progress
+        As the command line's ``--start``, ``--stop``, ``--step``, ``--formats``, ``--force`` and (not)
+        ``--quiet``.
 
     ``corrections``, when given, are only checked here against the frames
     and tracks the run will have, before any tracking (so that a correction
@@ -191,6 +195,8 @@ def annotate(
         ``exit_code`` and ``message``, after the outputs are written.
     """
     input_path = Path(input_path)
+    targets = _as_targets(targets)
+    config = resolve_config() if config is None else config
     unknown = sorted(set(formats) - set(ALL_FORMATS))
     if unknown:
         raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
@@ -222,6 +228,14 @@ def annotate(
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
                          ExportOptions(media_url=media_url))
+
+
+def _as_targets(given) -> list[Target]:
+    """``annotate``'s ``targets`` as a list of Targets: one box or Target, or a sequence of them."""
+    if isinstance(given, (str, Target)) or (len(given) and all(isinstance(v, numbers.Real) for v in given)):
+        given = [given]
+    return [item if isinstance(item, Target) else Target(parse_box(item, name="box"), track_id=position)
+            for position, item in enumerate(given, start=1)]
 
 
 def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
@@ -358,19 +372,6 @@ def _exclusive(out_dir: Path):
         os.close(fd)
 
 
-@contextlib.contextmanager
-def ctrl_c_ignored():
-    """Ignore Ctrl-C while a run is moved into place (well under a second), so the folder is never half old."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
                    formats: Sequence[str], input_path: Path, options: ExportOptions) -> None:
     run, out_dir = result.run, result.out_dir
@@ -382,6 +383,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
     # The store first and always, whatever --formats says: every export below is a view of it.
     store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step, tracks=run.tracks)
     outputs["store"] = [write_store(out_dir / STORE_NAME, store)]
+    result.store = store
     outputs.update(write_exports(out_dir, store, formats, options))
     if run.overlay_path is not None:
         outputs["overlay"] = [run.overlay_path]
@@ -427,10 +429,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
         **({"review_exports": record} if (record := record_review_exports(None, store, formats)) else {}),
     }
     # Each track as the forward pass from its first frame, for the first re-track to reuse (run.json's config as
-    # it will read back, so that the re-track's fingerprint is the same). Imported here: the review package
-    # imports this module.
-    from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
-
+    # it will read back, so that the re-track's fingerprint is the same).
     first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
     written_config = json.loads(json.dumps(run_info["config"], default=json_default))
     outputs["passes"] = [write_pass_cache(out_dir / PASSES_NAME, first_passes, pass_fingerprint(
@@ -474,16 +473,3 @@ def previous_outputs(out_dir: Path) -> set[str]:
     root = out_dir.resolve()
     return {n for n in names if not Path(n).is_absolute() and ".." not in Path(n).parts
             and (out_dir / n).resolve().is_relative_to(root)}
-
-
-def json_default(value):
-    """``json.dumps`` fallback for NumPy scalars and arrays and paths (run.json)."""
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -1,0 +1,54 @@
+"""How the packages may depend on each other: the tracker library never on the tool, no module on another's
+private names (STYLE.md, "A public face"; issue #46)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = sorted([*ROOT.glob("annotator/**/*.py"), *ROOT.glob("sptpt/**/*.py")])
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def imports_of(path: Path) -> list[tuple[int, str, str | None]]:
+    """``(line, module, name)`` of each import of a project module; ``name`` None for ``import module``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found += [(node.lineno, node.module, alias.name) for alias in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name, None) for alias in node.names]
+    return [(line, module, name) for line, module, name in found if module.split(".")[0] in ("annotator", "sptpt")]
+
+
+def test_the_tracker_library_never_imports_the_tool():
+    offenders = [f"{path.relative_to(ROOT)}:{line} imports {module}" for path in SOURCES
+                 if module_name(path).startswith("sptpt") for line, module, _ in imports_of(path)
+                 if module.split(".")[0] == "annotator"]
+    assert not offenders
+
+
+def test_no_module_imports_another_modules_private_names():
+    offenders = []
+    for path in SOURCES:
+        here = module_name(path)
+        for line, module, name in imports_of(path):
+            if name is not None and private(name) and module != here:
+                offenders.append(f"{path.relative_to(ROOT)}:{line} imports {name} from {module}")
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        aliases = {alias.asname or alias.name: alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
+                   for alias in node.names if alias.name.split(".")[0] in ("annotator", "sptpt")}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and private(node.attr) and isinstance(node.value, ast.Name) \
+                    and node.value.id in aliases and aliases[node.value.id] != here:
+                offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} uses {node.value.id}.{node.attr}")
+    assert not offenders
