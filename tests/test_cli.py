@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -64,8 +63,10 @@ def invoke(*args: str):
 
 
 def console_script() -> list[str]:
-    exe = shutil.which("sptpt-annotate")
-    return [exe] if exe else [sys.executable, "-m", "annotator.cli"]
+    """The console script installed with the Python running the tests (not the first one on PATH, which may
+    belong to another environment), else the module."""
+    exe = Path(sys.executable).with_name("sptpt-annotate")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "annotator.cli"]
 
 
 def run_script(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
