@@ -81,8 +81,11 @@ def superpixel_features(
     and 5/6 for multiples of 6, come out within one ulp of a bin edge, where
     NumPy's SIMD ``arccos`` and libm's ``acos`` may round to opposite sides;
     such pixels can then land one H bin apart from a NumPy computation. By
-    Niven's theorem no other hue of an 8-bit colour lies on a bin edge, and
-    edges at multiples of 1/4 (``arccos`` of 0 and +-1) are exact everywhere.
+    Niven's theorem no other hue of an 8-bit colour lies on a bin edge. At
+    multiples of 1/4 the ``arccos`` argument is 0 but for rounding, and
+    NumPy 1.x on AVX-512 processors (SVML's ``arccos``) can return one ulp
+    below libm there: ``rgb_to_hsi`` then puts such a hue one H bin lower
+    than this kernel does, which agrees with libm and NumPy 2.
     """
     templates = np.asarray(templates)
     labels = np.asarray(labels)

@@ -10,9 +10,9 @@ which is what makes a tracker follow the wrong thing.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 __all__ = ["SyntheticClip", "make_clip"]
@@ -51,22 +51,95 @@ _LOOKALIKE_ANGLE_DEG = 90.0
 
 
 def _paste(image: np.ndarray, pattern: np.ndarray, box_xywh: tuple[float, float, float, float]) -> np.ndarray:
-    """``pattern`` scaled into ``box_xywh`` over ``image`` with sub-pixel placement (an affine warp)."""
-    x0, y0, w, h = box_xywh
+    """``pattern`` scaled into ``box_xywh`` over ``image`` with sub-pixel placement (bilinear, like an affine warp).
+
+    Frame pixel ``(x, y)`` samples the pattern at ``((x - x0) * pw / w, (y - y0) * ph / h)``, pixel indices as
+    OpenCV's ``warpAffine`` maps them; outside the pattern it samples zero, and a mask sampled the same way
+    blends the pattern's edge into the frame. Computed with element-wise float64 NumPy operations in a fixed
+    order, so every NumPy and OpenCV version gives the same clip (``cv2.warpAffine`` did not: OpenCV 4 rounds
+    the sub-pixel position to 1/32 pixel, OpenCV 5 does not, and ~3% of the pasted pixels differed by up to 6
+    grey levels).
+    """
+    x0, y0, w, h = (float(v) for v in box_xywh)
     height, width = image.shape[:2]
-    m = np.array([[w / pattern.shape[1], 0, x0], [0, h / pattern.shape[0], y0]], np.float32)
-    warped = cv2.warpAffine(pattern, m, (width, height), flags=cv2.INTER_LINEAR)
-    mask = cv2.warpAffine(np.ones(pattern.shape[:2], np.float32), m, (width, height), flags=cv2.INTER_LINEAR)
-    return image * (1 - mask[..., None]) + warped * mask[..., None]
+    rows, cols = pattern.shape[:2]
+    # The pattern with a channel of ones (the mask) and a border of zeros, which every position outside reads.
+    padded = np.zeros((rows + 2, cols + 2, pattern.shape[2] + 1))
+    padded[1:-1, 1:-1, :-1] = pattern
+    padded[1:-1, 1:-1, -1] = 1.0
+    sy = (np.arange(height) - y0) * (rows / h)
+    sx = (np.arange(width) - x0) * (cols / w)
+    iy, ix = np.floor(sy).astype(np.int64), np.floor(sx).astype(np.int64)
+    out = np.array(image, np.float32)
+    # Only frame pixels with a pattern pixel among their four neighbours change (the mask is 0 elsewhere).
+    ys, xs = np.flatnonzero((iy >= -1) & (iy < rows)), np.flatnonzero((ix >= -1) & (ix < cols))
+    if ys.size == 0 or xs.size == 0:
+        return out
+    ys, xs = slice(ys[0], ys[-1] + 1), slice(xs[0], xs[-1] + 1)
+    fy, fx = (sy[ys] - iy[ys])[:, None, None], (sx[xs] - ix[xs])[None, :, None]
+    # Corner indices into ``padded``, whose border row and column (index 0 and the last) hold the zeros outside.
+    top, left = iy[ys] + 1, ix[xs] + 1
+    upper = padded[top][:, left] * (1.0 - fx) + padded[top][:, left + 1] * fx
+    lower = padded[top + 1][:, left] * (1.0 - fx) + padded[top + 1][:, left + 1] * fx
+    sampled = upper * (1.0 - fy) + lower * fy
+    warped, mask = sampled[..., :-1], sampled[..., -1:]
+    out[ys, xs] = image[ys, xs] * (1.0 - mask) + warped * mask
+    return out
+
+
+def _resize_cubic(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    """``(H, W, C)`` float64 ``image`` resized to ``(height, width)`` by bicubic interpolation, with OpenCV's
+    ``INTER_CUBIC`` conventions (Keys' kernel with a = -0.75, pixel centres aligned, edge pixels repeated)."""
+    for axis, size in ((0, height), (1, width)):
+        n = image.shape[axis]
+        source = (np.arange(size) + 0.5) * (n / size) - 0.5
+        first = np.floor(source)
+        t = source - first
+        a = -0.75
+        weights = [((a * (t + 1) - 5 * a) * (t + 1) + 8 * a) * (t + 1) - 4 * a,
+                   ((a + 2) * t - (a + 3)) * t * t + 1,
+                   ((a + 2) * (1 - t) - (a + 3)) * (1 - t) * (1 - t) + 1]
+        weights.append(1.0 - weights[0] - weights[1] - weights[2])
+        shape = [1] * image.ndim
+        shape[axis] = size
+        out = np.zeros(image.shape[:axis] + (size,) + image.shape[axis + 1:])
+        for k, weight in enumerate(weights):
+            index = np.clip(first.astype(np.int64) + k - 1, 0, n - 1)
+            out += np.take(image, index, axis=axis) * weight.reshape(shape)
+        image = out
+    return image
+
+
+def _gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """``(H, W, C)`` float64 ``image`` blurred by a Gaussian of ``sigma`` pixels, with OpenCV's ``GaussianBlur``
+    conventions for float images (a kernel of ``round(8 sigma + 1) | 1`` taps, mirrored border without repeating
+    the edge pixel). The taps come from ``math.exp``, not from NumPy, whose SIMD exp differs between versions."""
+    radius = (int(math.floor(sigma * 8 + 1 + 0.5)) | 1) // 2
+    taps = [math.exp(-(k * k) / (2.0 * sigma * sigma)) for k in range(-radius, radius + 1)]
+    total = sum(taps)
+    for axis in (0, 1):
+        n = image.shape[axis]
+        pad = [(0, 0)] * image.ndim
+        pad[axis] = (radius, radius)
+        padded = np.pad(image, pad, mode="reflect")
+        out = np.zeros(image.shape)
+        for k, tap in enumerate(taps):
+            out += np.take(padded, np.arange(k, k + n), axis=axis) * (tap / total)
+        image = out
+    return image
 
 
 def _texture(rng: np.random.Generator, height: int, width: int, cell: int, palette: np.ndarray) -> np.ndarray:
-    """Smooth multi-colour noise: random palette indices upsampled and blurred."""
+    """Smooth multi-colour noise: random palette indices upsampled and blurred, ``(height, width, 3)`` float32."""
     coarse = rng.integers(0, len(palette), size=(height // cell + 2, width // cell + 2))
-    image = palette[coarse].astype(np.float32)
-    image = cv2.resize(image, (width + 2 * cell, height + 2 * cell), interpolation=cv2.INTER_CUBIC)
-    image = cv2.GaussianBlur(image, (0, 0), cell / 3)
-    return np.clip(image[cell : cell + height, cell : cell + width], 0, 255)
+    image = np.asarray(palette, np.float64)[coarse]
+    image = _gaussian_blur(_resize_cubic(image, height + 2 * cell, width + 2 * cell), cell / 3)
+    return np.clip(image[cell : cell + height, cell : cell + width], 0, 255).astype(np.float32)
+
+
+def _sin(values: np.ndarray) -> np.ndarray:
+    """``sin`` of every value from ``math.sin``: NumPy's SIMD sin differs in the last bit between versions."""
+    return np.array([math.sin(v) for v in np.ravel(values)]).reshape(np.shape(values))
 
 
 def make_clip(
@@ -87,7 +160,7 @@ def make_clip(
     size : (width, height)
     object_size : (width, height) of the object at scale 1.
     seed : int
-        The same seed gives the same clip.
+        The same seed gives the same clip, with every NumPy version.
     occlusion : (start, stop) or None
         Fractions of the clip during which an occluding bar covers about a
         third of the object; None for no occluder.
@@ -115,12 +188,12 @@ def make_clip(
     background = _texture(rng, height, width, 16, background_palette)
     obj_w, obj_h = object_size
     pattern = _texture(rng, obj_h * 2, obj_w * 2, 10, object_palette)
-    t = np.linspace(0.0, 1.0, n_frames)
+    t = np.arange(n_frames) / max(n_frames - 1, 1)
     # A smooth loop across the frame with a scale swell in the middle.
     margin_x, margin_y = obj_w * 1.5, obj_h * 1.5
-    cx = width / 2 + (width / 2 - margin_x) * np.sin(2 * np.pi * t * 0.9)
-    cy = height / 2 + (height / 2 - margin_y) * np.sin(2 * np.pi * t * 0.6 + 0.5)
-    scale = 1.0 + 0.3 * np.sin(np.pi * t)
+    cx = width / 2 + (width / 2 - margin_x) * _sin(2 * np.pi * t * 0.9)
+    cy = height / 2 + (height / 2 - margin_y) * _sin(2 * np.pi * t * 0.6 + 0.5)
+    scale = 1.0 + 0.3 * _sin(np.pi * t)
     frames = np.empty((n_frames, height, width, 3), np.uint8)
     boxes = np.empty((n_frames, 4))
     if occlusion is None:
@@ -132,10 +205,10 @@ def make_clip(
         # Its own generator, so that the object, the background and the noise are those of the clip without it.
         lookalike_pattern = _texture(np.random.default_rng((seed, 1)), obj_h * 2, obj_w * 2, 10, object_palette)
         meet = int(round(lookalike * (n_frames - 1)))
-        angle = np.deg2rad(_LOOKALIKE_ANGLE_DEG)
+        angle = math.radians(_LOOKALIKE_ANGLE_DEG)
         vx, vy = np.gradient(cx)[meet], np.gradient(cy)[meet]  # the object's velocity there, pixels per frame
-        lx = cx[meet] + _LOOKALIKE_SPEED * (np.cos(angle) * vx - np.sin(angle) * vy) * (np.arange(n_frames) - meet)
-        ly = cy[meet] + _LOOKALIKE_SPEED * (np.sin(angle) * vx + np.cos(angle) * vy) * (np.arange(n_frames) - meet)
+        lx = cx[meet] + _LOOKALIKE_SPEED * (math.cos(angle) * vx - math.sin(angle) * vy) * (np.arange(n_frames) - meet)
+        ly = cy[meet] + _LOOKALIKE_SPEED * (math.sin(angle) * vx + math.cos(angle) * vy) * (np.arange(n_frames) - meet)
         lookalike_boxes = np.empty((n_frames, 4))
     for k in range(n_frames):
         w, h = obj_w * scale[k], obj_h * scale[k]

@@ -13,22 +13,46 @@ from sptpt.color import rgb_to_hsi
 from sptpt.features import CUES, superpixel_features
 
 
+def hsi_bins_reference(rgb: np.ndarray, n_bins: int) -> np.ndarray:
+    """``min(floor(v * n), n - 1)`` of ``rgb_to_hsi(rgb)``, ``(..., 3)``; near a hue bin edge, with libm's acos.
+
+    Within 4 ulps of an edge the H bin is decided by the last ulp of arccos, and NumPy's arccos is not the same
+    on every build: NumPy 1.x on AVX-512 processors takes it from SVML, which gives 1.5707963267948963 for
+    arccos(1.2e-16) where libm and NumPy 2 give 1.5707963267948966, so (51, 68, 34) gets H an ulp below 1/4
+    there and one bin lower. The kernel takes arccos near an edge from libm (math.acos), so the reference does
+    too: rgb_to_hsi's operations, in its order, with math.acos for the few hues near an edge.
+    """
+    hsi = rgb_to_hsi(rgb)
+    bins = np.minimum(np.floor(hsi * n_bins), n_bins - 1).astype(np.int64)
+    scaled = hsi[..., 0] * n_bins
+    edge = np.rint(scaled)
+    eps = np.finfo(np.float64).eps
+    near = (np.abs(scaled - edge) <= 4 * np.spacing(edge)) & (hsi[..., 1] != 0.0)  # gray: H = 0, no arccos
+    for index in zip(*np.nonzero(near)):
+        r, g, b = (float(v) / 255.0 for v in rgb[index])
+        ratio = 0.5 * ((r - g) + (r - b)) / (math.sqrt((r - g) * (r - g) + (r - b) * (g - b)) + eps)
+        theta = math.acos(min(max(ratio, -1.0), 1.0))
+        hue = (2.0 * math.pi - theta if b > g else theta) / (2.0 * math.pi)
+        bins[index][0] = min(math.floor(hue * n_bins), n_bins - 1)
+    return bins
+
+
 def reference_features(templates: np.ndarray, labels: np.ndarray, s: int, n: int) -> np.ndarray:
     """Slow, obviously correct: loop over pixels, bin each cue as the spec says.
 
-    HSI comes from sptpt.color.rgb_to_hsi (SPT's rgb2hsi). The normalisation
+    HSI comes from sptpt.color.rgb_to_hsi (SPT's rgb2hsi), binned by hsi_bins_reference. The normalisation
     divides counts by the pixel count, then by the square root of a
     sequential sum of squares, the operation order the kernel documents, so
     the comparison can be exact.
     """
     n_templates, height, width, _ = templates.shape
-    hsi = rgb_to_hsi(templates)
+    hsi_bins = hsi_bins_reference(templates, n)
     out = np.zeros((n_templates, s, 8 * n))
     for t in range(n_templates):
         counts = np.zeros((s, 8, n), dtype=np.int64)
         for row in range(height):
             for col in range(width):
-                bins = [min(math.floor(hsi[t, row, col, c] * n), n - 1) for c in range(3)]
+                bins = [int(b) for b in hsi_bins[t, row, col]]
                 bins += [int(templates[t, row, col, c]) * n // 256 for c in range(3)]
                 bins += [col * n // width, row * n // height]
                 for cue, b in enumerate(bins):
@@ -110,8 +134,7 @@ def test_hsi_bins_equal_rgb_to_hsi_on_many_colours(n_bins: int) -> None:
     labels = np.arange(count, dtype=np.int32).reshape(1, 1, count)
     features = superpixel_features(templates, labels, count, n_bins=n_bins)[0]
     got = features.reshape(count, 8, n_bins).argmax(axis=-1)
-    hsi = rgb_to_hsi(colours)
-    want_hsi = np.minimum(np.floor(hsi * n_bins), n_bins - 1).astype(np.int64)
+    want_hsi = hsi_bins_reference(colours, n_bins)
     want_rgb = colours.astype(np.int64) * n_bins // 256
     assert np.array_equal(got[:, :3], want_hsi)
     assert np.array_equal(got[:, 3:6], want_rgb)

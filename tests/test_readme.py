@@ -47,8 +47,8 @@ def _fixes_csv() -> str:
 
 def _run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
     assert argv[0] == "sptpt-annotate"
-    exe = shutil.which("sptpt-annotate")
-    command = [exe] if exe else [sys.executable, "-m", "annotator.cli"]
+    exe = Path(sys.executable).with_name("sptpt-annotate")  # installed with this Python, not the first on PATH
+    command = [str(exe)] if exe.exists() else [sys.executable, "-m", "annotator.cli"]
     return subprocess.run([*command, *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=600,
                           stdin=subprocess.DEVNULL)
 
