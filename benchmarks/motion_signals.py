@@ -25,13 +25,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from annotator.failure.signals import MOTION_SIGNALS as MOTION  # noqa: E402
 from annotator.failure.signals import NEUTRAL, MotionMeter, grey_of  # noqa: E402
 from annotator.frames import open_frames  # noqa: E402
 from annotator.store import STORE_NAME, read_store, write_store  # noqa: E402
-
-MOTION = ("flow_iou", "flow_fb", "flow_kept", "flow_drift", "flow_scale_drift", "ring_with_box",
-          "box_with_background")
-
 
 def replay(item: Path, otb: list[Path]) -> str:
     store = read_store(item / STORE_NAME)

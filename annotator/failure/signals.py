@@ -69,7 +69,8 @@ import numpy as np
 from sptpt.boxes import iou_xywh
 from sptpt.contrast import colour_contrast
 
-__all__ = ["NEUTRAL", "SIGNALS", "STAND_IN", "MotionMeter", "SignalMeter", "grey_of", "particle_stats"]
+__all__ = ["MOTION_SIGNALS", "NEUTRAL", "SIGNALS", "STAND_IN", "MotionMeter", "SignalMeter", "grey_of",
+           "particle_stats"]
 
 #: Signal name -> what it measures (and its value where it cannot be measured).
 SIGNALS: Mapping[str, str] = {
@@ -114,6 +115,10 @@ SIGNALS: Mapping[str, str] = {
                            "box moved, over the pass's last 10 frames: high when the box holds background (NaN "
                            "where the box moved as the background did)",
 }
+
+#: The signals :class:`MotionMeter` measures from the frames and the boxes alone.
+MOTION_SIGNALS: tuple[str, ...] = ("flow_iou", "flow_fb", "flow_kept", "flow_drift", "flow_scale_drift", "ring_with_box",
+                                   "box_with_background")
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
 NEUTRAL: Mapping[str, float] = {
@@ -253,7 +258,6 @@ class SignalMeter:
     def __init__(self) -> None:
         self._first_patch: np.ndarray | None = None
         self._first_box: np.ndarray | None = None
-        self._prev_grey: np.ndarray | None = None
         self._prev_box: np.ndarray | None = None
         self._prev_patch: np.ndarray | None = None
         self._memory = _PatchMemory()
@@ -263,7 +267,7 @@ class SignalMeter:
         grey = grey_of(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
         self._first_box, self._first_patch = box, _patch(grey, box)
-        self._prev_grey, self._prev_box, self._prev_patch = grey, box, self._first_patch
+        self._prev_box, self._prev_patch = box, self._first_patch
         self._memory = _PatchMemory()
         self._memory.add(self._first_patch)
         self._motion.first(grey, box)
@@ -273,7 +277,7 @@ class SignalMeter:
     def next(self, frame_rgb: np.ndarray, box_xywh, *, log_likelihood: float, scoring: str, accepted: bool,
              particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None,
              run_boxes_xywh: np.ndarray | None = None) -> dict[str, float]:
-        if self._prev_grey is None:
+        if self._prev_box is None:
             raise RuntimeError("SignalMeter.next() before first(): start the pass with first(frame, box)")
         grey = grey_of(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
@@ -307,7 +311,7 @@ class SignalMeter:
             "run_support": math.nan if runs is None else float(runs[1]),
             "contrast": colour_contrast(frame_rgb, box),
         }
-        self._prev_grey, self._prev_box, self._prev_patch = grey, box, patch
+        self._prev_box, self._prev_patch = box, patch
         self._memory.add(patch)
         return signals
 
@@ -337,7 +341,7 @@ class MotionMeter:
     call: an 8x8 grid over the box (its median flow is the object's motion: ``flow_*``), a ring just outside
     it (:data:`NEAR_RING`) and a ring well outside it (:data:`FAR_RING`, the background's motion). They need
     only the frames and the boxes, so a stored track's can be measured again from its video
-    (``benchmarks/failure_model.py --motion``), bit for bit.
+    (``benchmarks/motion_signals.py``), bit for bit.
     """
 
     def __init__(self) -> None:
@@ -353,13 +357,13 @@ class MotionMeter:
 
     def next(self, grey: np.ndarray, box: np.ndarray) -> dict[str, float]:
         prev, box = self._prev_box, np.asarray(box, dtype=np.float64)
-        signals, motion, extent = self._flow(grey, prev, box)
+        box_move = box[:2] + box[2:] / 2 - prev[:2] - prev[2:] / 2  # the box centre's move
+        signals, motion, extent = self._flow(grey, prev, box, box_move)
         if motion is not None:
             # What the box did beyond what the flow says: its centre's move and its size's log change.
             dx, dy, scale = motion
             size, prev_size = math.sqrt(max(box[2] * box[3], 1e-9)), math.sqrt(max(prev[2] * prev[3], 1e-9))
-            self._steps.append((box[0] + box[2] / 2 - prev[0] - prev[2] / 2 - dx,
-                                box[1] + box[3] / 2 - prev[1] - prev[3] / 2 - dy,
+            self._steps.append((float(box_move[0] - dx), float(box_move[1] - dy),
                                 math.log(size / prev_size) - math.log(max(scale, 1e-6))))
         self._extent.append(extent)
         steps, extents = np.array(self._steps).reshape(-1, 3), np.array(self._extent).reshape(-1, 2)
@@ -371,7 +375,7 @@ class MotionMeter:
         self._prev_grey, self._prev_box = grey, box
         return signals
 
-    def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray
+    def _flow(self, grey: np.ndarray, prev: np.ndarray, box: np.ndarray, box_move: np.ndarray
               ) -> tuple[dict[str, float], tuple[float, float, float] | None, tuple[float, float]]:
         """``(flow signals, the object's (dx, dy, scale) or None, extent shares)`` of the points of ``prev``."""
         height, width = grey.shape
@@ -406,7 +410,6 @@ class MotionMeter:
         size = math.sqrt(max(w * h, 1e-9))
         signals = {"flow_iou": float(np.nan_to_num(iou_xywh(moved, box), nan=0.0)),
                    "flow_fb": float(min(median_fb / size, 10.0)), "flow_kept": float(kept.mean())}
-        box_move = box[:2] + box[2:] / 2 - prev[:2] - prev[2:] / 2
         reliable = ok_all & (fb_all <= FB_LIMIT * size)
         return signals, (float(dx), float(dy), scale), _extent_shares(flows, reliable, box_move, g, n, size)
 
