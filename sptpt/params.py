@@ -158,6 +158,13 @@ class TrackerParams:
     round still centres on the first round's best score. It is timed in the scoring stage: 5.0-6.2 ms a frame
     in those runs against 4.8 before. [ours, benchmarks/RESULTS.md "robust development"]"""
 
+    prescreen_share: float = 1.0
+    """Share of each round's candidates that SPTPT evaluates in full (superpixels, features, codes, subspace
+    score): those whose grey template correlates best with the run's recent look (:mod:`sptpt.prescreen`). The
+    rest are dropped unscored; the candidates are still drawn, so the random stream is the same. Negatives are
+    not prescreened. 1 evaluates every candidate (paper, fast). [ours, benchmarks/RESULTS.md "Speed: the
+    prescreen"]"""
+
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
     refine_sigma_scale: float = 0.35
@@ -254,6 +261,7 @@ class TrackerParams:
         _check(self.run_choice in RUN_CHOICES, "run_choice", self.run_choice,
                " or ".join(repr(c) for c in RUN_CHOICES))
         _check(self.contrast_candidates >= 0, "contrast_candidates", self.contrast_candidates, "an integer >= 0")
+        _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
         _check(self.refine_particles >= 0, "refine_particles", self.refine_particles, "an integer >= 0")
         _check(0 < self.refine_sigma_scale <= 1, "refine_sigma_scale", self.refine_sigma_scale, "a number in (0, 1]")
         _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")
@@ -297,6 +305,7 @@ PRESETS: dict[str, TrackerParams] = {
         level_window=20, level_min_count=5, accept_drop=3.0,
         redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=3, run_choice="consensus",
         filter_vote=True, contrast_candidates=5, reported_scale_filter=True, reported_translation_filter=True,
+        prescreen_share=1 / 3,
     ),
 }
 

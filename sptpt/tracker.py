@@ -33,6 +33,7 @@ from sptpt.contrast import most_contrasted
 from sptpt.features import superpixel_features
 from sptpt.filter_tracker import FilterTracker
 from sptpt.params import TrackerParams, get_preset
+from sptpt.prescreen import AppearanceReference
 from sptpt.results import FrameResult, confidence_from_log_likelihood
 from sptpt.sampling import draw_candidates, draw_negatives
 from sptpt.scale import ScaleFilter
@@ -42,11 +43,11 @@ from sptpt.translation import TranslationFilter
 
 __all__ = ["STAGES", "Tracker"]
 
-#: The stages a ``stage_timer`` is wrapped around (``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
+#: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
 #: ``translation`` only with ``reported_translation_filter``, ``filter_vote`` only where the correlation-filter tracker
 #: votes: ``filter_vote`` with ``run_choice="consensus"`` and two runs or more).
-STAGES = ("warp", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale", "translation",
-          "filter_vote")
+STAGES = ("warp", "prescreen", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale",
+          "translation", "filter_vote")
 
 StageTimer = Callable[[str], ContextManager]
 
@@ -264,6 +265,11 @@ class _Run:
         # The reported box's scale under ``reported_scale_filter``: the filter's own, apart from the state's, and
         # within the filter's bounds (``ScaleFilter.init``).
         self._reported_scale = float(self._state[2])
+        # The prescreen's look of the object (None: every candidate is evaluated in full).
+        self._reference: AppearanceReference | None = None
+        if p.prescreen_share < 1:
+            with self._time("prescreen"):
+                self._reference = AppearanceReference(warp_candidates(rgb, self._state[None], p.template_size)[0])
         self._translation_filter: TranslationFilter | None = None
         if p.reported_translation_filter:
             with self._time("translation"):
@@ -350,6 +356,9 @@ class _Run:
                 self._levels.append(log_likelihood)
                 del self._levels[: -p.level_window]
             self._learn(rgb, codes[best])
+            if self._reference is not None:
+                with self._time("prescreen"):
+                    self._reference.learn(warp_candidates(rgb, self._state[None], p.template_size)[0])
         if scoring == "subspace":
             confidence = confidence_from_log_likelihood(log_likelihood, scale=p.confidence_scale)
         else:
@@ -412,20 +421,33 @@ class _Run:
         return median, max(spread, p.level_min_spread)
 
     def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray):
-        """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring."""
-        states = self._draw(centre, n, sigma)
-        return (states, *self._evaluate(rgb, states))
+        """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring.
 
-    def _evaluate(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-        """Code tensors, superpixel labels and log-likelihood of candidate states."""
-        codes, labels = self._codes(rgb, states)
+        With the prescreen, only the candidates it keeps are scored and returned.
+        """
+        states = self._draw(centre, n, sigma)
+        templates = None
+        if self._reference is not None:
+            with self._time("warp"):
+                templates = warp_candidates(rgb, states, self.params.template_size)
+            with self._time("prescreen"):
+                kept = self._reference.most_alike(templates, self.params.prescreen_share)
+            states, templates = states[kept], templates[kept]
+        return (states, *self._evaluate(rgb, states, templates))
+
+    def _evaluate(self, rgb: np.ndarray, states: np.ndarray,
+                  templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        """Code tensors, superpixel labels and log-likelihood of candidate states (``templates``: theirs, if
+        already warped)."""
+        codes, labels = self._codes(rgb, states, templates)
         with self._time("scoring"):
             if self._positive is not None and self._negative is not None:
                 return codes, labels, self._log_likelihood(codes), "subspace"
             # Bootstrap: histogram intersection with the first-frame code tensor (TPT).
             return codes, labels, np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2)), "bootstrap"
 
-    def _codes(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _codes(self, rgb: np.ndarray, states: np.ndarray,
+               templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Code tensors and superpixel labels of ``states``, each distinct state computed once.
 
         Equal states warp to equal templates, and every later stage treats
@@ -433,18 +455,20 @@ class _Run:
         in twenty repeats another (both of its centre coordinates are pushed
         out to the same margin).
         """
-        unique, inverse = np.unique(states, axis=0, return_inverse=True)
+        unique, first, inverse = np.unique(states, axis=0, return_index=True, return_inverse=True)
         if len(unique) == len(states):
-            features, labels = self._features(rgb, states)
+            features, labels = self._features(rgb, states, templates)
             return self._code(features), labels
-        features, labels = self._features(rgb, unique)
+        features, labels = self._features(rgb, unique, None if templates is None else templates[first])
         inverse = inverse.reshape(-1)
         return self._code(features)[inverse], labels[inverse]
 
-    def _features(self, rgb: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _features(self, rgb: np.ndarray, states: np.ndarray,
+                  templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
-        with self._time("warp"):
-            templates = warp_candidates(rgb, states, p.template_size)
+        if templates is None:
+            with self._time("warp"):
+                templates = warp_candidates(rgb, states, p.template_size)
         with self._time("snic"):
             labels = snic(templates, n_segments=p.n_superpixels, compactness=p.compactness, seeding=p.seeding)
         with self._time("features"):
