@@ -6,7 +6,8 @@ moves the scale by 1% and never rotates), and a template's plain grey levels alr
 sits on the object: over 5,124 rounds of ``robust`` on eight ``../shared/otb`` sequences, the
 candidate SPTPT scored best was among the third of the candidates most like the object's recent look
 in 81% of the rounds (a random third: 33%), and where it was not, the best of that third scored within
-0.09 standard deviations of it (``benchmarks/HISTORY.md``, "Speed: the prescreen").
+0.09 standard deviations of it (a screen on stored rounds, grey as the mean of the channels; the
+prescreen uses BT.601 luma; ``benchmarks/HISTORY.md``, "Speed, memory and throughput").
 ``TrackerParams.prescreen_share``.
 
 The cue is normalised cross-correlation (NCC) of grey templates: the warped ``T x T`` candidate
