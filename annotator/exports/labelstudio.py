@@ -49,7 +49,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, labels_in_order, number, review_keyframes
+from annotator.exports.review_tools import check_frame_range, labels_in_order, number, review_keyframes
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt.boxes import clip_xywh
 

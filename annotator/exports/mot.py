@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, labels_in_order, number, positions, visible
+from annotator.exports.review_tools import check_frame_range, labels_in_order, number, positions, visible
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["build_mot_gt", "write_mot"]

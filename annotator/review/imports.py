@@ -62,7 +62,7 @@ import numpy as np
 
 from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports._review import check_frame_range, visible
+from annotator.exports.review_tools import check_frame_range, visible
 from annotator.exports.labelstudio import labelstudio_region_id
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult, VideoInfo
