@@ -41,7 +41,7 @@ from _results import machine_line, update_section  # noqa: E402
 
 from annotator.frames import open_frames  # noqa: E402
 from annotator.review import SourceFrames  # noqa: E402
-from annotator.review.pass_cache import PASSES_NAME  # noqa: E402
+from annotator.pass_cache import PASSES_NAME  # noqa: E402
 
 BOX = (900, 500, 160, 120)
 

@@ -31,7 +31,7 @@ anchor ``C`` splits ``A .. B``, the forward pass from the unchanged ``A`` over
 meets it there (and the forward pass from ``C`` meets the one from ``B``).
 Re-running the unchanged side costs time but changes nothing;
 ``pass_cache`` skips it when a caller keeps the passes: the command line
-keeps them in the run folder (:mod:`annotator.review.pass_cache`), the
+keeps them in the run folder (:mod:`annotator.pass_cache`), the
 simulated reviewer in memory.
 
 Frames: passes read frames through a :class:`FrameProvider`, one ordered
