@@ -196,15 +196,7 @@ def annotate(
     input_path = Path(input_path)
     targets = _as_targets(targets)
     config = resolve_config() if config is None else config
-    unknown = sorted(set(formats) - set(ALL_FORMATS))
-    if unknown:
-        raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
-    if not targets:
-        raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
-    for target in targets:
-        if not isinstance(target.label, str) or not target.label.strip():
-            raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
-                            "such as 'car'", EXIT_VALUE)
+    _check_request(targets, formats)
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     if input_path.exists():  # (a missing input is open_frames' error to give, first)
         # Before opening the input: opening a video counts its frames, minutes for a long one, and a refusal
@@ -227,6 +219,19 @@ def annotate(
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
                          ExportOptions(media_url=media_url))
+
+
+def _check_request(targets: Sequence[Target], formats: Sequence[str]) -> None:
+    """Refuse unknown formats, no target, or an empty label: before anything is opened."""
+    unknown = sorted(set(formats) - set(ALL_FORMATS))
+    if unknown:
+        raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
+    if not targets:
+        raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
+    for target in targets:
+        if not isinstance(target.label, str) or not target.label.strip():
+            raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
+                            "such as 'car'", EXIT_VALUE)
 
 
 def _as_targets(given) -> list[Target]:

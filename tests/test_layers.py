@@ -85,3 +85,35 @@ def test_no_module_imports_another_packages_private_module():
                  for line, module, _ in imports_of(path)
                  if private_module_outside_its_package(module_name(path), module)]
     assert not offenders
+
+
+#: Longest function in ``annotator/`` (def line to the last line of its body, docstring included): issue #46.
+MAX_FUNCTION_LINES = 80
+
+
+def long_functions(source: str, limit: int = MAX_FUNCTION_LINES) -> list[tuple[str, int, int]]:
+    """``(name, first line, lines)`` of each function or method in ``source`` longer than ``limit`` lines."""
+    return [(node.name, node.lineno, node.end_lineno - node.lineno + 1) for node in ast.walk(ast.parse(source))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= limit]
+
+
+def function_text(name: str, lines: int, indent: str = "") -> str:
+    """A function of exactly ``lines`` lines, def line included."""
+    return f"{indent}def {name}():\n" + "".join(f"{indent}    x = {k}\n" for k in range(lines - 1))
+
+
+@pytest.mark.parametrize("source, expected", [
+    (function_text("fits", 80), []),
+    (function_text("over", 81), [("over", 1, 81)]),
+    ("class C:\n" + function_text("method", 81, indent="    "), [("method", 2, 81)]),
+    ("x = 1\n\n" + function_text("later", 90), [("later", 3, 90)]),
+])
+def test_long_functions_counts_from_def_to_the_last_line_of_the_body(source, expected):
+    assert long_functions(source) == expected
+
+
+def test_no_function_in_the_tool_is_over_80_lines():
+    offenders = [f"{path.relative_to(ROOT)}:{line} {name} has {lines} lines"
+                 for path in sorted(ROOT.glob("annotator/**/*.py"))
+                 for name, line, lines in long_functions(path.read_text(encoding="utf-8"))]
+    assert not offenders

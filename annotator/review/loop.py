@@ -188,14 +188,40 @@ def apply_corrections(
     """
     out_dir = Path(out_dir)
     corrections_path = Path(corrections_path)
+    run, resolved = _run_and_corrections(out_dir, corrections_path, media_url)
+    provider, checked = _open_input(run, verify_input=verify_input, input_path=input_path,
+                                    input_checked=input_checked)
+    result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
+    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
+    passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
+    try:
+        result.retrack = _retrack(run, resolved, provider, merge=merge, passes=passes, show_progress=show_progress)
+        result.flagged_after = sum(int(t.flagged.sum()) for t in result.retrack.tracks)
+        _rewrite_if_needed(result, run, provider, corrections_path, merge=merge, show_progress=show_progress,
+                           passes=passes, render=render, always=rewrite_unchanged or media_url is not None)
+    finally:
+        provider.close()
+    return result
+
+
+def _run_and_corrections(out_dir: Path, corrections_path: Path, media_url: str | None) -> tuple[LoadedRun, dict]:
+    """The run in ``out_dir`` (with a new ``media_url`` recorded) and its corrections, checked against it."""
     run = load_run(out_dir)
     corrections = read_run_corrections(corrections_path, video=run.video, tracks=run.tracks,
                                        frames=range(run.store.start, run.store.stop, run.store.step),
                                        exported=run.info.get("review_exports"))
     if media_url is not None:
         run.info["export_options"] = {**(run.info.get("export_options") or {}), "media_url": media_url}
-    resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
+    resolved = resolve_corrections(corrections, frame_indices=run.frame_indices,
+                                   track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
+    return run, resolved
+
+
+def _open_input(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None,
+                input_checked: bool) -> tuple[SourceFrames, bool]:
+    """The run's frames, decoded again (from ``input_path`` when it moved, recorded in the run), and whether its
+    content hash was checked."""
     source = open_run_source(run, verify_input=verify_input, input_path=input_path, input_checked=input_checked)
     # Kept passes only for the bytes they were computed on: an input that was not checked (--no-verify, or a run
     # without a content hash) may have changed, and its passes would be stored under the recorded hash.
@@ -204,7 +230,12 @@ def apply_corrections(
         moved = str(Path(input_path).resolve())
         run.info["input"] = {**run.info["input"], "path": moved}
         run.store = dataclasses.replace(run.store, video=dataclasses.replace(run.store.video, path=moved))
-    provider = SourceFrames(source, run.frame_indices)
+    return SourceFrames(source, run.frame_indices), checked
+
+
+def _retrack(run: LoadedRun, resolved: dict, provider: SourceFrames, *, merge: str, passes: dict | None,
+             show_progress: bool) -> RetrackResult:
+    """Re-track what the corrections affect, with a progress bar once the work is known."""
     bar: list[Progress] = []
 
     def progress(done: int, total: int) -> None:
@@ -212,34 +243,30 @@ def apply_corrections(
             bar.append(Progress(total, label="re-tracked frames", enabled=show_progress))
         bar[0].advance(done - bar[0].done)
 
-    result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
-    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
-    passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
     try:
-        try:
-            max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
-            retrack = retrack_tracks(provider, run.frame_indices, resolved, run.config, previous=run.previous(),
-                                     width=run.video.width, height=run.video.height, merge=merge, progress=progress,
-                                     max_buffer_frames=max_buffer, pass_cache=passes)
-        except DecodeError as exc:
-            raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
-        finally:
-            if bar:
-                bar[0].close()
-        result.retrack = retrack
-        result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
-        # A run whose overlay a --no-render round removed gets it back from the next round that renders.
-        overlay_missing = render and "overlay" in run.formats and (
-            not (out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
-        if not retrack.changed and not rewrite_unchanged and not overlay_missing and media_url is None:
-            return result
-        result.written, result.overlay_removed = _write_all(
-            run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
-            render=render)
-        result.overlay_restored = overlay_missing
+        max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
+        return retrack_tracks(provider, run.frame_indices, resolved, run.config, previous=run.previous(),
+                              width=run.video.width, height=run.video.height, merge=merge, progress=progress,
+                              max_buffer_frames=max_buffer, pass_cache=passes)
+    except DecodeError as exc:
+        raise ToolError(f"{exc}; nothing in {run.out_dir} was changed", EXIT_INPUT) from None
     finally:
-        provider.close()
-    return result
+        if bar:
+            bar[0].close()
+
+
+def _rewrite_if_needed(result: ReviewResult, run: LoadedRun, provider: SourceFrames, corrections_path: Path, *,
+                       merge: str, show_progress: bool, passes: dict | None, render: bool, always: bool) -> None:
+    """Rewrite the outputs when the re-track changed something, when ``always``, or when this round renders the
+    overlay a ``--no-render`` round removed (it gets it back)."""
+    overlay_missing = render and "overlay" in run.formats and (
+        not (run.out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
+    if not result.retrack.changed and not always and not overlay_missing:
+        return
+    result.written, result.overlay_removed = _write_all(
+        run, result.retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
+        render=render)
+    result.overlay_restored = overlay_missing
 
 
 def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Path, merge: str,
