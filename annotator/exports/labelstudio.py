@@ -169,6 +169,7 @@ def build_labelstudio_tasks(video: VideoInfo, tracks: Sequence[TrackResult], *, 
     ----------
     video : VideoInfo
     tracks : sequence of TrackResult
+        One region each, with the id :func:`labelstudio_region_id` gives.
     frames : range or None
         The processed range of source frame indices; None for the whole video.
     video_url : str or None
