@@ -24,27 +24,26 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator import __version__
-from annotator.atomic import atomic_path, ctrl_c_ignored, write_text_atomic
+from annotator.atomic import atomic_path, ctrl_c_ignored
 from annotator.box_input import parse_box
 from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports import ExportOptions, record_review_exports, write_exports
+from annotator.exports import ExportOptions
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import CountNote, Progress
-from annotator.provenance import content_hash, json_default
-from annotator.report import render_report, track_summary
-from annotator.review.pass_cache import PASSES_NAME, first_pass, pass_fingerprint, write_pass_cache
-from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.pass_cache import first_pass
+from annotator.provenance import content_hash
+from annotator.publish import OVERLAY_NAME, write_run_files
+from annotator.store import STORE_NAME, RunStore
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
            "remove_staging_folders", "RESULT_FILES"]
 
-OVERLAY_NAME = "overlay.mp4"
 #: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
 #: kernels (about 15 s on 2 cores) and caches them beside the package.
 COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
@@ -197,15 +196,7 @@ def annotate(
     input_path = Path(input_path)
     targets = _as_targets(targets)
     config = resolve_config() if config is None else config
-    unknown = sorted(set(formats) - set(ALL_FORMATS))
-    if unknown:
-        raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
-    if not targets:
-        raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
-    for target in targets:
-        if not isinstance(target.label, str) or not target.label.strip():
-            raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
-                            "such as 'car'", EXIT_VALUE)
+    _check_request(targets, formats)
     out_dir = Path(out_dir) if out_dir is not None else default_output_dir(input_path)
     if input_path.exists():  # (a missing input is open_frames' error to give, first)
         # Before opening the input: opening a video counts its frames, minutes for a long one, and a refusal
@@ -228,6 +219,19 @@ def annotate(
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
                          ExportOptions(media_url=media_url))
+
+
+def _check_request(targets: Sequence[Target], formats: Sequence[str]) -> None:
+    """Refuse unknown formats, no target, or an empty label: before anything is opened."""
+    unknown = sorted(set(formats) - set(ALL_FORMATS))
+    if unknown:
+        raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
+    if not targets:
+        raise ToolError("no --box given: give the object's first-frame box as --box x,y,w,h", EXIT_VALUE)
+    for target in targets:
+        if not isinstance(target.label, str) or not target.label.strip():
+            raise ToolError(f"--label {target.label!r} of box {target.track_id} is empty: give a category name "
+                            "such as 'car'", EXIT_VALUE)
 
 
 def _as_targets(given) -> list[Target]:
@@ -374,20 +378,27 @@ def _exclusive(out_dir: Path):
 
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
                    formats: Sequence[str], input_path: Path, options: ExportOptions) -> None:
-    run, out_dir = result.run, result.out_dir
-    outputs = result.outputs
+    run = result.run
     if run.frames_processed == 0:
         why = f" ({run.decode_error.reason})" if run.decode_error is not None else ""
         raise ToolError(f"{source.path}: no frame could be decoded in the selected range{why}; nothing was written",
                         EXIT_INPUT)
-    # The store first and always, whatever --formats says: every export below is a view of it.
-    store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step, tracks=run.tracks)
-    outputs["store"] = [write_store(out_dir / STORE_NAME, store)]
-    result.store = store
-    outputs.update(write_exports(out_dir, store, formats, options))
-    if run.overlay_path is not None:
-        outputs["overlay"] = [run.overlay_path]
-    run_info = {
+    # Every output is a view of the store, whatever --formats says.
+    result.store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step,
+                            tracks=run.tracks)
+    # Each track as the forward pass from its first frame, for the first re-track to reuse.
+    first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
+    info = _first_run_info(result, source, targets, config, formats, input_path, options)
+    result.outputs = write_run_files(result.out_dir, result.store, info, settings=config.to_dict(), options=options,
+                                     passes=first_passes, thumbnails=run.thumbnails,
+                                     overlay=run.overlay_path is not None)
+
+
+def _first_run_info(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
+                    formats: Sequence[str], input_path: Path, options: ExportOptions) -> dict:
+    """run.json's record of a first run (:func:`annotator.publish.write_run_files` adds the tracks and files)."""
+    run = result.run
+    return {
         "tool": "sptpt-annotate",
         "tool_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -418,36 +429,13 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
             "seconds_outside_tracker": run.seconds_total - run.seconds_tracking,
             "frames_per_second": run.frames_processed / run.seconds_total if run.seconds_total > 0 else None,
         },
-        "tracks": [track_summary(t) for t in run.tracks],
         "decode_error": result.message or None,
         "complete": run.decode_error is None and not run.interrupted,
         "interrupted": run.interrupted,
         "formats": list(formats),
         # Options of the views that a re-track must write again the same way.
         **({"export_options": {"media_url": options.media_url}} if options.media_url is not None else {}),
-        # What the review files gave a reviewer, to tell their edits from the run's own keyframes.
-        **({"review_exports": record} if (record := record_review_exports(None, store, formats)) else {}),
     }
-    # Each track as the forward pass from its first frame, for the first re-track to reuse (run.json's config as
-    # it will read back, so that the re-track's fingerprint is the same).
-    first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
-    written_config = json.loads(json.dumps(run_info["config"], default=json_default))
-    outputs["passes"] = [write_pass_cache(out_dir / PASSES_NAME, first_passes, pass_fingerprint(
-        written_config, run_info["input"]["content_hash"], run_info["range"]))]
-    if "report" in formats:
-        render_report(
-            out_dir / "report.html", video=run.video, tracks=run.tracks, thumbnails=run.thumbnails,
-            settings=config.to_dict(),
-            run_info={**run_info, "frames_processed": run.frames_processed, "seconds_total": run.seconds_total,
-                      "seconds_tracking": run.seconds_tracking,
-                      "seconds_outside": run.seconds_total - run.seconds_tracking},
-            overlay_name=OVERLAY_NAME if run.overlay_path is not None else None,
-        )
-        outputs["report"] = [out_dir / "report.html"]
-    run_info["outputs"] = {k: [str(p.relative_to(out_dir)) for p in v] for k, v in outputs.items()}
-    # run.json last: its presence marks a finished run (batch resumption relies on it).
-    write_text_atomic(out_dir / "run.json", json.dumps(run_info, indent=2, default=json_default) + "\n")
-    outputs["provenance"] = [out_dir / "run.json"]
 
 
 def remove_staging_folders(out_dir: Path) -> None:

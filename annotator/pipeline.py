@@ -33,12 +33,14 @@ from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frames import DecodeError, FrameSource
 from annotator.progress import Progress
-from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter
+from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
 from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoInfo
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
-__all__ = ["Target", "TrackingRun", "SpanThumbnail", "WorstFrameThumbnails", "track_source", "seed_for_track"]
+__all__ = ["FrameLoopEnd", "FrameMark", "HeldFrames", "OverlaySink", "SpanThumbnail", "Target", "TrackRecords",
+           "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks", "seed_for_track", "track_frame",
+           "track_frames", "track_source"]
 
 THUMBNAIL_WIDTH = 200
 
@@ -125,6 +127,10 @@ class TrackingRun:
 class _NothingTracked(Exception):
     """No frame of the range could be decoded; aborts the overlay writer, which then leaves no file."""
 
+    def __init__(self, end) -> None:
+        super().__init__()
+        self.end = end
+
 
 @contextlib.contextmanager
 def _deferred_interrupt():
@@ -172,6 +178,281 @@ def _jpeg_base64(small_rgb: np.ndarray) -> str:
     return base64.b64encode(data.tobytes()).decode("ascii") if ok else ""
 
 
+def track_frame(trackers: dict[int, Tracker], targets: Sequence[Target], frame: np.ndarray, *,
+                first: bool) -> tuple[dict[int, FrameResult], dict[int, float]]:
+    """The tracking stage: every target's tracker on one frame.
+
+    Parameters
+    ----------
+    trackers : dict of int to Tracker
+        By track id; started on the first frame (``first=True``) with the targets' boxes.
+    targets : sequence of Target
+    frame : (H, W, 3) uint8 ndarray
+        RGB.
+    first : bool
+        The source's first selected frame: the trackers are started on it.
+
+    Returns
+    -------
+    results : dict of int to FrameResult
+        By track id, in the targets' order.
+    seconds : dict of int to float
+        Each tracker's wall time on the frame.
+    """
+    results: dict[int, FrameResult] = {}
+    seconds: dict[int, float] = {}
+    for target in targets:
+        tid = target.track_id
+        tic = time.perf_counter()
+        if first:
+            results[tid] = trackers[tid].init(frame, target.box_xywh)
+        else:
+            # Details always: the candidates' scores are a failure signal.
+            results[tid] = trackers[tid].update(frame, details=True)
+        seconds[tid] = time.perf_counter() - tic
+    return results, seconds
+
+
+@dataclass(frozen=True)
+class FrameMark:
+    """A frame's final doubt for one track: the online flag (made even with a review budget) and ``p_fail``."""
+
+    flagged: bool
+    reason: str
+    p_fail: float
+
+
+class TrackRecords:
+    """The measuring and flagging stage: each tracked frame's failure signals, row, ``p_fail`` and flag.
+
+    Every track's signals are measured by a :class:`~annotator.failure.SignalMeter`, its row recorded by a
+    :class:`~annotator.tracks.TrackRecorder`, and its ``p_fail`` and flag decided by a
+    :class:`~annotator.failure.TrackDoubt` a few frames later. With a review budget the online flags are only a
+    way to get ``p_fail`` frame by frame: the rows get no flag (the budget flags them at the end), but
+    :meth:`take_marks` still gives the online ones.
+
+    Parameters
+    ----------
+    targets : sequence of Target
+    model
+        The failure model (:func:`annotator.failure.load_model`).
+    flags : FlagParams
+        The online flagging's threshold, merge gap and minimum span.
+    budget : bool
+        Flags are made by review budget at the end.
+    keep_marks : bool
+        Keep each decided frame's :class:`FrameMark` until :meth:`take_marks` takes it (for an overlay).
+    """
+
+    def __init__(self, targets: Sequence[Target], model, flags: FlagParams, *, budget: bool,
+                 keep_marks: bool) -> None:
+        self.budget, self.keep_marks = budget, keep_marks
+        self._order = [t.track_id for t in targets]
+        self._recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
+        self._meters = {t.track_id: SignalMeter() for t in targets}
+        self._flaggers = {t.track_id: TrackDoubt(model, flags) for t in targets}
+        self._confidence: dict[int, list[float]] = {t.track_id: [] for t in targets}
+        self._marks: dict[int, dict[int, FrameMark]] = {t.track_id: {} for t in targets}
+
+    def add(self, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult],
+            seconds: dict[int, float]) -> None:
+        """Record one tracked frame (frames in order), with the trackers' ``results`` and ``seconds`` by track id."""
+        for tid, result in results.items():
+            first = result.scoring == "init"
+            if first:
+                signals = self._meters[tid].first(frame, result.box_xywh)
+            else:
+                signals = self._meters[tid].next(
+                    frame, result.box_xywh, log_likelihood=result.log_likelihood, scoring=result.scoring,
+                    accepted=result.accepted, particles_xywh=result.particles_xywh,
+                    particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
+            self._confidence[tid].append(result.confidence)
+            self._recorders[tid].append(
+                frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
+                accepted=result.accepted, seconds=seconds[tid], keyframe=first, scoring=result.scoring,
+                keyframe_source=KEYFRAME_GIVEN if first else "", signals=signals)
+            self._settle(tid, self._flaggers[tid].push(signals, keyframe=first))
+
+    def finish(self) -> None:
+        """Decide the frames the flaggers still hold (the frames ended)."""
+        for tid, flagger in self._flaggers.items():
+            self._settle(tid, flagger.finish())
+
+    def take_marks(self, position: int, *, final: bool = False) -> dict[int, FrameMark] | None:
+        """The marks of the frame at ``position`` by track id, removed from the stage; None while a track's is
+        not decided yet, unless ``final`` (after :meth:`finish`), where an undecided one reads unflagged, 0."""
+        if not final and not all(position in self._marks[tid] for tid in self._order):
+            return None
+        return {tid: self._marks[tid].pop(position, FrameMark(False, "", 0.0)) for tid in self._order}
+
+    def tracks(self) -> list[TrackResult]:
+        """Each track's rows so far, in the targets' order (flags as decided online)."""
+        return [self._recorders[tid].to_result() for tid in self._order]
+
+    def tracker_confidence(self) -> dict[int, np.ndarray]:
+        """(F,) float64 by track id: the tracker's own confidence of each row."""
+        return {tid: np.asarray(values, dtype=np.float64) for tid, values in self._confidence.items()}
+
+    def _settle(self, tid: int, decided: list[tuple[int, float, bool, str]]) -> None:
+        for position, p_fail, flagged, reason in decided:
+            self._recorders[tid].set_failure(position, p_fail)
+            self._recorders[tid].set_flag(position, flagged and not self.budget, reason if not self.budget else "")
+            if self.keep_marks:
+                self._marks[tid][position] = FrameMark(flagged, reason, p_fail)
+
+
+class OverlaySink:
+    """The overlay stage: draws each frame's items, encodes it, and keeps each flagged span's worst frame.
+
+    What a first run streams while it tracks and a re-track renders from the tracks it wrote: one way of drawing,
+    encoding and choosing thumbnails for both.
+
+    Parameters
+    ----------
+    writer : OverlayWriter
+        The open video the drawn frames go to, in order.
+    renderer : OverlayRenderer, optional
+        How items are drawn; the default style by default.
+    """
+
+    def __init__(self, writer: OverlayWriter, renderer: OverlayRenderer | None = None) -> None:
+        self.writer = writer
+        self.renderer = OverlayRenderer() if renderer is None else renderer
+        self._thumbnails = WorstFrameThumbnails()
+
+    def write(self, position: int, frame_index: int, frame: np.ndarray, items: Sequence[OverlayItem],
+              marks: dict[int, FrameMark]) -> None:
+        """Draw ``items`` on ``frame`` ((H, W, 3) uint8 RGB) and encode it; ``marks`` (final, by track id) say
+        which tracks' flagged spans it belongs to."""
+        drawn = self.renderer.annotate(frame, items)
+        self.writer.write(drawn)
+        for tid, mark in marks.items():
+            self._thumbnails.add(tid, position, frame_index, flagged=mark.flagged, p_fail=mark.p_fail, drawn=drawn)
+
+    def finish(self) -> list[SpanThumbnail]:
+        """The frames ended: every flagged span's thumbnail, in the order the spans ended."""
+        return self._thumbnails.finish()
+
+
+def render_tracks(sink: OverlaySink, frames, frame_indices: Sequence[int], tracks: Sequence[TrackResult],
+                  progress: Progress | None = None) -> list[SpanThumbnail]:
+    """Draw finished ``tracks`` into ``sink``: boxes, labels, keyframes and review marks, no particles.
+
+    ``frames`` yields ``(position, frame)`` in order, position ``k`` being source frame ``frame_indices[k]``.
+    Returns the flagged spans' thumbnails.
+    """
+    for position, frame in frames:
+        index = int(frame_indices[position])
+        marks = {t.track_id: FrameMark(bool(t.flagged[position]), "", float(t.p_fail[position])) for t in tracks}
+        sink.write(position, index, frame, items_from_tracks(tracks, index), marks)
+        if progress is not None:
+            progress.advance()
+    return sink.finish()
+
+
+class HeldFrames:
+    """Tracked frames held until their marks are final (a few frames later), then drawn into the overlay in order.
+
+    With a review budget the boxes show ``p_fail`` but no review mark: which frames the budget flags is known only
+    at the end.
+    """
+
+    def __init__(self, records: TrackRecords, sink: OverlaySink) -> None:
+        self.records, self.sink = records, sink
+        self._held: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
+
+    def add(self, position: int, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult]) -> None:
+        self._held.append((position, frame_index, frame, results))
+        self.drain()
+
+    def drain(self, *, final: bool = False) -> None:
+        """Draw every held frame whose marks are final; with ``final`` (the records finished), all of them."""
+        while self._held:
+            position, frame_index, frame, results = self._held[0]
+            marks = self.records.take_marks(position, final=final)
+            if marks is None:
+                return
+            self._held.popleft()
+            # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
+            items = [OverlayItem.from_frame_result(
+                result, track_id=tid, flagged=marks[tid].flagged and not self.records.budget,
+                confidence=1.0 - marks[tid].p_fail, keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else "")
+                for tid, result in results.items()]
+            self.sink.write(position, frame_index, frame, items, marks)
+
+
+@dataclass
+class FrameLoopEnd:
+    """How :func:`track_frames` ended."""
+
+    frames_tracked: int
+    seconds_tracking: float
+    decode_error: DecodeError | None = None
+    interrupted: bool = False
+
+
+def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker], follow_up, *,
+                 stop_requested=lambda: False) -> FrameLoopEnd:
+    """The frame loop: track each frame, then hand it to ``follow_up`` on a thread of its own.
+
+    ``follow_up(position, frame_index, frame, results, seconds)`` runs in frame order on one thread while the next
+    frame is tracked: the tracker's kernels keep both cores busy, but between them leave one idle for several ms a
+    frame, and the follow-up (failure signals, flags, overlay drawing and encoding: 3-4 ms a frame) fills that
+    time. One thread, fed in frame order, so every signal, flag and overlay frame is what it would be if the loop
+    did it all in turn. At most two frames wait behind, so an error there stops tracking soon; the first error is
+    the one raised.
+
+    ``source`` yields ``(frame_index, frame)``; a :class:`~annotator.frames.DecodeError` from it ends the loop,
+    as do ``stop_requested()`` (checked between frames) and a Ctrl-C outside the main thread, keeping every frame
+    tracked so far.
+    """
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as pool:
+        submitted: collections.deque = collections.deque()
+        try:
+            end = _track_and_submit(iter(source), targets, trackers, follow_up, pool, submitted, stop_requested)
+            wait(submitted)  # every frame is followed up before the caller finishes the flags
+            while submitted:
+                submitted.popleft().result()
+            return end
+        except BaseException:
+            # The follow-ups queued behind the error are dropped (they would run on the state it left), and the
+            # one running is waited for, its own error ignored.
+            for future in submitted:
+                future.cancel()
+            wait(submitted)
+            raise
+
+
+def _track_and_submit(frames, targets, trackers, follow_up, pool: ThreadPoolExecutor, submitted: collections.deque,
+                      stop_requested) -> FrameLoopEnd:
+    end = FrameLoopEnd(frames_tracked=0, seconds_tracking=0.0)
+    while not stop_requested():
+        try:
+            frame_index, frame = next(frames)
+            results, seconds = track_frame(trackers, targets, frame, first=end.frames_tracked == 0)
+        except StopIteration:
+            return end
+        except DecodeError as exc:
+            end.decode_error = exc
+            return end
+        except KeyboardInterrupt:
+            # Ctrl-C outside the main thread: keep every frame finished so far (a half-tracked frame is dropped).
+            end.interrupted = True
+            return end
+        end.seconds_tracking += sum(seconds.values())
+        submitted.append(pool.submit(follow_up, end.frames_tracked, frame_index, frame, results, seconds))
+        end.frames_tracked += 1
+        try:
+            while len(submitted) > 2 or (submitted and submitted[0].done()):
+                submitted[0].result()  # raises the follow-up's error; removed only once it is done
+                submitted.popleft()
+        except KeyboardInterrupt:
+            # A second Ctrl-C while waiting: keep every frame tracked so far, as during tracking.
+            end.interrupted = True
+            return end
+    end.interrupted = True
+    return end
+
 
 def track_source(
     source: FrameSource,
@@ -182,6 +463,10 @@ def track_source(
     progress: Progress | None = None,
 ) -> TrackingRun:
     """Track every target through the source's selected frames.
+
+    The stages: :func:`track_frames` (with :func:`track_frame`) feeds each frame to :class:`TrackRecords`, and,
+    with an overlay, through :class:`HeldFrames` to an :class:`OverlaySink`; the flags are then finished by
+    :func:`final_flags`.
 
     Parameters
     ----------
@@ -200,189 +485,75 @@ def track_source(
         ``decode_error``; the overlay then also ends there.
     """
     started = time.perf_counter()
-    render = overlay_path is not None
     trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
-    recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
-    tracker_confidence: dict[int, list[float]] = {t.track_id: [] for t in targets}
     model = load_model(config.failure_model)
-    budget = config.flags.review_budget is not None
-    # In budget mode the online flags are only a way to get p_fail frame by frame; flags are made at the end.
     online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
                         min_span=config.flags.min_span)
-    flaggers = {t.track_id: TrackDoubt(model, online) for t in targets}
-    meters = {t.track_id: SignalMeter() for t in targets}
-    p_fails: dict[int, dict[int, float]] = {t.track_id: {} for t in targets}
-    flags: dict[int, dict[int, tuple[bool, str]]] = {t.track_id: {} for t in targets}
-    pending: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
-    renderer = OverlayRenderer() if render else None
-    thumbnails = WorstFrameThumbnails()
-    tracking_seconds = 0.0
-    decode_error: DecodeError | None = None
-    interrupted = False
-    info = VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
-                     fps=source.fps, frame_count=source.frame_count,
-                     frame_files=getattr(source, "frame_files", None))  # image folders only
-
-    def drain(writer: OverlayWriter | None, *, final: bool = False) -> None:
-        while pending:
-            position = pending[0][0]
-            if not all(position in flags[tid] for tid in flags):
-                if not final:
-                    return
-            _, frame_index, frame, results = pending.popleft()
-            items = []
-            frame_p_fail: dict[int, float] = {}
-            for tid, result in results.items():
-                flagged, _ = flags[tid].get(position, (False, ""))
-                p_fail = frame_p_fail[tid] = p_fails[tid].pop(position, 0.0)
-                # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
-                items.append(OverlayItem.from_frame_result(
-                    result, track_id=tid, flagged=flagged and not budget, confidence=1.0 - p_fail,
-                    keyframe_source=KEYFRAME_GIVEN if result.scoring == "init" else ""))
-            drawn = renderer.annotate(frame, items)
-            writer.write(drawn)
-            # Flags and p_fail of this frame are final here, so each span's worst frame is known when it ends.
-            for tid in results:
-                thumbnails.add(tid, position, frame_index, flagged=flags[tid].get(position, (False, ""))[0],
-                               p_fail=frame_p_fail[tid], drawn=drawn)
-
-    def settle(tid: int, decided: list[tuple[int, float, bool, str]]) -> None:
-        """Store the failure probabilities and flags the flagger has made final."""
-        for pos, p_fail, flagged, reason in decided:
-            recorders[tid].set_failure(pos, p_fail)
-            recorders[tid].set_flag(pos, flagged and not budget, reason if not budget else "")
-            flags[tid][pos] = (flagged, reason)
-            if render:
-                p_fails[tid][pos] = p_fail
-
-    def record(frame_index: int, frame: np.ndarray, tid: int, result: FrameResult, seconds: float) -> None:
-        first = result.scoring == "init"
-        if first:
-            signals = meters[tid].first(frame, result.box_xywh)
+    records = TrackRecords(targets, model, online, budget=config.flags.review_budget is not None,
+                           keep_marks=overlay_path is not None)
+    with _deferred_interrupt() as stop_request:
+        if overlay_path is None:
+            end, thumbnails = _track_into(source, targets, trackers, records, None, progress, stop_request), []
         else:
-            signals = meters[tid].next(frame, result.box_xywh, log_likelihood=result.log_likelihood,
-                                       scoring=result.scoring, accepted=result.accepted,
-                                       particles_xywh=result.particles_xywh, particle_scores=result.particle_scores,
-                                       run_boxes_xywh=result.run_boxes_xywh)
-        tracker_confidence[tid].append(result.confidence)
-        recorders[tid].append(
-            frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
-            accepted=result.accepted, seconds=seconds, keyframe=first, scoring=result.scoring,
-            keyframe_source=KEYFRAME_GIVEN if first else "", signals=signals)
-        settle(tid, flaggers[tid].push(signals, keyframe=first))
+            end, thumbnails = _track_with_overlay(source, targets, trackers, records, overlay_path, progress,
+                                                  stop_request)
+    if progress is not None:
+        progress.close()
+    return TrackingRun(
+        video=VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
+                        fps=source.fps, frame_count=source.frame_count,
+                        frame_files=getattr(source, "frame_files", None)),  # image folders only
+        tracks=final_flags(records.tracks(), config.flags, model),
+        frames_processed=end.frames_tracked,
+        seconds_tracking=end.seconds_tracking,
+        seconds_total=time.perf_counter() - started,
+        decode_error=end.decode_error,
+        interrupted=end.interrupted,
+        thumbnails=thumbnails,
+        overlay_path=overlay_path,
+        tracker_confidence=records.tracker_confidence(),
+    )
 
-    def after_update(position: int, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult],
-                     times: dict[int, float], writer: OverlayWriter | None) -> None:
-        """A tracked frame's signals, flags and overlay, in frame order on the one follow-up thread."""
-        for tid, result in results.items():
-            record(frame_index, frame, tid, result, times[tid])
-        if writer is not None:
-            pending.append((position, frame_index, frame, results))
-            drain(writer)
+
+def _track_with_overlay(source, targets, trackers, records: TrackRecords, overlay_path: Path, progress,
+                        stop_request) -> tuple[FrameLoopEnd, list[SpanThumbnail]]:
+    try:
+        with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
+            sink = OverlaySink(writer)
+            held = HeldFrames(records, sink)
+            end = _track_into(source, targets, trackers, records, held, progress, stop_request)
+            if end.frames_tracked == 0:
+                # Not even the first frame decoded: discard the empty video (an MP4 needs a frame) and let the
+                # caller report the unreadable input.
+                raise _NothingTracked(end)
+            held.drain(final=True)
+            return end, sink.finish()
+    except _NothingTracked as nothing:
+        return nothing.end, []
+
+
+def _track_into(source, targets, trackers, records: TrackRecords, held: HeldFrames | None, progress,
+                stop_request) -> FrameLoopEnd:
+    """The frame loop with its follow-up: records each frame, holds it for the overlay, advances the bar."""
+
+    def follow_up(position, frame_index, frame, results, seconds) -> None:
+        records.add(frame_index, frame, results, seconds)
+        if held is not None:
+            held.add(position, frame_index, frame, results)
         if progress is not None:
             progress.advance()
 
-    def run(writer: OverlayWriter | None) -> int:
-        # The follow-up of frame t (failure signals, flags, overlay drawing and encoding: 3-4 ms a frame) runs on
-        # a thread of its own while frame t + 1 is tracked: the tracker's kernels keep both cores busy, but between
-        # them it leaves one idle for several ms a frame, and the follow-up fills that time. One thread, fed in
-        # frame order, so every signal, flag and overlay frame is what it was when the loop did it all in turn.
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as follow_up:
-            submitted: collections.deque = collections.deque()
-            try:
-                return track_frames(writer, follow_up, submitted)
-            except BaseException:
-                # The first error is the one raised: the follow-ups queued behind it are dropped (they would run on
-                # the state it left), and the one running is waited for, its own error ignored.
-                for future in submitted:
-                    future.cancel()
-                wait(submitted)
-                raise
+    end = track_frames(source, targets, trackers, follow_up, stop_requested=lambda: stop_request["requested"])
+    records.finish()
+    return end
 
-    def track_frames(writer: OverlayWriter | None, follow_up: ThreadPoolExecutor, submitted: collections.deque) -> int:
-        nonlocal tracking_seconds, decode_error, interrupted
-        position = -1
-        frames = iter(source)
-        while True:
-            if stop_request["requested"]:
-                interrupted = True
-                break
-            try:
-                frame_index, frame = next(frames)
-                results: dict[int, FrameResult] = {}
-                times: dict[int, float] = {}
-                for target in targets:
-                    tid = target.track_id
-                    tic = time.perf_counter()
-                    if position == -1:
-                        results[tid] = trackers[tid].init(frame, target.box_xywh)
-                    else:
-                        # Details always: the candidates' scores are a failure signal.
-                        results[tid] = trackers[tid].update(frame, details=True)
-                    times[tid] = time.perf_counter() - tic
-            except StopIteration:
-                break
-            except DecodeError as exc:
-                decode_error = exc
-                break
-            except KeyboardInterrupt:
-                # Ctrl-C outside the main thread: keep every frame finished so far (a half-tracked frame is dropped).
-                interrupted = True
-                break
-            position += 1
-            tracking_seconds += sum(times.values())
-            submitted.append(follow_up.submit(after_update, position, frame_index, frame, results, times, writer))
-            try:
-                # At most two frames behind: an error there stops tracking soon, and few frames wait in memory.
-                while len(submitted) > 2 or (submitted and submitted[0].done()):
-                    submitted[0].result()  # raises the follow-up's error; removed only once it is done
-                    submitted.popleft()
-            except KeyboardInterrupt:
-                # A second Ctrl-C while waiting: keep every frame tracked so far, as during tracking.
-                interrupted = True
-                break
-        wait(submitted)  # every frame is followed up before the flags are finished
-        while submitted:
-            submitted.popleft().result()
-        for tid, flagger in flaggers.items():
-            settle(tid, flagger.finish())
-        if writer is not None:
-            drain(writer, final=True)
-            thumbnails.finish()
-        return position + 1
 
-    with _deferred_interrupt() as stop_request:
-        if render:
-            try:
-                with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
-                    processed = run(writer)
-                    if processed == 0:
-                        # Not even the first frame decoded: discard the empty video (an MP4 needs a frame)
-                        # and let the caller report the unreadable input.
-                        raise _NothingTracked
-            except _NothingTracked:
-                processed = 0
-        else:
-            processed = run(None)
-    if progress is not None:
-        progress.close()
-    tracks = [recorders[t.track_id].to_result() for t in targets]
-    if budget:
-        tracks = [_budget_flags(track, config.flags, model) for track in tracks]
-    else:
-        tracks = [_with_keyframe_request(track, config.flags) for track in tracks]
-    return TrackingRun(
-        video=info,
-        tracks=tracks,
-        frames_processed=processed,
-        seconds_tracking=tracking_seconds,
-        seconds_total=time.perf_counter() - started,
-        decode_error=decode_error,
-        interrupted=interrupted,
-        thumbnails=thumbnails.thumbnails,
-        overlay_path=overlay_path if render else None,
-        tracker_confidence={tid: np.asarray(values, dtype=np.float64) for tid, values in tracker_confidence.items()},
-    )
+def final_flags(tracks: Sequence[TrackResult], params: FlagParams, model) -> list[TrackResult]:
+    """The flagging stage that needs whole tracks: by review budget when ``params`` has one, else the online
+    flags, with a keyframe request where a track is probably lost."""
+    if params.review_budget is not None:
+        return [_budget_flags(track, params, model) for track in tracks]
+    return [_with_keyframe_request(track, params) for track in tracks]
 
 
 def _with_keyframe_request(track: TrackResult, params: FlagParams) -> TrackResult:

@@ -155,12 +155,21 @@ class TrackResult:
 
     def __post_init__(self) -> None:
         name = f"TrackResult(track_id={self.track_id!r})"
+        self._check_identity(name)
+        self._check_rows(name)
+        self._check_flags(name)
+        self._check_stages(name)
+        self._check_signals(name)
+
+    def _check_identity(self, name: str) -> None:
         if isinstance(self.track_id, bool) or not isinstance(self.track_id, (int, np.integer)) or self.track_id < 1:
             raise ValueError(f"{name}: track_id must be an integer >= 1, got {self.track_id!r}")
         object.__setattr__(self, "track_id", int(self.track_id))
         if not isinstance(self.label, str) or not self.label.strip():
             raise ValueError(f"{name}: label must be a non-empty category name such as 'object', got {self.label!r}")
 
+    def _check_rows(self, name: str) -> None:
+        """Frame indices, boxes and per-row numbers: the arrays every other column is checked against."""
         indices = np.asarray(self.frame_indices)
         if indices.ndim != 1 or (indices.size and not np.issubdtype(indices.dtype, np.integer)):
             raise ValueError(f"{name}: frame_indices must be a (F,) integer array, got {indices.dtype} {indices.shape}")
@@ -192,6 +201,8 @@ class TrackResult:
         if np.any(~(self.seconds >= 0.0)):
             raise ValueError(f"{name}: seconds must be >= 0 (time spent on each frame)")
 
+    def _check_flags(self, name: str) -> None:
+        n, indices = len(self.frame_indices), self.frame_indices
         if self.occluded is None:
             object.__setattr__(self, "occluded", np.zeros(n, dtype=bool))
         for key in ("accepted", "flagged", "keyframe", "outside", "occluded"):
@@ -219,6 +230,9 @@ class TrackResult:
                 f"flag it with a reason such as 'object absent' so the flags file records the absence"
             )
 
+    def _check_stages(self, name: str) -> None:
+        """Scoring stages and keyframe sources, with their defaults."""
+        n, indices = len(self.frame_indices), self.frame_indices
         if self.scoring is None:
             default = np.where(self.keyframe & ~self.outside, "init", np.where(self.outside, "none", "subspace"))
             object.__setattr__(self, "scoring", tuple(str(v) for v in default))
@@ -240,6 +254,8 @@ class TrackResult:
                                  f"{source!r}; a keyframe names who gave its box and other rows the empty string")
         object.__setattr__(self, "keyframe_source", sources)
 
+    def _check_signals(self, name: str) -> None:
+        n = len(self.frame_indices)
         signals = {}
         for key, values in dict(self.signals or {}).items():
             if not isinstance(key, str) or not key.isidentifier():

@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-from _sequences import SequenceError, select_sequences
+
+from benchmarks._sequences import SequenceError, select_sequences
 
 from sptpt_dev.failure_fit import video
 

@@ -15,7 +15,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _stage_clock import StageClock
+
+from benchmarks._stage_clock import StageClock
 
 from annotator.allocator import keep_freed_memory
 from annotator.atomic import atomic_path
@@ -38,7 +39,7 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
     gt = read_otb_boxes(next(seq_dir.glob("groundtruth_rect*.txt")) if not (seq_dir / "groundtruth_rect.txt").exists()
                         else seq_dir / "groundtruth_rect.txt")
     clock = StageClock()
-    tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)])),
+    tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, stable_id(name)])),
                       stage_timer=clock)
     boxes, seconds, loglik, conf, accepted, scoring, run_boxes = [], [], [], [], [], [], []
     source = open_frames(seq_dir, stop=stop)
@@ -72,7 +73,7 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
     }
 
 
-def _stable_id(name: str) -> int:
+def stable_id(name: str) -> int:
     import zlib
 
     return zlib.crc32(name.encode())

@@ -1,8 +1,8 @@
 """Fit and measure the failure probability of frames between two human boxes: the passes' agreement.
 
-    python benchmarks/anchored_failure.py --generate            # track, then fit and measure (records RESULTS.md)
-    python benchmarks/anchored_failure.py --write               # refit on the stored data; write the model section
-    python benchmarks/anchored_failure.py --generate --seeds 0 --sequences Deer,Crossing --no-record
+    python -m benchmarks.anchored_failure --generate            # track, then fit and measure (records RESULTS.md)
+    python -m benchmarks.anchored_failure --write               # refit on the stored data; write the model section
+    python -m benchmarks.anchored_failure --generate --seeds 0 --sequences Deer,Crossing --no-record
 
 Re-tracking puts every frame between two anchors through two passes, forward
 from the earlier box and backward from the later one, and keeps one box
@@ -56,26 +56,24 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
+from benchmarks._results import machine_line, update_section
+
+from annotator.atomic import write_text_atomic
+from annotator.config import RunConfig
+from annotator.evaluation.calibration import auroc, expected_calibration_error
+from annotator.failure import FEATURES, feature_matrix, load_model
+from sptpt_dev.failure_fit import fit_model, fit_pass_agreement
+from annotator.flagging import FlagParams
+from annotator.otb import read_otb_boxes
+from annotator.review import ArrayFrames, retrack_tracks
+from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail
+from benchmarks.failure_model import load_samples
+from annotator.frames import open_frames
+from sptpt.boxes import iou_xywh
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
-
-from _anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video  # noqa: E402
-from _results import machine_line, update_section  # noqa: E402
-
-from annotator.atomic import write_text_atomic  # noqa: E402
-from annotator.config import RunConfig  # noqa: E402
-from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
-from annotator.failure import FEATURES, feature_matrix, load_model  # noqa: E402
-from sptpt_dev.failure_fit import fit_model, fit_pass_agreement  # noqa: E402
-from annotator.flagging import FlagParams  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402
-from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail  # noqa: E402
-from failure_model import load_samples  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from sptpt.boxes import iou_xywh  # noqa: E402
 
 PRESET = "robust"
 
@@ -205,10 +203,10 @@ def main() -> None:
     p_alone, p_held, threshold, folds = held_out(data, samples, C)
     shipped = fit_pass_agreement(
         data["p_track"], data["pass_iou"], data["failed"],
-        info={"fitted_by": "python benchmarks/anchored_failure.py " + " ".join(sys.argv[1:]),
+        info={"fitted_by": "python -m benchmarks.anchored_failure " + " ".join(sys.argv[1:]),
               "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
                        "sequences": sorted(set(data["sequence"])), "frames": int(len(data["failed"]))}})
-    command = "python benchmarks/anchored_failure.py " + " ".join(sys.argv[1:])
+    command = "python -m benchmarks.anchored_failure " + " ".join(sys.argv[1:])
     text = markdown(data, p_alone, p_held, threshold, command.strip(), time.perf_counter() - started, shipped, C)
     text = text.replace("Shipped section (fitted on every sequence)", "Section fitted on every sequence (not shipped)")
     print(text)

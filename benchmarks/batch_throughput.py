@@ -16,7 +16,7 @@ numba thread each, the default on two cores.
 
 Usage (the recorded run)::
 
-    python3 benchmarks/batch_throughput.py --sequences Bolt2,Coke,Crossing,Skiing --stop 60 --repeat 3 --write
+    python3 -m benchmarks.batch_throughput --sequences Bolt2,Coke,Crossing,Skiing --stop 60 --repeat 3 --write
 
 Other processes on the machine slow the runs unevenly: the load average
 before and after each run is printed and recorded, read the speed-up with it.
@@ -43,7 +43,6 @@ SECTION = "## Batch throughput"
 
 
 def write_manifest(path: Path, root: Path, names: list[str], stop: int | None) -> None:
-    sys.path.insert(0, str(REPO))
     from annotator.manifest import items_from_otb_root
 
     items = {item.id: item for item in items_from_otb_root(root)}
@@ -144,8 +143,7 @@ def markdown(results: list[dict], *, names: list[str], stop: int | None, preset:
 
 def update_results(text: str) -> None:
     # The shared helper keeps each benchmark's section between its own markers.
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    from _results import update_section
+    from benchmarks._results import update_section
 
     update_section("batch", text)
 
@@ -165,7 +163,6 @@ def main() -> None:
     args = parser.parse_args()
 
     if args.sequences == "all":
-        sys.path.insert(0, str(REPO))
         from annotator.manifest import items_from_otb_root
 
         names = [item.id for item in items_from_otb_root(args.otb_root)]
@@ -192,7 +189,7 @@ def main() -> None:
     # The fastest of the repeats is the one least disturbed by other processes.
     results = [dict(min(runs[w], key=lambda r: r["wall_seconds"]), all_walls=[r["wall_seconds"] for r in runs[w]])
                for w in specs]
-    invocation = "python3 benchmarks/batch_throughput.py " + " ".join(sys.argv[1:])
+    invocation = "python3 -m benchmarks.batch_throughput " + " ".join(sys.argv[1:])
     text = markdown(results, names=names, stop=stop, preset=args.preset, invocation=invocation.strip())
     print()
     print(text)

@@ -1,6 +1,6 @@
 """Per-frame diagnosis of SPTPT on OTB sequences: when and why the target is lost.
 
-    flock /tmp/bench.lock python benchmarks/diagnose_sptpt.py --preset paper --sequences Bolt2,Car4 --stop 120
+    flock /tmp/bench.lock python -m benchmarks.diagnose_sptpt --preset paper --sequences Bolt2,Car4 --stop 120
 
 For every frame it logs, next to the IoU with the ground truth: the winning
 log-likelihood and whether it was accepted, the two reconstruction errors
@@ -25,15 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+from annotator.evaluation.metrics import iou_xywh
+from annotator.frames import open_frames
+from annotator.otb import read_otb_boxes
+from sptpt.affine import state_from_box_xywh
+from sptpt.params import TrackerParams, get_preset, params_from_mapping
+from sptpt.subspace import reconstruction_error
+from sptpt.tracker import Tracker
 
-from annotator.evaluation.metrics import iou_xywh  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from sptpt.affine import state_from_box_xywh  # noqa: E402
-from sptpt.params import TrackerParams, get_preset, params_from_mapping  # noqa: E402
-from sptpt.subspace import reconstruction_error  # noqa: E402
-from sptpt.tracker import Tracker  # noqa: E402
+HERE = Path(__file__).resolve().parent
 
 
 def _errors(run, codes: np.ndarray) -> dict[str, np.ndarray]:

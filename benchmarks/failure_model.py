@@ -10,24 +10,24 @@ otb_extra::
 
 Runs tracked before the motion signals existed (``flow_drift``, ``flow_scale_drift``, ``ring_with_box``,
 ``box_with_background``, 2026-11-27, 8th session) get them from their frames and boxes, bit for bit, without
-tracking again: ``python benchmarks/motion_signals.py 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb
+tracking again: ``python -m benchmarks.motion_signals 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb
 ../shared/otb_extra``.
 
 Step 2, the protocol of issue #43, in this order:
 
 a. Design on ``../shared/otb`` alone: compare variants (``--drop``) by their held-out figures there::
 
-       python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/otb/robust-s*' --quick [--drop ...]
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --quick [--drop ...]
 
 b. The frozen procedure, fitted on all of ``../shared/otb``, scored once on ``../shared/otb_extra``, which no
    choice has seen (section "failure-model-unseen")::
 
-       python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/otb/robust-s*' \\
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' \\
            --test-runs 'benchmarks/_runs/failure/otb_extra/robust-s*' --otb ../shared/otb ../shared/otb_extra --record
 
 c. Only then the shipped model (section "failure-model", held out by video)::
 
-       python benchmarks/failure_model.py --runs 'benchmarks/_runs/failure/otb/robust-s*' --otb ../shared/otb --write
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --otb ../shared/otb --write
 
    It is fitted on ``../shared/otb`` alone, not refitted on both sets: refitted on both, held out by video over
    both, it flagged the otb videos it tracked right far more (otb_extra's 48% wrong frames, against otb's 17%,
@@ -74,20 +74,19 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
+from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
+from annotator.failure import SIGNALS, feature_matrix
+from sptpt_dev.failure_fit import (
+    MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups, fit_fold,
+    fit_model, group_features, l1_fit, video)
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model
+from annotator.flagging import FlagParams, flag_p_fail
+from annotator.otb import read_otb_boxes
+from annotator.store import STORE_NAME, read_store
+from benchmarks._results import machine_line, update_section
 
-from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh  # noqa: E402
-from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration  # noqa: E402
-from annotator.failure import SIGNALS, feature_matrix  # noqa: E402
-from sptpt_dev.failure_fit import (  # noqa: E402
-    MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Sample, choose_C, choose_groups, fit_fold, fit_model,
-    group_features, video)
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model  # noqa: E402
-from annotator.flagging import FlagParams, flag_p_fail  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.store import STORE_NAME, read_store  # noqa: E402
-from benchmarks._results import machine_line, update_section  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Regularisation values the nested cross-validation chooses from (inverse L1 strength).
 C_GRID = "1,0.1,0.01,0.003,0.001,0.0003,0.0001"
@@ -174,12 +173,12 @@ def signal_cost(otb: list[Path], sequences: list[str], tracking_ms: float, frame
     return ms, ms / tracking_ms
 
 
-def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1
-             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
+def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1,
+             regression: Regression = l1_fit) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
     """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold's
-    model by held-out video. Folds run in ``workers`` processes."""
+    model by held-out video, every fit by ``regression``. Folds run in ``workers`` processes."""
     names = sorted({video(s.sequence) for s in samples})
-    fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups)
+    fold = functools.partial(fit_fold, samples, C=C, drop=drop, select_groups=select_groups, regression=regression)
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
             folds = dict(zip(names, pool.map(fold, names)))
@@ -382,7 +381,7 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
     if not args.record:
         return 0
     seeds = sorted({s.seed for s in test})
-    command = ("python benchmarks/failure_model.py --runs " + " ".join(f"'{g}'" for g in args.runs)
+    command = ("python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs)
                + " --test-runs " + " ".join(f"'{g}'" for g in args.test_runs)
                + " --otb " + " ".join(str(o) for o in args.otb) + (f" --drop {args.drop}" if args.drop else "")
                + (" --shipped" if args.shipped else "")
@@ -542,7 +541,7 @@ def main() -> int:
     if not args.write:
         return 0
     roots = " ".join(str(o) for o in args.otb)
-    command = "python benchmarks/failure_model.py --runs " + " ".join(f"'{g}'" for g in args.runs) + \
+    command = "python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs) + \
               (f" --otb {roots}" if args.otb != parser.get_default("otb") else "") + \
               (f" --C {args.C}" if args.C != C_GRID else "") + (" --select-groups" if select else "") + \
               (f" --drop {args.drop}" if args.drop else "") + (" --no-worth" if args.no_worth else "") + " --write"
@@ -570,7 +569,7 @@ def main() -> int:
         write_text_atomic(FOLDS / f"{name}.json", json.dumps(fold_file.to_json(), indent=1) + "\n")
     # The pass_choice section reads each pass's probability under the main model: refitted with it, not kept.
     print(f"wrote {MODEL_FILE.relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
-          "until it is refitted): run python benchmarks/pass_choice.py --generate --write (the rows it stored hold "
+          "until it is refitted): run python -m benchmarks.pass_choice --generate --write (the rows it stored hold "
           "the old model's per-pass probabilities, so they are tracked again)", file=sys.stderr)
     PLOTS.mkdir(exist_ok=True)
     plot_calibration(PLOTS / "calibration.png", {"p_fail (held-out folds)": (pooled_p, pooled_y)})

@@ -1,12 +1,12 @@
 """L1 against L2: which penalty of the failure model's logistic regression ranks and flags held-out videos better.
 
-    python benchmarks/failure_penalty.py --runs 'benchmarks/_runs/failure/robust-s*'
+    python -m benchmarks.failure_penalty --runs 'benchmarks/_runs/failure/robust-s*'
 
 The same runs as ``benchmarks/failure_model.py`` (its docstring has the batch commands). For each penalty and
 each C of ``--C``, every video is scored by a model fitted on the other videos, every signal offered, C fixed
 (not chosen per fold), recalibrated and its threshold chosen on its own training videos, exactly as
 ``sptpt_dev.failure_fit.fit_model`` does it; only the regression differs. L1 is the product's
-(``sptpt_dev.failure_fit._fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
+(``sptpt_dev.failure_fit.l1_fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
 Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md (section "failure-penalty").
 
 This is how the penalty was chosen (2026-11-27, 6th session), on the sequences whose held-out figures
@@ -16,30 +16,25 @@ This is how the penalty was chosen (2026-11-27, 6th session), on the sequences w
 from __future__ import annotations
 
 import argparse
-import multiprocessing
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import sptpt_dev.failure_fit as fit  # noqa: E402
-from benchmarks._results import machine_line, update_section  # noqa: E402
-from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,  # noqa: E402
+import sptpt_dev.failure_fit as fit
+from benchmarks._results import machine_line, update_section
+from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,
                                       load_samples, mean_std, per_seed_probability, run_preset)
-from annotator.flagging import FlagParams  # noqa: E402
+from annotator.flagging import FlagParams
 
-L1_FIT = fit._fit
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def l2_fit(X: np.ndarray, y: np.ndarray, C: float):
     """The regression before L1: the same standardisation, scikit-learn's default L2 penalty."""
     from sklearn.linear_model import LogisticRegression
 
-    Z, mean, scale = fit._standardised(X)
+    Z, mean, scale = fit.standardised(X)
     model = LogisticRegression(C=C, max_iter=5000, solver="lbfgs").fit(Z, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 
@@ -58,18 +53,13 @@ def main() -> int:
     run_preset(args.runs)  # one preset, and at least one run
     rows = ["| penalty | C | AUROC | ECE | precision | recall | share on AUC >= 0.6 | weights exactly 0 |",
             "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    # The regression is swapped in this process; fold processes inherit it only when forked (spawn and forkserver
-    # import the modules afresh, with the product's L1).
-    if args.workers > 1:
-        multiprocessing.set_start_method("fork", force=True)
-    for penalty, regression in (("L2", l2_fit), ("L1", L1_FIT)):
-        fit._fit = regression
+    for penalty, regression in (("L2", l2_fit), ("L1", fit.l1_fit)):
         for C in grid:
-            results, models = held_out(samples, C=C, workers=args.workers)
+            results, models = held_out(samples, C=C, workers=args.workers, regression=regression)
             # L2 leaves a weight at exactly 0 only on a constant column (its scale set to 1); L1 on many more.
             if penalty == "L2" and any(np.any((m.coef == 0.0) & (m.scale != 1.0)) for m in models.values()):
                 raise SystemExit("an L2 fold model has a weight of exactly 0: the folds were fitted with another "
-                                 "regression than l2_fit; run with --workers 1")
+                                 "regression than l2_fit")
             prob = per_seed_probability(results)
             flags = flag_metrics(results, aucs, FlagParams(lost_threshold=None))
             zeros = np.mean([np.sum(m.coef == 0.0) for m in models.values()])
@@ -77,10 +67,9 @@ def main() -> int:
                         f"{fmt(mean_std(flags, 'precision'))} | {fmt(mean_std(flags, 'recall'))} | "
                         f"{fmt(mean_std(flags, 'good_flagged_share'))} | {zeros:.1f} of {len(models[next(iter(models))].coef)} |")
             print(rows[-1], flush=True)
-    fit._fit = L1_FIT
     if args.no_record:
         return 0
-    command = "python benchmarks/failure_penalty.py --runs " + " ".join(f"'{g}'" for g in args.runs) + \
+    command = "python -m benchmarks.failure_penalty --runs " + " ".join(f"'{g}'" for g in args.runs) + \
               (f" --C {args.C}" if args.C != "0.001,0.003,0.01,0.03" else "")
     update_section("failure-penalty", "\n".join([
         "## Failure model: sparse (L1 against L2 at fixed C, held out by video)",

@@ -1,7 +1,7 @@
 """Does a backward pass pay? Forward, then backward from a late confident frame, merged per frame.
 
-    python benchmarks/forward_backward.py --preset robust --seeds 0,1,2 --out benchmarks/_runs/fb
-    python benchmarks/forward_backward.py --seeds 0,1,2 --out benchmarks/_runs/fb --rescore   # merge rules again, no tracking
+    python -m benchmarks.forward_backward --preset robust --seeds 0,1,2 --out benchmarks/_runs/fb
+    python -m benchmarks.forward_backward --seeds 0,1,2 --out benchmarks/_runs/fb --rescore   # merge rules again, no tracking
 
 For every sequence of an OTB-layout root and every seed, the tracker runs
 forward from the ground-truth box of the first frame, exactly as the
@@ -30,14 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks._sequences import SequenceError, select_sequences
+from annotator.evaluation.metrics import evaluate_sequence
+from annotator.otb import read_otb_boxes
+from annotator.review.merge import MERGES, PassResult, merge_passes
 
-from _sequences import SequenceError, select_sequences  # noqa: E402
-from annotator.evaluation.metrics import evaluate_sequence  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.review.merge import MERGES, PassResult, merge_passes  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 FIELDS = ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds")
 
@@ -71,7 +69,7 @@ def track_sequence(job: dict) -> dict:
     import numba
 
     numba.set_num_threads(job["threads"])
-    from _sptpt_runner import _stable_id
+    from benchmarks._sptpt_runner import stable_id
     from annotator.frames import open_frames
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker
@@ -81,13 +79,13 @@ def track_sequence(job: dict) -> dict:
     frames = [frame for _, frame in open_frames(seq_dir)]
     params = get_preset(job["preset"])
     # The forward pass uses the benchmark's generator, so it equals otb_benchmark's run of the same seed.
-    rng = np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name)]))
+    rng = np.random.default_rng(np.random.SeedSequence([seed, stable_id(name)]))
     fwd = _run_pass(Tracker(params, seed=rng), frames, gt[0])
     anchor = end_anchor(fwd["accepted"], job["stable"])
     out = {f"fwd_{k}": v for k, v in fwd.items()}
     out["anchor"] = -1 if anchor is None else anchor
     if anchor is not None:
-        rng_b = np.random.default_rng(np.random.SeedSequence([seed, _stable_id(name), 1]))
+        rng_b = np.random.default_rng(np.random.SeedSequence([seed, stable_id(name), 1]))
         bwd = _run_pass(Tracker(params, seed=rng_b), frames[anchor::-1], fwd["boxes_xywh"][anchor])
         out.update({f"bwd_{k}": v[::-1] for k, v in bwd.items()})  # frame order 0..anchor
     path = pass_path(Path(job["out"]), name, seed)

@@ -8,7 +8,7 @@ human box), the store rewritten in place with the motion signals, and the signal
 to be unchanged (``flow_iou``, ``flow_fb``, ``flow_kept`` come from the same meter): a difference means the
 replay is not what tracking measured, and the script stops.
 
-    python benchmarks/motion_signals.py 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb ../shared/otb_extra
+    python -m benchmarks.motion_signals 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb ../shared/otb_extra
 """
 
 from __future__ import annotations
@@ -16,19 +16,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import glob
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from annotator.failure.signals import MOTION_SIGNALS as MOTION
+from annotator.failure.signals import NEUTRAL, MotionMeter, grey_of
+from annotator.frames import open_frames
+from annotator.store import STORE_NAME, read_store, write_store
 
-from annotator.failure.signals import MOTION_SIGNALS as MOTION  # noqa: E402
-from annotator.failure.signals import NEUTRAL, MotionMeter, grey_of  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from annotator.store import STORE_NAME, read_store, write_store  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 def replay(item: Path, otb: list[Path]) -> str:
     store = read_store(item / STORE_NAME)

@@ -1,10 +1,10 @@
 """SPTPT presets and OpenCV peers on every sequence of an OTB-layout root, in one invocation.
 
-    python benchmarks/otb_benchmark.py                       # all trackers, ../shared/otb, records RESULTS.md
-    python benchmarks/otb_benchmark.py --trackers paper,csrt --stop 100 --no-record
-    python benchmarks/otb_benchmark.py --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
-    python benchmarks/otb_benchmark.py --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
-    python benchmarks/otb_benchmark.py --replot /tmp/runs --trackers paper,robust,csrt   # attribute plots, no tracking
+    python -m benchmarks.otb_benchmark                       # all trackers, ../shared/otb, records RESULTS.md
+    python -m benchmarks.otb_benchmark --trackers paper,csrt --stop 100 --no-record
+    python -m benchmarks.otb_benchmark --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
+    python -m benchmarks.otb_benchmark --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
+    python -m benchmarks.otb_benchmark --replot /tmp/runs --trackers paper,robust,csrt   # attribute plots, no tracking
 
 For each tracker it runs one-pass evaluation on the same frames (the
 sequence's ``img/`` files, in order), then reports mean success AUC,
@@ -53,10 +53,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
 
-from _results import machine_line, update_section  # noqa: E402
-from _sequences import SequenceError, select_sequences  # noqa: E402
+from benchmarks._results import machine_line, update_section  # noqa: E402
+from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
 
 from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.report import plot_success  # noqa: E402
@@ -89,7 +88,7 @@ def _sptpt_job(args: dict) -> dict:
     threads = args.pop("numba_threads")
     if threads is not None:
         numba.set_num_threads(threads)
-    from _sptpt_runner import run_sequence
+    from benchmarks._sptpt_runner import run_sequence
 
     return run_sequence(**args)
 
@@ -351,7 +350,7 @@ def replot(out: Path, trackers: list[str], sequences: list[Path], *, seeds: list
 
 
 def render_markdown(args, trackers, sequences, rows, scores, wall) -> str:
-    command = "python benchmarks/otb_benchmark.py " + " ".join(sys.argv[1:])
+    command = "python -m benchmarks.otb_benchmark " + " ".join(sys.argv[1:])
     frames = sum(len(read_otb_boxes(args.out / trackers[0] / f"{s.name}.txt")) for s in sequences)
     lines = [
         "## OTB accuracy and speed: SPTPT presets and OpenCV peers",

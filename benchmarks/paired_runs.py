@@ -1,8 +1,8 @@
 """Independent runs, paired: does the per-frame choice beat the same runs tracked alone?
 
-    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust
-    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust --sequences Girl,Human9
-    python benchmarks/paired_runs.py benchmarks/_runs/otb6 --tracker robust --rechoose contrast
+    python -m benchmarks.paired_runs benchmarks/_runs/otb6 --tracker robust
+    python -m benchmarks.paired_runs benchmarks/_runs/otb6 --tracker robust --sequences Girl,Human9
+    python -m benchmarks.paired_runs benchmarks/_runs/otb6 --tracker robust --rechoose contrast
 
 A tracker with ``independent_runs`` R > 1 (``robust``) tracks R one-run
 trackers side by side and reports, each frame, one run's box
@@ -33,15 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks._sequences import SequenceError, select_sequences
+
+from annotator.evaluation.metrics import evaluate_sequence
+from annotator.frames import open_frames
+from annotator.otb import read_otb_boxes
+from sptpt.contrast import most_contrasted
+
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-from _sequences import SequenceError, select_sequences  # noqa: E402
-
-from annotator.evaluation.metrics import evaluate_sequence  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from sptpt.contrast import most_contrasted  # noqa: E402
 
 
 class PairedError(ValueError):

@@ -1,8 +1,8 @@
 """Fit and measure which box a frame between two human boxes takes where the two passes disagree.
 
-    python benchmarks/pass_choice.py --generate             # track (14 min), then fit and measure (RESULTS.md)
-    python benchmarks/pass_choice.py --write                # refit on the stored data; write the package's model
-    python benchmarks/pass_choice.py --generate --seeds 0 --sequences Deer,Diving --no-record
+    python -m benchmarks.pass_choice --generate             # track (14 min), then fit and measure (RESULTS.md)
+    python -m benchmarks.pass_choice --write                # refit on the stored data; write the package's model
+    python -m benchmarks.pass_choice --generate --seeds 0 --sequences Deer,Diving --no-record
 
 Re-tracking runs every frame between two anchors twice, forward from the
 earlier human box and backward from the later one. Where the two boxes
@@ -52,26 +52,24 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
+from benchmarks._results import machine_line, update_section
+
+from annotator.atomic import write_text_atomic
+from annotator.config import RunConfig
+from annotator.evaluation.calibration import auroc, expected_calibration_error
+from annotator.failure import FailureModelError, load_model
+from sptpt_dev.failure_fit import fit_pass_choice
+from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS
+from annotator.flagging import FlagParams
+from annotator.frames import open_frames
+from annotator.otb import read_otb_boxes
+from annotator.review import ArrayFrames, retrack_tracks
+from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail
+from sptpt.boxes import iou_xywh
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
-
-from _anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video  # noqa: E402
-from _results import machine_line, update_section  # noqa: E402
-
-from annotator.atomic import write_text_atomic  # noqa: E402
-from annotator.config import RunConfig  # noqa: E402
-from annotator.evaluation.calibration import auroc, expected_calibration_error  # noqa: E402
-from annotator.failure import FailureModelError, load_model  # noqa: E402
-from sptpt_dev.failure_fit import fit_pass_choice  # noqa: E402
-from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS  # noqa: E402
-from annotator.flagging import FlagParams  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.review import ArrayFrames, retrack_tracks  # noqa: E402
-from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail  # noqa: E402
-from sptpt.boxes import iou_xywh  # noqa: E402
 
 PRESET = "robust"
 #: Rows whose passes' IoU is below this are chosen for (the failure model's own line between right and wrong).
@@ -271,7 +269,7 @@ def main() -> None:
     seeds, everies, data = stored_data(parser, args, generate, load_data)
     max_gap = max(everies)
     chosen, folds, doubt = held_out(data, max_gap)
-    command = "python benchmarks/pass_choice.py " + " ".join(sys.argv[1:])
+    command = "python -m benchmarks.pass_choice " + " ".join(sys.argv[1:])
     shipped = fit_section(data, np.ones(len(chosen), bool), max_gap, {
         "fitted_by": command.strip(), "data": {"preset": PRESET, "seeds": seeds, "every": everies, "stop": args.stop,
                                                "sequences": sorted(set(data["sequence"])),

@@ -1,6 +1,6 @@
 """Cost of everything around the tracker in ``sptpt-annotate VIDEO --box``, and memory against video length.
 
-    python benchmarks/pipeline_overhead.py
+    python -m benchmarks.pipeline_overhead
 
 1. Overhead: a 640x480 synthetic clip through the full command (decode,
    track, flag, render the overlay, encode H.264, write every export);
@@ -26,13 +26,11 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
+from benchmarks._results import machine_line, update_section
+
+from sptpt_dev.synthetic import make_clip
+
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))  # sptpt_dev: in the source tree, not in the installed package
-
-from _results import machine_line, update_section  # noqa: E402
-
-from sptpt_dev.synthetic import make_clip  # noqa: E402
 
 
 def write_video(path: Path, clip_frames: np.ndarray, repeats: int, fps: float = 25.0) -> None:
@@ -72,7 +70,7 @@ def main() -> None:
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args()
     lines = ["## Pipeline overhead and memory (`sptpt-annotate VIDEO --box`)", "",
-             f"Command: `python benchmarks/pipeline_overhead.py {' '.join(sys.argv[1:])}`  ",
+             f"Command: `python -m benchmarks.pipeline_overhead {' '.join(sys.argv[1:])}`  ",
              f"Machine: {machine_line()}.", ""]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -1,6 +1,6 @@
 """What a review round costs on a real-size video: reading frames back, re-tracking, re-rendering the overlay.
 
-    python benchmarks/review_rounds.py [--frames 600] [--no-record]
+    python -m benchmarks.review_rounds [--frames 600] [--no-record]
 
 On a 1920x1080 H.264 clip (ffmpeg's ``testsrc2``, libx264 veryfast) made in a
 temporary folder:
@@ -34,14 +34,13 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
+from benchmarks._results import machine_line, update_section
+
+from annotator.frames import open_frames
+from annotator.review import SourceFrames
+from annotator.pass_cache import PASSES_NAME
+
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-from _results import machine_line, update_section  # noqa: E402
-
-from annotator.frames import open_frames  # noqa: E402
-from annotator.review import SourceFrames  # noqa: E402
-from annotator.review.pass_cache import PASSES_NAME  # noqa: E402
 
 BOX = (900, 500, 160, 120)
 
@@ -136,7 +135,7 @@ def main() -> int:
         make_clip(clip, args.frames)
         read = reading(clip, args.frames)
         done = rounds(root, clip, args.frames)
-    command = "python benchmarks/review_rounds.py" + (f" --frames {args.frames}" if args.frames != 600 else "")
+    command = "python -m benchmarks.review_rounds" + (f" --frames {args.frames}" if args.frames != 600 else "")
     lines = ["## Review rounds on a 1080p video (`benchmarks/review_rounds.py`)", "",
              f"Command: `{command}`  ", f"Machine: {machine_line()}.  ",
              f"Clip: {args.frames} frames of 1920x1080 H.264 (`testsrc2`); preset `robust`; one run each.", "",

@@ -1,7 +1,7 @@
 """Same boxes, same seed: track the first frames of a few OTB sequences and compare with saved boxes.
 
-    python benchmarks/same_boxes.py --save /tmp/ref_boxes      # on the reference commit
-    python benchmarks/same_boxes.py --compare /tmp/ref_boxes   # after a change
+    python -m benchmarks.same_boxes --save /tmp/ref_boxes      # on the reference commit
+    python -m benchmarks.same_boxes --compare /tmp/ref_boxes   # after a change
 
 Tracks the first ``--frames`` frames of each sequence with the ``paper``
 preset (or ``--preset``) and the seed ``benchmarks/_sptpt_runner.py`` uses,
@@ -24,7 +24,8 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-from _stage_clock import StageClock
+
+from benchmarks._stage_clock import StageClock
 
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes

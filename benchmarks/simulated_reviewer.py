@@ -1,9 +1,9 @@
 """Simulated reviewer: the human seconds the review loop needs, against keyframe interpolation.
 
-    python benchmarks/simulated_reviewer.py  # default subset, seeds 0,1,2, records RESULTS.md
-    python benchmarks/simulated_reviewer.py --sequences Deer,Crossing --stop 100 --seeds 0 --no-record
-    python benchmarks/simulated_reviewer.py --sequences all --budget 40
-    python benchmarks/simulated_reviewer.py --policy spans  # records its own section
+    python -m benchmarks.simulated_reviewer  # default subset, seeds 0,1,2, records RESULTS.md
+    python -m benchmarks.simulated_reviewer --sequences Deer,Crossing --stop 100 --seeds 0 --no-record
+    python -m benchmarks.simulated_reviewer --sequences all --budget 40
+    python -m benchmarks.simulated_reviewer --policy spans  # records its own section
 
 Human time (issue #9 item 6): ``--inspect-seconds`` (1 s) per frame a person
 looks at, ``--correct-seconds`` (6 s) per box a person draws. Per OTB
@@ -87,21 +87,17 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))  # sptpt_dev: in the source tree, not in the installed package
+from benchmarks._results import machine_line, update_section
+from benchmarks._sequences import SequenceError, select_sequences
 
-from _results import machine_line, update_section  # noqa: E402
-from _sequences import SequenceError, select_sequences  # noqa: E402
-
-from annotator.config import DEFAULT_PRESET, RunConfig  # noqa: E402
-from annotator.failure import FailureModelError, load_model  # noqa: E402
-from sptpt_dev.failure_fit import video  # noqa: E402
-from annotator.failure.model import MODEL_PATH  # noqa: E402
-from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask  # noqa: E402
-from annotator.frames import open_frames  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
-from annotator.review import (  # noqa: E402
+from annotator.config import DEFAULT_PRESET, RunConfig
+from annotator.failure import FailureModelError, load_model
+from sptpt_dev.failure_fit import video
+from annotator.failure.model import MODEL_PATH
+from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask
+from annotator.frames import open_frames
+from annotator.otb import read_otb_boxes
+from annotator.review import (
     DEFAULT_MERGE,
     MERGES,
     ArrayFrames,
@@ -109,8 +105,10 @@ from annotator.review import (  # noqa: E402
     merge_passes,
     retrack_tracks,
 )
-from annotator.wording import ordinal  # noqa: E402
-from sptpt.params import get_preset, params_from_mapping  # noqa: E402
+from annotator.wording import ordinal
+from sptpt.params import get_preset, params_from_mapping
+
+HERE = Path(__file__).resolve().parent
 
 DEFAULT_SUBSET = ("Deer", "Skiing", "Crossing", "Couple", "Diving", "Jogging.1", "Bolt2")
 
@@ -655,7 +653,7 @@ def main() -> None:
     else:
         records = [run_sequence(job) for job in jobs]
     seconds = time.perf_counter() - started
-    command = "python benchmarks/simulated_reviewer.py " + " ".join(sys.argv[1:])
+    command = "python -m benchmarks.simulated_reviewer " + " ".join(sys.argv[1:])
     text = markdown(records, args, preset_text, model_text, seconds, command.strip())
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)

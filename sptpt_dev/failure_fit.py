@@ -58,7 +58,7 @@ THRESHOLD_FLAGS = FlagParams(lost_threshold=None)
 UNCHOSEN_THRESHOLD = 0.5
 
 
-def _standardised(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def standardised(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(Z, mean, scale)``: the features standardised as :class:`FailureModel` reads them, ``Z = (X - mean) / scale``.
 
     NaN (a signal not measured) sits at the mean; a constant column keeps scale 1.
@@ -82,11 +82,17 @@ def _l1_penalty() -> dict[str, Any]:
 
 _L1 = _l1_penalty()
 
+#: How a fit turns features ``X`` (n, d), labels ``y`` (n,) and a regularisation ``C`` into
+#: ``(mean, scale, coef, intercept)``: :func:`l1_fit` in the product; a benchmark passes another to compare.
+Regression = Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarray, np.ndarray, float]]
 
-def _fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+
+def l1_fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The product's regression: ``(mean, scale, coef, intercept)`` of an L1-penalised logistic regression of ``y``
+    on the :func:`standardised` features ``X``, regularisation ``C``. A :data:`Regression`."""
     from sklearn.linear_model import LogisticRegression
 
-    Z, mean, scale = _standardised(X)
+    Z, mean, scale = standardised(X)
     # L1 (lasso): most signals repeat what another says, and the model ranks unseen videos better when it weighs a
     # few of them and gives the rest weight exactly 0 than when it gives all of them small weights (HISTORY.md,
     # "Failure model: sparse"). liblinear penalises the intercept as a weight on a
@@ -109,7 +115,7 @@ def _masked(samples: Sequence[Sample], drop: Sequence[str]) -> list[Sample]:
 
 
 def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, Any] | None = None,
-              drop: Sequence[str] = (), calibrate: bool = True) -> FailureModel:
+              drop: Sequence[str] = (), calibrate: bool = True, regression: Regression = l1_fit) -> FailureModel:
     """Fit on every sample's usable frames, recalibrate, and choose the flag threshold.
 
     Features named in ``drop`` get weight 0 (their columns are zeroed for the fit, so the regression leaves
@@ -132,12 +138,12 @@ def fit_model(samples: Sequence[Sample], *, C: float = 1.0, info: Mapping[str, A
     X, y = _stack(_masked(samples, drop))
     if len(np.unique(y)) < 2:
         raise ValueError("the training frames must hold both failed and good frames")
-    mean, scale, coef, intercept = _fit(X, y, C)
+    mean, scale, coef, intercept = regression(X, y, C)
     info = dict(info or {})
     threshold = UNCHOSEN_THRESHOLD
     if calibrate and len({video(s.sequence) for s in samples}) >= 2:
         try:
-            held = _held_out_by_sample(samples, C=C, drop=drop)
+            held = _held_out_by_sample(samples, C=C, drop=drop, regression=regression)
         except ValueError as exc:  # a fold's training frames are of one kind
             info["calibration"] = {"skipped": str(exc)}
         else:
@@ -237,8 +243,8 @@ def video(sequence: str) -> str:
 
 
 def leave_one_video_out(samples: Sequence[Sample], *, C: float | Sequence[float] = 1.0,
-                        drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True
-                        ) -> dict[str, tuple[FailureModel, list[Sample]]]:
+                        drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True,
+                        regression: Regression = l1_fit) -> dict[str, tuple[FailureModel, list[Sample]]]:
     """For each :func:`video`: the model fitted on all *other* videos (every seed), and that video's samples.
 
     ``C`` is the regularisation, or a grid of values: then each fold chooses
@@ -248,27 +254,30 @@ def leave_one_video_out(samples: Sequence[Sample], *, C: float | Sequence[float]
     zeroed in training and scoring alike), for measuring what a group of
     signals is worth. With ``select_groups`` each fold also leaves out the
     signal groups :func:`choose_groups` picks on its training sequences alone
-    (``info["dropped_groups"]``). ``calibrate`` is passed to :func:`fit_model`.
+    (``info["dropped_groups"]``). ``calibrate`` is passed to :func:`fit_model`, and ``regression`` to every fit,
+    nested ones included.
     """
-    return {name: fit_fold(samples, name, C=C, drop=drop, select_groups=select_groups, calibrate=calibrate)
+    return {name: fit_fold(samples, name, C=C, drop=drop, select_groups=select_groups, calibrate=calibrate,
+                           regression=regression)
             for name in sorted({video(s.sequence) for s in samples})}
 
 
 def fit_fold(samples: Sequence[Sample], held_out: str, *, C: float | Sequence[float] = 1.0,
-             drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True
-             ) -> tuple[FailureModel, list[Sample]]:
+             drop: Sequence[str] = (), select_groups: bool = False, calibrate: bool = True,
+             regression: Regression = l1_fit) -> tuple[FailureModel, list[Sample]]:
     """One fold of :func:`leave_one_video_out`: the model fitted without the video ``held_out``, and its samples."""
     masked = _masked(samples, drop)
     train = [s for s in masked if video(s.sequence) != held_out]
     held = [s for s in masked if video(s.sequence) == held_out]
-    fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C)
-    dropped = choose_groups(train, C=fold_C) if select_groups else ()
-    model = fit_model(train, C=fold_C, drop=group_features(dropped), calibrate=calibrate,
+    fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C, regression=regression)
+    dropped = choose_groups(train, C=fold_C, regression=regression) if select_groups else ()
+    model = fit_model(train, C=fold_C, drop=group_features(dropped), calibrate=calibrate, regression=regression,
                       info={"C": fold_C, **({"dropped_groups": list(dropped)} if select_groups else {})})
     return model, held
 
 
-def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_GROUP_GAIN) -> tuple[str, ...]:
+def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_GROUP_GAIN,
+                  regression: Regression = l1_fit) -> tuple[str, ...]:
     """Signal groups to leave out: greedy backward elimination on the leave-one-video-out AUROC of ``samples``.
 
     Each step leaves out the group whose absence raises the AUROC (pooled over
@@ -281,7 +290,7 @@ def choose_groups(samples: Sequence[Sample], *, C: float, min_gain: float = MIN_
     from annotator.evaluation.calibration import auroc
 
     def score(dropped: Sequence[str]) -> float:
-        return auroc(*_held_out_predictions(samples, C=C, drop=group_features(dropped)))
+        return auroc(*_held_out_predictions(samples, C=C, drop=group_features(dropped), regression=regression))
 
     return backward_elimination(sorted(set(FEATURE_GROUPS.values())), score, min_gain=min_gain)
 
@@ -305,7 +314,7 @@ def backward_elimination(groups: Sequence[str], score: Callable[[Sequence[str]],
     return tuple(dropped)
 
 
-def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
+def choose_C(samples: Sequence[Sample], grid: Sequence[float], *, regression: Regression = l1_fit) -> float:
     """The regularisation of ``grid`` whose leave-one-video-out predictions on ``samples`` rank failures best.
 
     The criterion is the AUROC pooled over the held-out sequences; ties go to the stronger regularisation
@@ -318,7 +327,8 @@ def choose_C(samples: Sequence[Sample], grid: Sequence[float]) -> float:
 
     if len({video(s.sequence) for s in samples}) < 2:
         raise ValueError("choosing C needs samples of at least two videos")
-    scores = [(auroc(*_held_out_predictions(samples, C=value)), -value) for value in (float(c) for c in grid)]
+    scores = [(auroc(*_held_out_predictions(samples, C=value, regression=regression)), -value)
+              for value in (float(c) for c in grid)]
     return -max(scores)[1]
 
 

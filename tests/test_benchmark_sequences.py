@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from _benchmark_scripts import run_benchmark
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-sys.path.insert(0, str(BENCHMARKS))
-
-from _sequences import SequenceError, select_sequences  # noqa: E402
+from benchmarks._sequences import SequenceError, select_sequences
 
 
 def _otb_root(tmp_path: Path) -> Path:
@@ -50,12 +46,12 @@ def test_a_root_without_sequences_is_refused(tmp_path):
         select_sequences(tmp_path / "missing", None)
 
 
-@pytest.mark.parametrize("script", ["otb_benchmark.py", "simulated_reviewer.py", "forward_backward.py"])
+@pytest.mark.parametrize("script", ["otb_benchmark", "simulated_reviewer", "forward_backward"])
 def test_each_benchmark_refuses_an_unknown_sequence_in_one_line(tmp_path, script):
     root = _otb_root(tmp_path)
-    done = subprocess.run([sys.executable, str(BENCHMARKS / script), "--otb", str(root), "--sequences", "Alpha,Gamma",
-                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
+    done = run_benchmark(script, "--otb", str(root), "--sequences", "Alpha,Gamma", "--out", str(tmp_path / "o"),
+                         timeout=300)
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines()[-1] == \
-        f"{script}: error: --sequences: Gamma is not in {root}; choose from Alpha, Beta"
+        f"{script}.py: error: --sequences: Gamma is not in {root}; choose from Alpha, Beta"
     assert not (tmp_path / "o").exists()

@@ -19,7 +19,7 @@ import yaml
 
 from _reader_env import run_check
 from annotator import atomic
-from annotator.exports._review import REVIEW_SCORE_NAME
+from annotator.exports.review_tools import REVIEW_SCORE_NAME
 from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import write_mot

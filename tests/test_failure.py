@@ -660,12 +660,9 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
     ("0,1", "every value must be a finite number > 0"),
 ])
 def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
-    import subprocess
-    import sys
-    from pathlib import Path
+    from _benchmark_scripts import run_benchmark
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "failure_model.py"
-    done = subprocess.run([sys.executable, str(script), "--C", value], capture_output=True, text=True, timeout=120)
+    done = run_benchmark("failure_model", "--C", value)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1] == f"failure_model.py: error: --C {value!r}: {message}"
 
@@ -678,13 +675,9 @@ def test_failure_model_script_refuses_a_bad_C_in_one_line(value, message):
                                           "found none"),
 ])
 def test_the_refit_scripts_refuse_bad_options_in_one_line(name, argv, code, fragment):
-    import subprocess
-    import sys
-    from pathlib import Path
+    from _benchmark_scripts import run_benchmark
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
-    done = subprocess.run([sys.executable, str(script), "--no-record" if name == "failure_penalty" else "--C=1",
-                           *argv], capture_output=True, text=True, timeout=120)
+    done = run_benchmark(name, "--no-record" if name == "failure_penalty" else "--C=1", *argv)
     assert done.returncode == code, done.stderr
     assert fragment in done.stderr.strip().splitlines()[-1] and "Traceback" not in done.stderr
 
@@ -773,14 +766,10 @@ def test_fitting_the_section_recovers_a_known_model_and_is_reproducible():
     (["--data", "{empty}"], 1, "no data in"),
 ])
 def test_the_between_anchors_script_refuses_bad_input_in_one_line(tmp_path, argv, code, fragment):
-    import subprocess
-    import sys
-    from pathlib import Path
+    from _benchmark_scripts import run_benchmark
 
-    root = Path(__file__).resolve().parents[1]
     argv = [a.replace("{empty}", str(tmp_path)) for a in argv]
-    done = subprocess.run([sys.executable, str(root / "benchmarks" / "anchored_failure.py"), "--no-record", *argv],
-                          capture_output=True, text=True, timeout=120)
+    done = run_benchmark("anchored_failure", "--no-record", *argv)
     assert done.returncode == code
     lines = done.stderr.strip().splitlines()
     assert fragment in lines[-1] and "Traceback" not in done.stderr
@@ -809,7 +798,7 @@ def test_both_sequences_of_one_video_are_held_out_together():
                                                                        info={"C": 0.1}).to_json())
 
 
-def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_other(monkeypatch):
+def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_other():
     # Every nested fit (the choice of C, the recalibration, the threshold) must hold out whole videos too. Each
     # sample carries its own value in since_anchor, so the rows a fit sees tell which sequences it trained on.
     import sptpt_dev.failure_fit as fit
@@ -822,14 +811,12 @@ def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_o
         features[:, column] = mark
         samples.append(Sample(name, 0, features, s.failed, s.use))
     seen = []
-    real_fit = fit._fit
 
     def recording_fit(X, y, C):
         seen.append(set(np.unique(X[:, column]).tolist()))
-        return real_fit(X, y, C)
+        return fit.l1_fit(X, y, C)
 
-    monkeypatch.setattr(fit, "_fit", recording_fit)
-    leave_one_video_out(samples, C=[0.1, 1.0])
+    leave_one_video_out(samples, C=[0.1, 1.0], regression=recording_fit)
     assert len(seen) > 20
     assert all((1.0 in marks) == (2.0 in marks) for marks in seen)  # J.1 and J.2 together, or neither
     assert {1.0, 2.0, 3.0} in seen and {3.0, 4.0} in seen  # folds without D, and without J

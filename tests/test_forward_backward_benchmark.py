@@ -6,9 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _benchmark_scripts import BENCHMARKS, load_script
-
-SCRIPT = BENCHMARKS / "forward_backward.py"
+from _benchmark_scripts import load_script, run_benchmark
 
 
 def _module():
@@ -51,10 +49,7 @@ def _otb_root(tmp_path: Path) -> Path:
 
 
 def _refusal(*args: str) -> tuple[int, str]:
-    import subprocess
-    import sys
-
-    done = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120)
+    done = run_benchmark("forward_backward", *args)
     return done.returncode, done.stderr.strip().splitlines()[-1]
 
 

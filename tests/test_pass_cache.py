@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from annotator.failure import SIGNALS
-from annotator.review.merge import PassResult
-from annotator.review.pass_cache import (CachedPass, keep_anchored, pass_fingerprint, pass_key, read_pass_cache,
+from annotator.pass_cache import PassResult
+from annotator.pass_cache import (CachedPass, keep_anchored, pass_fingerprint, pass_key, read_pass_cache,
                                          write_pass_cache)
 from annotator.tracks import TrackResult
 
@@ -100,7 +100,7 @@ def test_the_fingerprint_follows_the_code(monkeypatch):
     """A change of the tracker's sources, or of a library under it, gives other rows: the kept passes go."""
     from pathlib import Path
 
-    import annotator.review.pass_cache as pass_cache
+    import annotator.pass_cache as pass_cache
 
     base = pass_fingerprint(*FINGERPRINT_ARGS)
     real = Path.read_bytes
@@ -126,7 +126,7 @@ def test_the_fingerprint_follows_the_code(monkeypatch):
 
 @pytest.mark.parametrize("n", [1, 2])
 def test_first_pass_of_a_short_track(n):
-    from annotator.review.pass_cache import first_pass
+    from annotator.pass_cache import first_pass
 
     track = TrackResult(track_id=3, label="object", frame_indices=np.arange(n), boxes_xywh=np.tile([1.0, 2, 3, 4], (n, 1)),
                         confidence=np.full(n, 0.4), log_likelihood=np.arange(n, dtype=float), accepted=np.ones(n, bool),

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -295,12 +292,12 @@ def test_retrack_with_the_shipped_model_chooses_only_where_the_passes_disagree(f
 
 
 def test_the_script_refuses_bad_input_in_one_line(tmp_path):
-    root = Path(__file__).resolve().parents[1]
+    from _benchmark_scripts import run_benchmark
+
     for argv, code, fragment in ((["--every", "1"], 2, "--every intervals of at least 2 frames"),
                                  (["--seeds", "x"], 2, "must be comma-separated integers"),
                                  (["--data", str(tmp_path)], 1, "no data in")):
-        done = subprocess.run([sys.executable, str(root / "benchmarks" / "pass_choice.py"), "--no-record", *argv],
-                              capture_output=True, text=True, timeout=120)
+        done = run_benchmark("pass_choice", "--no-record", *argv)
         assert done.returncode == code, done.stderr
         assert fragment in done.stderr.strip().splitlines()[-1] and "Traceback" not in done.stderr
 

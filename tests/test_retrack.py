@@ -426,7 +426,7 @@ def csv_row(frame: int, box=None, track="") -> str:
 
 def test_kept_passes_give_the_boxes_of_passes_run_again_and_spare_their_tracking(out, tmp_path):
     """The run keeps its passes (passes.npz): a re-track reuses those its anchors still start, box for box."""
-    from annotator.review.pass_cache import PASSES_NAME
+    from annotator.pass_cache import PASSES_NAME
     from annotator.store import STORE_NAME, read_store
 
     again = tmp_path / "again"
@@ -459,7 +459,7 @@ def test_passes_are_kept_only_for_an_input_that_was_checked(out, tmp_path):
     """--no-verify may re-track changed bytes: their passes must not be stored under the recorded hash, nor
     the recorded hash's passes used on them. Right after the main command (track --corrections) the input counts
     as checked."""
-    from annotator.review.pass_cache import PASSES_NAME
+    from annotator.pass_cache import PASSES_NAME
 
     (tmp_path / "fix.csv").write_text(csv_row(12, GT[12]))
     before = (out / PASSES_NAME).read_bytes()
@@ -678,12 +678,12 @@ def test_bad_corrections_leave_the_folder_unchanged(out, text, code, fragment):
 
 
 def test_failure_while_writing_leaves_the_folder_unchanged(out, monkeypatch):
-    import annotator.report
+    import annotator.publish
 
     def broken(*args, **kwargs):
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(annotator.report, "render_report", broken)
+    monkeypatch.setattr(annotator.publish, "render_report", broken)
     before = snapshot(out)
     (out.parent / "fix.csv").write_text(csv_row(12, GT[12]))
     with pytest.raises(RuntimeError, match="disk on fire"):

@@ -280,10 +280,8 @@ def _pass_choice_of(sequence: str) -> dict:
 ])
 def test_fold_models_must_be_each_sequences_own(tmp_path, section, value):
     import json
-    import subprocess
-    import sys
 
-    from _benchmark_scripts import BENCHMARKS
+    from _benchmark_scripts import run_benchmark
 
     from annotator.failure import load_model
 
@@ -300,21 +298,16 @@ def test_fold_models_must_be_each_sequences_own(tmp_path, section, value):
     if section is not None:  # a section fitted without another sequence; or none at all
         data[section] = _pass_choice_of(value) if section == "pass_choice" else value
     (folds / "Seq.json").write_text(json.dumps(data))
-    done = subprocess.run([sys.executable, str(BENCHMARKS / "simulated_reviewer.py"), "--otb", str(otb),
-                           "--sequences", "Seq", "--fold-models", str(folds), "--no-record"],
-                          capture_output=True, text=True, timeout=120)
+    done = run_benchmark("simulated_reviewer", "--otb", str(otb), "--sequences", "Seq", "--fold-models", str(folds),
+                         "--no-record")
     assert done.returncode == 2
     assert "is not the fold model of Seq" in done.stderr.strip().splitlines()[-1]
 
 
 def test_spans_policy_with_the_lowest_confidence_fallback_is_refused_in_one_line():
-    import subprocess
-    import sys
+    from _benchmark_scripts import run_benchmark
 
-    from _benchmark_scripts import BENCHMARKS
-
-    done = subprocess.run([sys.executable, str(BENCHMARKS / "simulated_reviewer.py"), "--policy", "spans",
-                           "--fallback", "lowest-confidence"], capture_output=True, text=True, timeout=120)
+    done = run_benchmark("simulated_reviewer", "--policy", "spans", "--fallback", "lowest-confidence")
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1].startswith(
         "simulated_reviewer.py: error: --policy spans needs --fallback first-wrong")

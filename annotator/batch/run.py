@@ -56,7 +56,9 @@ def _exclusive(out_dir: Path):
         handle.close()
 
 
-def _prepare_out_dir(out_dir: Path) -> None:
+def _prepare_out_dir(out_dir: Path, planned: list) -> None:
+    """Refuse an output folder the planned items cannot safely share, else create it and check it is writable."""
+    _refuse_unsafe_out_dir(out_dir, planned)
     if out_dir.exists() and not out_dir.is_dir():
         raise ToolError(f"output folder {out_dir} is a file: give --out a folder path", EXIT_OUTPUT)
     try:
@@ -100,6 +102,59 @@ def _remove_stale_temporaries(out_dir: Path) -> None:
         for path in out_dir.glob(f".{name}.*.tmp*"):
             with contextlib.suppress(OSError):
                 path.unlink()
+
+
+def _check_batch_settings(*, workers: int | None, start: int | None, stop: int | None, step: int | None,
+                          scheduler: str | None) -> None:
+    if workers is not None and workers < 1:
+        raise ToolError(f"--workers {workers} is invalid: give 1 or more worker processes", EXIT_VALUE)
+    if start is not None and start < 0:
+        raise ToolError(f"--start {start} is invalid: give a first frame of 0 or more (0-based)", EXIT_VALUE)
+    if stop is not None and stop <= (start or 0):
+        raise ToolError(f"--stop {stop} is invalid: give a frame after the first one ({start or 0}), or leave it "
+                        "out to run to the end", EXIT_VALUE)
+    if step is not None and step < 1:
+        raise ToolError(f"--step {step} is invalid: give 1 or more", EXIT_VALUE)
+    if scheduler is not None and workers is not None:
+        raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
+                        "sends items to a Dask cluster; give one", EXIT_VALUE)
+    if scheduler is not None:
+        require_extra("--scheduler")
+        check_scheduler_address(scheduler)
+
+
+def _schedule(planned: list, *, force: bool, n_workers: int, scheduler: str | None) -> tuple[list, int, dict]:
+    """The items still to run, longest first, with the worker count and threads they get, and those settings as
+    ``summary.json`` records them. Finished items are judged here, under the output folder's lock."""
+    for plan in planned:
+        plan.reuse = not force and is_item_finished(plan.job, read_run_json(plan.job.folder))
+    todo = sorted((p for p in planned if not p.reuse), key=lambda p: -p.estimate)
+    n_workers = min(n_workers, max(len(todo), 1))
+    threads = None if scheduler else threads_per_worker(n_workers)
+    for plan in todo:
+        plan.job = dataclasses.replace(plan.job, threads=threads)
+    settings = {"workers": None if scheduler else n_workers, "scheduler": scheduler,
+                "start_method": None if scheduler else worker_context().get_start_method(),
+                "numba_threads_per_worker": threads}
+    return todo, n_workers, settings
+
+
+def _run_items(planned: list, out_dir: Path, *, force: bool, scheduler: str | None, workers: int,
+               show_progress: bool, stream: TextIO | None) -> tuple[dict[str, ItemOutcome], bool, dict]:
+    """Run the items not finished yet (under the output folder's lock): the outcome of each that ended, whether
+    Ctrl-C stopped the batch, and the worker settings for ``summary.json``."""
+    _remove_stale_temporaries(out_dir)
+    todo, workers, settings = _schedule(planned, force=force, n_workers=workers, scheduler=scheduler)
+    progress = BatchProgress(len(todo), reused=len(planned) - len(todo), enabled=show_progress, stream=stream)
+    outcomes: dict[str, ItemOutcome] = {}
+    try:
+        if todo:
+            execute_items(todo, outcomes, progress, out_dir, planned, scheduler=scheduler, workers=workers)
+    except KeyboardInterrupt:
+        return outcomes, True, settings
+    finally:
+        progress.close()
+    return outcomes, False, settings
 
 
 def run_batch(
@@ -165,51 +220,17 @@ def run_batch(
         After stopping the workers and writing the batch files for what finished.
     """
     out_dir = Path(out_dir)
-    if workers is not None and workers < 1:
-        raise ToolError(f"--workers {workers} is invalid: give 1 or more worker processes", EXIT_VALUE)
-    if start is not None and start < 0:
-        raise ToolError(f"--start {start} is invalid: give a first frame of 0 or more (0-based)", EXIT_VALUE)
-    if stop is not None and stop <= (start or 0):
-        raise ToolError(f"--stop {stop} is invalid: give a frame after the first one ({start or 0}), or leave it "
-                        "out to run to the end", EXIT_VALUE)
-    if step is not None and step < 1:
-        raise ToolError(f"--step {step} is invalid: give 1 or more", EXIT_VALUE)
-    if scheduler is not None and workers is not None:
-        raise ToolError("--workers and --scheduler were both given: --workers sizes local processes, --scheduler "
-                        "sends items to a Dask cluster; give one", EXIT_VALUE)
-    if scheduler is not None:
-        require_extra("--scheduler")
-        check_scheduler_address(scheduler)
-    n_workers = workers or default_workers()
+    _check_batch_settings(workers=workers, start=start, stop=stop, step=step, scheduler=scheduler)
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
     planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,
                          preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step,
                          media_url=media_url)
-    _refuse_unsafe_out_dir(out_dir, planned)
-    _prepare_out_dir(out_dir)
+    _prepare_out_dir(out_dir, planned)
     started = time.perf_counter()
     with _exclusive(out_dir):
-        _remove_stale_temporaries(out_dir)
-        for plan in planned:
-            plan.reuse = not force and is_item_finished(plan.job, read_run_json(plan.job.folder))
-        todo = sorted((p for p in planned if not p.reuse), key=lambda p: -p.estimate)
-        n_workers = min(n_workers, max(len(todo), 1))
-        threads = None if scheduler else threads_per_worker(n_workers)
-        for plan in todo:
-            plan.job = dataclasses.replace(plan.job, threads=threads)
-        progress = BatchProgress(len(todo), reused=len(planned) - len(todo), enabled=show_progress, stream=stream)
-        outcomes: dict[str, ItemOutcome] = {}
-        settings = {"workers": None if scheduler else n_workers, "scheduler": scheduler,
-                    "start_method": None if scheduler else worker_context().get_start_method(),
-                    "numba_threads_per_worker": threads}
-        interrupted = False
-        try:
-            if todo:
-                execute_items(todo, outcomes, progress, out_dir, planned, scheduler=scheduler, workers=n_workers)
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            progress.close()
+        outcomes, interrupted, settings = _run_items(planned, out_dir, force=force, scheduler=scheduler,
+                                                     workers=workers or default_workers(),
+                                                     show_progress=show_progress, stream=stream)
         result = write_batch_outputs(planned, outcomes, out_dir=out_dir, seconds=time.perf_counter() - started,
                                      manifest=manifest, formats=formats, seed=seed, config_values=config_values,
                                      preset=preset, settings=settings, interrupted=interrupted, media_url=media_url)

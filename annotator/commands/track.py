@@ -56,29 +56,10 @@ def track_command(
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
     from annotator.job import annotate
-    from annotator.box_input import parse_box
-    from annotator.config import ConfigError, load_config_file, resolve_config
-    from annotator.pipeline import Target
 
     try:
-        if box_origin not in (0, 1):
-            raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
-        boxes = [parse_box(b, name="--box", origin=box_origin) for b in box]
-        if label and len(label) not in (1, len(boxes)):
-            raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
-                            EXIT_VALUE)
-        labels = (label * len(boxes) if len(label) == 1 else label) or ["object"] * len(boxes)
-        targets = [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
-        try:
-            file_values = load_config_file(config_file) if config_file is not None else {}
-            flag_overrides = {"review_budget": review_budget} if review_budget is not None else None
-            if review_budget is not None and not 0 < review_budget <= 100:
-                raise ToolError(f"--review-budget {review_budget:g} is out of range: give a percentage of frames "
-                                "to review, 0 < PCT <= 100 (e.g. --review-budget 5)", EXIT_VALUE)
-            config = resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed,
-                                    flag_overrides=flag_overrides, failure_model=failure_model)
-        except ConfigError as exc:
-            raise ToolError(str(exc), exc.exit_code) from None
+        targets = _targets(box, label, box_origin)
+        config = _config(config_file, preset, seed, review_budget, failure_model)
         chosen = [f.strip() for f in formats.split(",") if f.strip()]
         if no_render:
             chosen = [f for f in chosen if f != "overlay"]
@@ -91,18 +72,7 @@ def track_command(
             result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step,
                               formats=chosen, force=force, show_progress=not quiet, corrections=fixes,
                               media_url=media_url)
-        review = None
-        if corrections is not None and result.exit_code == EXIT_OK:
-            from annotator.review import apply_corrections
-
-            try:
-                with one_line_warnings():
-                    review = apply_corrections(result.out_dir, corrections, show_progress=not quiet,
-                                               verify_input=False, input_checked=True)
-            except ToolError as exc:
-                raise ToolError(
-                    f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "
-                    f"'sptpt-annotate retrack {result.out_dir} --corrections FILE'", exc.exit_code) from None
+        review = _apply_given_corrections(result, corrections, quiet) if corrections is not None else None
     except ToolError as error:
         fail(error, debug)
     if result.exit_code != EXIT_OK:
@@ -111,16 +81,68 @@ def track_command(
         typer.echo(f"sptpt-annotate: warning: {result.message}{skipped}", err=True)
         raise typer.Exit(result.exit_code)
     if not quiet:
-        flagged = sum(int(t.flagged.sum()) for t in result.run.tracks)
-        total = sum(len(t.frame_indices) for t in result.run.tracks)
-        typer.echo(f"{plural(result.run.frames_processed, 'frame')} tracked in {result.run.seconds_total:.1f} s; "
-                   f"{flagged} of {plural(total, 'frame box', 'frame boxes')} flagged for review; "
-                   f"results in {result.out_dir}", err=True)
-        from annotator.report import keyframe_note
+        _summary(result, review)
 
-        # After corrections that changed the boxes, the review's summary speaks for the re-tracked tracks.
-        note = "" if review is not None and review.changed else keyframe_note(result.run.tracks, result.out_dir)
-        if note:
-            typer.echo(note, err=True)
-        if review is not None:
-            typer.echo(review.summary(), err=True)
+
+def _targets(box: list[str], label: list[str], box_origin: int) -> list:
+    """The ``--box`` and ``--label`` options as targets with the track ids 1, 2, ..."""
+    from annotator.box_input import parse_box
+    from annotator.pipeline import Target
+
+    if box_origin not in (0, 1):
+        raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
+    boxes = [parse_box(b, name="--box", origin=box_origin) for b in box]
+    if label and len(label) not in (1, len(boxes)):
+        raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
+                        EXIT_VALUE)
+    labels = (label * len(boxes) if len(label) == 1 else label) or ["object"] * len(boxes)
+    return [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
+
+
+def _config(config_file: Path | None, preset: str | None, seed: int | None, review_budget: float | None,
+            failure_model: Path | None):
+    """The run's configuration from the ``--config`` file and the options that override it."""
+    from annotator.config import ConfigError, load_config_file, resolve_config
+
+    try:
+        file_values = load_config_file(config_file) if config_file is not None else {}
+        flag_overrides = {"review_budget": review_budget} if review_budget is not None else None
+        if review_budget is not None and not 0 < review_budget <= 100:
+            raise ToolError(f"--review-budget {review_budget:g} is out of range: give a percentage of frames "
+                            "to review, 0 < PCT <= 100 (e.g. --review-budget 5)", EXIT_VALUE)
+        return resolve_config(file_values, source=str(config_file or "command line"), preset=preset, seed=seed,
+                              flag_overrides=flag_overrides, failure_model=failure_model)
+    except ConfigError as exc:
+        raise ToolError(str(exc), exc.exit_code) from None
+
+
+def _apply_given_corrections(result, corrections: Path, quiet: bool):
+    """``--corrections`` applied right after a finished run, as ``retrack`` would; None after an unfinished one."""
+    if result.exit_code != EXIT_OK:
+        return None
+    from annotator.review import apply_corrections
+
+    try:
+        with one_line_warnings():
+            return apply_corrections(result.out_dir, corrections, show_progress=not quiet, verify_input=False,
+                                     input_checked=True)
+    except ToolError as exc:
+        raise ToolError(
+            f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "
+            f"'sptpt-annotate retrack {result.out_dir} --corrections FILE'", exc.exit_code) from None
+
+
+def _summary(result, review) -> None:
+    flagged = sum(int(t.flagged.sum()) for t in result.run.tracks)
+    total = sum(len(t.frame_indices) for t in result.run.tracks)
+    typer.echo(f"{plural(result.run.frames_processed, 'frame')} tracked in {result.run.seconds_total:.1f} s; "
+               f"{flagged} of {plural(total, 'frame box', 'frame boxes')} flagged for review; "
+               f"results in {result.out_dir}", err=True)
+    from annotator.report import keyframe_note
+
+    # After corrections that changed the boxes, the review's summary speaks for the re-tracked tracks.
+    note = "" if review is not None and review.changed else keyframe_note(result.run.tracks, result.out_dir)
+    if note:
+        typer.echo(note, err=True)
+    if review is not None:
+        typer.echo(review.summary(), err=True)

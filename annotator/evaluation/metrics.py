@@ -63,7 +63,7 @@ Aggregation
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
@@ -313,11 +313,13 @@ class SequenceScore:
         return out
 
 
-def _summary(success: np.ndarray, precision: np.ndarray) -> tuple[float, float, float]:
-    auc = float(np.mean(success))
+def _curve_fields(success: np.ndarray, precision: np.ndarray) -> dict[str, Any]:
+    """The curves and their summary figures, as a sequence's and a dataset's scores both hold them."""
     at_20 = np.flatnonzero(PRECISION_THRESHOLDS == PRECISION_AT_PX)[0]
     at_50 = np.flatnonzero(np.isclose(SUCCESS_THRESHOLDS, 0.5))[0]
-    return auc, float(precision[at_20]), float(success[at_50])
+    return {"success_curve": _curve_array(success), "precision_curve": _curve_array(precision),
+            "auc": float(np.mean(success)), "precision_20": float(precision[at_20]),
+            "success_50": float(success[at_50])}
 
 
 def _repair_invalid_predictions(pred: np.ndarray, rule: str) -> tuple[np.ndarray, np.ndarray]:
@@ -393,19 +395,12 @@ def evaluate_sequence(
     ious[~gt_valid] = INVALID_GT_IOU
     errors[~gt_valid] = INVALID_GT_CENTER_ERROR
 
-    success = success_curve(ious)
-    precision = precision_curve(errors)
-    auc, at_20, at_50 = _summary(success, precision)
     return SequenceScore(
         name=name,
         n_frames=len(gt),
         ious=_readonly(ious),
         center_errors=_readonly(errors),
-        success_curve=_curve_array(success),
-        precision_curve=_curve_array(precision),
-        auc=auc,
-        precision_20=at_20,
-        success_50=at_50,
+        **_curve_fields(success_curve(ious), precision_curve(errors)),
         replace_first=replace_first,
         invalid_pred=invalid_pred,
     )
@@ -450,16 +445,7 @@ class DatasetScore:
             raise EvaluationError(f"tracker {tracker!r}: no sequences to aggregate")
         success = np.mean([s.success_curve for s in scores.values()], axis=0)
         precision = np.mean([s.precision_curve for s in scores.values()], axis=0)
-        auc, at_20, at_50 = _summary(success, precision)
-        return cls(
-            tracker=tracker,
-            sequences=dict(scores),
-            success_curve=_curve_array(success),
-            precision_curve=_curve_array(precision),
-            auc=auc,
-            precision_20=at_20,
-            success_50=at_50,
-        )
+        return cls(tracker=tracker, sequences=dict(scores), **_curve_fields(success, precision))
 
     @property
     def rules(self) -> dict:

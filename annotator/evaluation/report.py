@@ -286,31 +286,37 @@ def results_markdown(
         lines.append(f"| {_cell(name)} | {n_frames} | " + " | ".join(cells) + " |")
 
     if flag_quality:
-        definitions = {(r.fail_iou, r.min_span, r.onset_window) for r in flag_quality.values()}
-        if len(definitions) > 1:
-            raise EvaluationError(
-                f"flag-quality reports use different definitions {sorted(definitions)} (fail_iou, min_span, "
-                "onset_window); compute them all with the same settings to put them in one table"
-            )
-        fail_iou, min_span, onset_window = definitions.pop()
-        header = "| Precision | Recall | Flagged share | Onset recall | Failure frames | Failure spans | Frames |"
-        rule = "---:|---:|---:|---:|---:|---:|---:|"
-        lines += [
-            "",
-            "## Flag quality (pooled over frames and spans)",
-            "",
-            f"Failure: IoU < {fail_iou:g} (NaN and invalid ground truth included). Precision and recall of "
-            f"flags for failure frames; onset recall: share of failure runs of at least {min_span} frames with "
-            f"a flag within their first {onset_window} frames. n/a: undefined (0/0).",
-            "",
-            "| Tracker " + header,
-            "|---|" + rule,
-        ]
-        lines += [_flag_row([tracker], report.pooled) for tracker, report in flag_quality.items()]
-        lines += ["", "### Flag quality per sequence", "", "| Tracker | Sequence " + header, "|---|---|" + rule]
-        for tracker, report in flag_quality.items():
-            lines += [_flag_row([tracker, name], quality) for name, quality in report.sequences.items()]
+        lines += _flag_quality_tables(flag_quality)
     return "\n".join(lines) + "\n"
+
+
+def _flag_quality_tables(flag_quality: Mapping[str, FlagQualityReport]) -> list[str]:
+    """The flag-quality tables' Markdown lines: pooled per tracker, then per sequence."""
+    definitions = {(r.fail_iou, r.min_span, r.onset_window) for r in flag_quality.values()}
+    if len(definitions) > 1:
+        raise EvaluationError(
+            f"flag-quality reports use different definitions {sorted(definitions)} (fail_iou, min_span, "
+            "onset_window); compute them all with the same settings to put them in one table"
+        )
+    fail_iou, min_span, onset_window = definitions.pop()
+    header = "| Precision | Recall | Flagged share | Onset recall | Failure frames | Failure spans | Frames |"
+    rule = "---:|---:|---:|---:|---:|---:|---:|"
+    lines = [
+        "",
+        "## Flag quality (pooled over frames and spans)",
+        "",
+        f"Failure: IoU < {fail_iou:g} (NaN and invalid ground truth included). Precision and recall of "
+        f"flags for failure frames; onset recall: share of failure runs of at least {min_span} frames with "
+        f"a flag within their first {onset_window} frames. n/a: undefined (0/0).",
+        "",
+        "| Tracker " + header,
+        "|---|" + rule,
+    ]
+    lines += [_flag_row([tracker], report.pooled) for tracker, report in flag_quality.items()]
+    lines += ["", "### Flag quality per sequence", "", "| Tracker | Sequence " + header, "|---|---|" + rule]
+    for tracker, report in flag_quality.items():
+        lines += [_flag_row([tracker, name], quality) for name, quality in report.sequences.items()]
+    return lines
 
 
 def results_json(

@@ -133,6 +133,48 @@ def build_coco(
     first_image_id = _check_positive_id("first_image_id", first_image_id)
     first_annotation_id = _check_positive_id("first_annotation_id", first_annotation_id)
     tracks = list(tracks)
+    track_ids = _coco_track_ids(video, tracks, first_track_id)
+
+    category_list = _categories(tracks, categories)
+    category_id = {c["name"]: c["id"] for c in category_list}
+
+    frame_indices = np.unique(np.concatenate([t.frame_indices for t in tracks])) if tracks else np.zeros(0, np.int64)
+    image_id = {int(f): first_image_id + k for k, f in enumerate(frame_indices)}
+    images = _images(video, frame_indices, image_id, video_id)
+
+    annotations = _annotations(video, tracks, track_ids, image_id, category_id, video_id, first_annotation_id)
+
+    default_info = {
+        "description": f"sptpt-annotate boxes for {video.name}",
+        "version": "1.0",
+        "contributor": "sptpt-annotate",
+        "url": "",
+        "bbox_format": "xywh, 0-based pixels",
+    }
+    return {
+        "info": {**default_info, **dict(info or {})},
+        "licenses": [],
+        "categories": category_list,
+        "videos": [
+            {
+                "id": video_id,
+                "name": video.name,
+                "width": video.width,
+                "height": video.height,
+                "fps": video.fps,
+                "length": video.frame_count,
+            }
+        ],
+        "images": images,
+        "tracks": [
+            {"id": tid, "category_id": category_id[t.label], "video_id": video_id} for t, tid in zip(tracks, track_ids)
+        ],
+        "annotations": annotations,
+    }
+
+
+def _coco_track_ids(video: VideoInfo, tracks: list[TrackResult], first_track_id: int | None) -> list[int]:
+    """The tracks' COCO ids (their own, or renumbered from ``first_track_id``), checked with the tracks' frames."""
     if first_track_id is None:
         track_ids = [t.track_id for t in tracks]
     else:
@@ -146,13 +188,12 @@ def build_coco(
                 f"track {track.track_id} has frame index {int(track.frame_indices[-1])} but {video.name!r} has "
                 f"{video.frame_count} frames; expected tracks computed on this video"
             )
+    return track_ids
 
-    category_list = _categories(tracks, categories)
-    category_id = {c["name"]: c["id"] for c in category_list}
 
-    frame_indices = np.unique(np.concatenate([t.frame_indices for t in tracks])) if tracks else np.zeros(0, np.int64)
-    image_id = {int(f): first_image_id + k for k, f in enumerate(frame_indices)}
-    images = [
+def _images(video: VideoInfo, frame_indices: np.ndarray, image_id: dict[int, int], video_id: int) -> list[dict]:
+    """One image per processed frame, ``frame_id`` counting them from 0."""
+    return [
         {
             "id": image_id[int(f)],
             "video_id": video_id,
@@ -165,6 +206,10 @@ def build_coco(
         for k, f in enumerate(frame_indices)
     ]
 
+
+def _annotations(video: VideoInfo, tracks: list[TrackResult], track_ids: list[int], image_id: dict[int, int],
+                 category_id: dict[str, int], video_id: int, first_annotation_id: int) -> list[dict]:
+    """One annotation per row with a box inside the frame (none where the object is outside)."""
     # Annotations in frame order, then track order, so that ids follow the video.
     rows = []
     for t, (track, tid) in enumerate(zip(tracks, track_ids)):
@@ -205,34 +250,7 @@ def build_coco(
                 },
             }
         )
-
-    default_info = {
-        "description": f"sptpt-annotate boxes for {video.name}",
-        "version": "1.0",
-        "contributor": "sptpt-annotate",
-        "url": "",
-        "bbox_format": "xywh, 0-based pixels",
-    }
-    return {
-        "info": {**default_info, **dict(info or {})},
-        "licenses": [],
-        "categories": category_list,
-        "videos": [
-            {
-                "id": video_id,
-                "name": video.name,
-                "width": video.width,
-                "height": video.height,
-                "fps": video.fps,
-                "length": video.frame_count,
-            }
-        ],
-        "images": images,
-        "tracks": [
-            {"id": tid, "category_id": category_id[t.label], "video_id": video_id} for t, tid in zip(tracks, track_ids)
-        ],
-        "annotations": annotations,
-    }
+    return annotations
 
 
 def merge_coco(datasets: Sequence[Mapping]) -> dict:
@@ -299,25 +317,32 @@ def merge_coco(datasets: Sequence[Mapping]) -> dict:
                 }
             )
         for ann in data.get("annotations", []):
-            new = {
-                **ann,
-                "id": len(merged["annotations"]) + 1,
-                "image_id": image_map[ann["image_id"]],
-                "category_id": cat_map[ann["category_id"]],
-            }
-            if "video_id" in ann:
-                new["video_id"] = video_map[ann["video_id"]]
-            for key in ("track_id", "instance_id"):
-                if key in ann:
-                    new[key] = track_map[ann[key]]
-            if "attributes" in ann:
-                new["attributes"] = dict(ann["attributes"])
-                if "track_id" in new["attributes"]:
-                    new["attributes"]["track_id"] = track_map[ann["attributes"]["track_id"]]
-            merged["annotations"].append(new)
+            merged["annotations"].append(_renumbered_annotation(ann, len(merged["annotations"]) + 1, image_map,
+                                                                cat_map, video_map, track_map))
     if len(datasets) > 1:
         merged["info"]["description"] = f"sptpt-annotate boxes for {len(merged['videos'])} videos"
     return merged
+
+
+def _renumbered_annotation(ann: Mapping, new_id: int, image_map: dict, cat_map: dict, video_map: dict,
+                           track_map: dict) -> dict:
+    """``ann`` with its id and every id it refers to renumbered into the merged dataset."""
+    new = {
+        **ann,
+        "id": new_id,
+        "image_id": image_map[ann["image_id"]],
+        "category_id": cat_map[ann["category_id"]],
+    }
+    if "video_id" in ann:
+        new["video_id"] = video_map[ann["video_id"]]
+    for key in ("track_id", "instance_id"):
+        if key in ann:
+            new[key] = track_map[ann[key]]
+    if "attributes" in ann:
+        new["attributes"] = dict(ann["attributes"])
+        if "track_id" in new["attributes"]:
+            new["attributes"]["track_id"] = track_map[ann["attributes"]["track_id"]]
+    return new
 
 
 def dumps_coco(dataset: Mapping) -> str:

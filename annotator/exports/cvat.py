@@ -28,7 +28,7 @@ datumaro's ``cvat`` importer load the file unchanged:
   processed range does gets one more ``outside="1"`` box at the next
   processed frame, or CVAT would show its last box until the end.
 * Every box carries ``<attribute name="confidence">`` (see
-  :mod:`annotator.exports._review` for the name and when it changes).
+  :mod:`annotator.exports.review_tools` for the name and when it changes).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from xml.sax.saxutils import escape, quoteattr
 import numpy as np
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import (
+from annotator.exports.review_tools import (
     REVIEW_SCORE_DECIMALS,
     REVIEW_SCORE_NAME,
     check_frame_range,

@@ -49,7 +49,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, labels_in_order, number, review_keyframes
+from annotator.exports.review_tools import check_frame_range, labels_in_order, number, review_keyframes
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt.boxes import clip_xywh
 
@@ -169,6 +169,7 @@ def build_labelstudio_tasks(video: VideoInfo, tracks: Sequence[TrackResult], *, 
     ----------
     video : VideoInfo
     tracks : sequence of TrackResult
+        One region each, with the id :func:`labelstudio_region_id` gives.
     frames : range or None
         The processed range of source frame indices; None for the whole video.
     video_url : str or None

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, labels_in_order, number, positions, visible
+from annotator.exports.review_tools import check_frame_range, labels_in_order, number, positions, visible
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["build_mot_gt", "write_mot"]
@@ -45,8 +45,10 @@ def build_mot_gt(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: ran
     ----------
     video : VideoInfo
     tracks : sequence of TrackResult
+        Written with their own ids as ``track_id``; their labels numbered for ``class_id``.
     frames : range or None
-        The processed range of source frame indices; None for the whole video.
+        The processed range of source frame indices, whose positions are MOT's frame numbers; None for the
+        whole video.
     origin : {0, 1}
         Pixel origin of ``x, y``: 0 as CVAT and datumaro, 1 as MOTChallenge.
     """

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator.atomic import write_text_atomic
-from annotator.exports._review import check_frame_range, labels_in_order, number
+from annotator.exports.review_tools import check_frame_range, labels_in_order, number
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt.boxes import clip_xywh
 

@@ -73,7 +73,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.signals import SIGNALS
+from annotator.failure.signals import SIGNALS, measured_mean
 
 __all__ = [
     "FEATURES",
@@ -269,13 +269,8 @@ class _Causal:
 def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -> np.ndarray:
     """One feature row: raw signals, causal features, and the centred means over ``window`` (<= 5 rows)."""
     # NaN (a signal not measured) is left out of a mean, and stays NaN where nothing in the window was measured.
-    smoothed = [_nanmean(window[:, k]) for k in range(window.shape[1])]
+    smoothed = [measured_mean(window[:, k]) for k in range(window.shape[1])]
     return np.concatenate([raw, causal, smoothed])
-
-
-def _nanmean(values: np.ndarray) -> float:
-    measured = values[~np.isnan(values)]
-    return float(measured.mean()) if len(measured) else math.nan
 
 
 def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:

@@ -370,8 +370,8 @@ class MotionMeter:
         size = math.sqrt(max(box[2] * box[3], 1e-9))
         signals["flow_drift"] = float(min(math.hypot(*steps[:, :2].sum(axis=0)) / size, 10.0))
         signals["flow_scale_drift"] = float(min(abs(steps[:, 2].sum()), 5.0))
-        signals["ring_with_box"] = _nanmean(extents[:, 0])
-        signals["box_with_background"] = _nanmean(extents[:, 1])
+        signals["ring_with_box"] = measured_mean(extents[:, 0])
+        signals["box_with_background"] = measured_mean(extents[:, 1])
         self._prev_grey, self._prev_box = grey, box
         return signals
 
@@ -444,6 +444,7 @@ def _extent_shares(flows: np.ndarray, reliable: np.ndarray, box_move: np.ndarray
     return float(with_box(ring[ok_ring]).mean()), float(1.0 - with_box(inner[ok_inner]).mean())
 
 
-def _nanmean(values: np.ndarray) -> float:
+def measured_mean(values: np.ndarray) -> float:
+    """Mean of the measured (not NaN) ``values``, NaN when none is: without numpy's warning on an empty slice."""
     measured = values[~np.isnan(values)]
     return float(measured.mean()) if len(measured) else math.nan

@@ -8,8 +8,8 @@ Where things are:
 * :mod:`~annotator.review.frames`: frames decoded again from the recorded input.
 * :mod:`~annotator.review.segments`: anchors and the segments between them.
 * :mod:`~annotator.review.passes`: the forward and backward tracker passes.
-* :mod:`~annotator.review.pass_cache`: the passes a run folder keeps for its next re-track (``passes.npz``).
-* :mod:`~annotator.review.merge`: how two passes combine, and the flags after a re-track.
+* :mod:`~annotator.review.merge`: how two passes combine, and the flags after a re-track (a pass's rows, and the
+  passes a run folder keeps for its next re-track, are in :mod:`annotator.pass_cache`).
 * :mod:`~annotator.review.retrack`: ``retrack_tracks``, re-tracking in memory (no files).
 """
 

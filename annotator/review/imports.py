@@ -62,7 +62,7 @@ import numpy as np
 
 from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports._review import check_frame_range, visible
+from annotator.exports.review_tools import check_frame_range, visible
 from annotator.exports.labelstudio import labelstudio_region_id
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult, VideoInfo
@@ -259,6 +259,31 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
     def where(element: ET.Element) -> str:
         return f"{path}:{lines.get(id(element), 1)}"
 
+    _check_cvat_task(root, where, video, frames)
+    xml_tracks = root.findall("track")
+    tracks = [t for t in tracks if visible(t).any()]  # the exporter leaves out tracks never seen
+    if len(xml_tracks) != len(tracks):
+        raise ToolError(f"{where(root)}: the file has {len(xml_tracks)} tracks, the run {len(tracks)}: corrections "
+                        "can only move, hide or show the run's tracks; delete added tracks or rerun with new "
+                        "targets", EXIT_VALUE)
+    given = _given_version(exported, xml_tracks, tracks, video)
+    past_end: list[str] = []
+    corrections: list[Correction] = []
+    for element, track in zip(xml_tracks, tracks):
+        if element.get("label") != track.label:
+            raise ToolError(f"{where(element)}: track {element.get('id')} has label {element.get('label')!r}, the "
+                            f"run's track {track.track_id} in that place {track.label!r}: keep the tracks' order and "
+                            "labels", EXIT_VALUE)
+        corrections += _cvat_track_corrections(element, track, where, video, frames, given, past_end)
+    if past_end:
+        warnings.warn(f"{past_end[0]}: {plural(len(past_end), 'outside keyframe')} just past the run's last processed "
+                      f"frame {frames[-1]} (as FiftyOne ends its tracks) skipped: the tracks end with the range anyway",
+                      InputWarning, stacklevel=2)
+    return corrections
+
+
+def _check_cvat_task(root: ET.Element, where, video: VideoInfo, frames: range) -> None:
+    """Refuse a file that is not CVAT for video 1.1, or whose task is not the run's (frames, size, start, step)."""
     if root.tag == "annotations" and root.find("track") is None and root.find("image") is not None:
         raise ToolError(f"{where(root.find('image'))}: this is a \"CVAT for images\" file (one <image> per frame, no "
                         "<track>), which loses the tracks: export the task as \"CVAT for video 1.1\" (in Datumaro, "
@@ -295,81 +320,74 @@ def read_cvat_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: 
                         f"{expected}: export the annotations of the task created from this run's cvat.xml",
                         EXIT_VALUE)
 
-    xml_tracks = root.findall("track")
-    tracks = [t for t in tracks if visible(t).any()]  # the exporter leaves out tracks never seen
-    if len(xml_tracks) != len(tracks):
-        raise ToolError(f"{where(root)}: the file has {len(xml_tracks)} tracks, the run {len(tracks)}: corrections "
-                        "can only move, hide or show the run's tracks; delete added tracks or rerun with new "
-                        "targets", EXIT_VALUE)
+
+def _given_version(exported: Sequence[Any] | None, xml_tracks: list[ET.Element], tracks: list[TrackResult],
+                   video: VideoInfo) -> _Given | None:
     # The version of the run's cvat.xml this file was made from: the one whose keyframes it keeps the most of,
     # less those it has at a frame where that version had another (on a tie, the latest). The run's own
     # keyframes count for the version they were written in; a reviewer's correction, once applied, is also a
     # keyframe of every later version, which the mismatches then weigh against.
     versions = _given_versions(exported)
-    given: _Given | None = None
-    if versions:
-        keyframes = [(track.track_id, _int_or(box.get("frame")), _corners_or_none(box))
-                     for element, track in zip(xml_tracks, tracks) for box in element if box.get("keyframe") == "1"]
+    if not versions:
+        return None
+    keyframes = [(track.track_id, _int_or(box.get("frame")), _corners_or_none(box))
+                 for element, track in zip(xml_tracks, tracks) for box in element if box.get("keyframe") == "1"]
 
-        def score(version: _Given) -> int:
-            held = [(version[t][f], c) for t, f, c in keyframes if f in version.get(t, {})]
-            kept = sum(1 for g, c in held if _same_as_given(g, c, video))
-            return kept - (len(held) - kept)
+    def score(version: _Given) -> int:
+        held = [(version[t][f], c) for t, f, c in keyframes if f in version.get(t, {})]
+        kept = sum(1 for g, c in held if _same_as_given(g, c, video))
+        return kept - (len(held) - kept)
 
-        given = max(reversed(versions), key=score)
-    past_end: list[str] = []
+    return max(reversed(versions), key=score)
+
+
+def _cvat_track_corrections(element: ET.Element, track: TrackResult, where, video: VideoInfo, frames: range,
+                            given: _Given | None, past_end: list[str]) -> list[Correction]:
+    """The corrections in one ``<track>`` of the file: its keyframes that differ from what the run gave or holds.
+    Outside keyframes just past the range are added to ``past_end`` (skipped, with one warning for the file)."""
     corrections: list[Correction] = []
-    for element, track in zip(xml_tracks, tracks):
-        if element.get("label") != track.label:
-            raise ToolError(f"{where(element)}: track {element.get('id')} has label {element.get('label')!r}, the "
-                            f"run's track {track.track_id} in that place {track.label!r}: keep the tracks' order and "
-                            "labels", EXIT_VALUE)
-        run = _RunTrack(track, video)
-        # After a new absence, the box where the object shows again ends it and is a correction even when it is
-        # the run's box: an absence lasts until the next correction (as in a CSV), so without it the object
-        # would stay hidden to the track's end.
+    run = _RunTrack(track, video)
+    # After a new absence, the box where the object shows again ends it and is a correction even when it is
+    # the run's box: an absence lasts until the next correction (as in a CSV), so without it the object
+    # would stay hidden to the track's end.
+    hidden = False
+    for box in sorted(element, key=lambda b: _int_or(b.get("frame"))):
+        if box.tag != "box":
+            raise ToolError(f"{where(box)}: <{box.tag}> in a track: only boxes (rectangles) can correct a "
+                            "box track", EXIT_VALUE)
+        if box.get("keyframe") != "1":
+            continue  # interpolated by CVAT, not set by a person
+        try:
+            frame = int(box.get("frame", ""))
+            corners = [float(box.get(k, "")) for k in ("xtl", "ytl", "xbr", "ybr")]
+        except ValueError:
+            raise ToolError(f"{where(box)}: a <box> needs an integer frame and numeric xtl, ytl, xbr, ybr, got "
+                            f"{dict(box.attrib)!r}", EXIT_VALUE) from None
+        if frame not in frames and box.get("outside") == "1" and frames[-1] < frame <= frames[-1] + frames.step:
+            past_end.append(where(box))  # ends the track after the range: changes nothing the run holds
+            continue
+        if frame not in frames:
+            raise ToolError(f"{where(box)}: frame {frame} is not one of the run's processed frames (from "
+                            f"{frames.start} to {frames[-1]} every {frames.step})", EXIT_VALUE)
+        track_given = given.get(track.track_id, {}) if given is not None else {}
+        if frame in track_given:
+            if (_same_as_given(track_given[frame], _corners_or_none(box), video)
+                    and not (hidden and box.get("outside") != "1")):
+                continue  # the tool's own keyframe, left as it was (unless it ends a new absence)
+            changed = True  # a keyframe the tool gave, changed by a person
+        else:
+            changed = False  # a keyframe a person added: compared with the run below
+        if box.get("outside") == "1":
+            if changed or run.absence_changed(frame):
+                corrections.append(Correction(frame=frame, box_xywh=None, track_id=track.track_id,
+                                              where=where(box)))
+                hidden = True
+            continue
+        x0, y0, x1, y1 = corners
+        xywh = _checked_box(xyxy_to_xywh(corners).tolist(), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
+        if hidden or changed or run.box_changed(frame, xywh):
+            corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where(box)))
         hidden = False
-        for box in sorted(element, key=lambda b: _int_or(b.get("frame"))):
-            if box.tag != "box":
-                raise ToolError(f"{where(box)}: <{box.tag}> in a track: only boxes (rectangles) can correct a "
-                                "box track", EXIT_VALUE)
-            if box.get("keyframe") != "1":
-                continue  # interpolated by CVAT, not set by a person
-            try:
-                frame = int(box.get("frame", ""))
-                corners = [float(box.get(k, "")) for k in ("xtl", "ytl", "xbr", "ybr")]
-            except ValueError:
-                raise ToolError(f"{where(box)}: a <box> needs an integer frame and numeric xtl, ytl, xbr, ybr, got "
-                                f"{dict(box.attrib)!r}", EXIT_VALUE) from None
-            if frame not in frames and box.get("outside") == "1" and frames[-1] < frame <= frames[-1] + frames.step:
-                past_end.append(where(box))  # ends the track after the range: changes nothing the run holds
-                continue
-            if frame not in frames:
-                raise ToolError(f"{where(box)}: frame {frame} is not one of the run's processed frames (from "
-                                f"{frames.start} to {frames[-1]} every {frames.step})", EXIT_VALUE)
-            track_given = given.get(track.track_id, {}) if given is not None else {}
-            if frame in track_given:
-                if (_same_as_given(track_given[frame], _corners_or_none(box), video)
-                        and not (hidden and box.get("outside") != "1")):
-                    continue  # the tool's own keyframe, left as it was (unless it ends a new absence)
-                changed = True  # a keyframe the tool gave, changed by a person
-            else:
-                changed = False  # a keyframe a person added: compared with the run below
-            if box.get("outside") == "1":
-                if changed or run.absence_changed(frame):
-                    corrections.append(Correction(frame=frame, box_xywh=None, track_id=track.track_id,
-                                                  where=where(box)))
-                    hidden = True
-                continue
-            x0, y0, x1, y1 = corners
-            xywh = _checked_box(xyxy_to_xywh(corners).tolist(), where(box), f"xtl={x0:g} ytl={y0:g} xbr={x1:g} ybr={y1:g}")
-            if hidden or changed or run.box_changed(frame, xywh):
-                corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where(box)))
-            hidden = False
-    if past_end:
-        warnings.warn(f"{past_end[0]}: {plural(len(past_end), 'outside keyframe')} just past the run's last processed "
-                      f"frame {frames[-1]} (as FiftyOne ends its tracks) skipped: the tracks end with the range anyway",
-                      InputWarning, stacklevel=2)
     return corrections
 
 
@@ -490,6 +508,26 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
     tracks = list(tracks)
     frames = check_frame_range(video, tracks, frames)
     text = _read_text(path, "Label Studio")
+    task, regions, key, entry = _labelstudio_task(path, text, video, frames)
+    # What the reviewer was given: the prediction the annotation started from (Label Studio keeps its id).
+    parent = _parent_regions(task, entry) if key != "predictions" else None
+    matched = _matched_regions(path, regions, tracks)
+    given_by_id = {r.get("id"): r for r in parent or [] if isinstance(r.get("id"), str)}
+    corrections: list[Correction] = []
+    for number_, (region, track) in enumerate(matched):
+        region_id = region.get("id")
+        line = _json_line(text, json.dumps(region_id)) if region_id is not None else 1
+        given_region = given_by_id.get(region_id) if isinstance(region_id, str) and region_id in given_by_id else (
+            parent[number_] if parent is not None and len(parent) == len(matched) and not given_by_id else None)
+        given = _GivenSequence((given_region.get("value") or {}).get("sequence"), video) \
+            if isinstance(given_region, dict) else None
+        corrections += _region_corrections(f"{path}:{line}", region, track, given, video, frames)
+    return corrections
+
+
+def _labelstudio_task(path: Path, text: str, video: VideoInfo, frames: range) -> tuple[dict, list, str, Any]:
+    """The one task of the export with video rectangles, checked to be this run's: the task, its regions, and
+    where they are (``key`` and ``entry`` as :func:`_regions` gives them)."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -507,8 +545,6 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
         raise ToolError(f"{path}:1: {len(with_regions)} tasks (ids {', '.join(names)}) have video rectangles; "
                         "corrections apply to one run: export only this run's task", EXIT_VALUE)
     task, regions, key, entry = with_regions[0]
-    # What the reviewer was given: the prediction the annotation started from (Label Studio keeps its id).
-    parent = _parent_regions(task, entry) if key != "predictions" else None
     data = task.get("data")
     info = data.get("sptpt") if isinstance(data, dict) else None
     sptpt_key = '"sptpt"'
@@ -522,74 +558,74 @@ def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, t
                             f"{theirs[3]}:{stop}:{theirs[4]}); the run has {video.width}x{video.height}, "
                             f"{video.frame_count} frames, range {frames.start}:{frames.stop}:{frames.step}: export "
                             "the task imported from this run's labelstudio.json", EXIT_VALUE)
+    return task, regions, key, entry
 
+
+def _matched_regions(path: Path, regions: list, tracks: list[TrackResult]) -> list[tuple[dict, TrackResult]]:
+    """Each region with the run's track it edits: by the exporter's region id, else in order."""
     by_id = {labelstudio_region_id(t.track_id): t for t in tracks}
     ids = [r.get("id") if isinstance(r.get("id"), str) else None for r in regions]
     if all(i in by_id for i in ids) and len(set(ids)) == len(regions):
-        matched = [(r, by_id[r["id"]]) for r in regions]
-    elif len(regions) == len(seen := [t for t in tracks if visible(t).any()]):
-        matched = list(zip(regions, seen))  # the exporter leaves out tracks never seen
-    else:
-        raise ToolError(f"{path}:1: {len(regions)} video rectangles, the run has {len(tracks)} tracks, and their ids "
-                        f"are not the exporter's ('track-<id>'): corrections can only move, hide or show the run's "
-                        "tracks", EXIT_VALUE)
+        return [(r, by_id[r["id"]]) for r in regions]
+    if len(regions) == len(seen := [t for t in tracks if visible(t).any()]):
+        return list(zip(regions, seen))  # the exporter leaves out tracks never seen
+    raise ToolError(f"{path}:1: {len(regions)} video rectangles, the run has {len(tracks)} tracks, and their ids "
+                    f"are not the exporter's ('track-<id>'): corrections can only move, hide or show the run's "
+                    "tracks", EXIT_VALUE)
 
-    given_by_id = {r.get("id"): r for r in parent or [] if isinstance(r.get("id"), str)}
+
+def _region_corrections(where: str, region: dict, track: TrackResult, given: _GivenSequence | None,
+                        video: VideoInfo, frames: range) -> list[Correction]:
+    """The corrections in one region's keyframes: boxes that differ from what the reviewer was given (or, without
+    it, from the run), and new absences."""
+    region_id = region.get("id")
     corrections: list[Correction] = []
-    for number_, (region, track) in enumerate(matched):
-        region_id = region.get("id")
-        line = _json_line(text, json.dumps(region_id)) if region_id is not None else 1
-        given_region = given_by_id.get(region_id) if isinstance(region_id, str) and region_id in given_by_id else (
-            parent[number_] if parent is not None and len(parent) == len(matched) and not given_by_id else None)
-        given = _GivenSequence((given_region.get("value") or {}).get("sequence"), video) \
-            if isinstance(given_region, dict) else None
-        value = region.get("value")
-        if not isinstance(value, dict):
-            raise ToolError(f"{path}:{line}: region {region_id!r} has no 'value' object with its keyframes "
-                            "('sequence'): expected Label Studio's JSON export of the project", EXIT_VALUE)
-        labels = value.get("labels") or []
-        if labels and labels != [track.label]:
-            raise ToolError(f"{path}:{line}: region {region_id!r} has labels {labels}, the run's track "
-                            f"{track.track_id} is {track.label!r}: keep the tracks' labels", EXIT_VALUE)
-        sequence = value.get("sequence")
-        if not isinstance(sequence, list):
-            raise ToolError(f"{path}:{line}: region {region_id!r} has no 'sequence' list of keyframes", EXIT_VALUE)
-        run = _RunTrack(track, video)
-        items = sorted(sequence, key=_keyframe_order)
-        hidden = False  # a new absence is open: the next keyframe, which shows the object, ends it (see CVAT)
-        for n, item in enumerate(items):
-            where = f"{path}:{line}"
-            try:
-                frame = int(item["frame"]) - 1
-                pct = [float(item[k]) for k in ("x", "y", "width", "height")]
-            except (KeyError, TypeError, ValueError):
-                raise ToolError(f"{where}: keyframe {item!r} of region {region_id!r} needs an integer 'frame' and "
-                                "numeric x, y, width, height (percent)", EXIT_VALUE) from None
-            if frame < 0:
-                raise ToolError(f"{where}: keyframe frame {frame + 1} of region {region_id!r} must be >= 1", EXIT_VALUE)
-            xywh = _checked_box((pct[0] * video.width / 100.0, pct[1] * video.height / 100.0,
-                                 pct[2] * video.width / 100.0, pct[3] * video.height / 100.0), where,
-                                f"x={pct[0]:g}% y={pct[1]:g}% width={pct[2]:g}% height={pct[3]:g}%")
-            enabled = item.get("enabled", True) is not False
-            if given is not None:
-                # Changed relative to the prediction: the box differs from what Label Studio showed there.
-                was_hidden_after = frame + 1 in given.at and not given.at[frame + 1][1]
-                # A keyframe switched back on shows the object after it: its box anchors the re-track from there.
-                box_changed = not _same_box(given.shown(frame + 1), xywh) or (enabled and was_hidden_after)
-            else:
-                box_changed = run.box_changed(frame, xywh)
-                was_hidden_after = False
-            if hidden or box_changed:
-                corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where))
-            hidden = False
-            if not enabled:
-                # Hidden from the next processed frame until the next keyframe.
-                after = _next_processed(frames, frame)
-                next_key = int(items[n + 1]["frame"]) - 1 if n + 1 < len(items) else None
-                news = not was_hidden_after if given is not None else after is not None and run.absence_changed(after)
-                if after is not None and (next_key is None or after < next_key) and news:
-                    corrections.append(Correction(frame=after, box_xywh=None, track_id=track.track_id, where=where))
-                    hidden = True
+    value = region.get("value")
+    if not isinstance(value, dict):
+        raise ToolError(f"{where}: region {region_id!r} has no 'value' object with its keyframes "
+                        "('sequence'): expected Label Studio's JSON export of the project", EXIT_VALUE)
+    labels = value.get("labels") or []
+    if labels and labels != [track.label]:
+        raise ToolError(f"{where}: region {region_id!r} has labels {labels}, the run's track "
+                        f"{track.track_id} is {track.label!r}: keep the tracks' labels", EXIT_VALUE)
+    sequence = value.get("sequence")
+    if not isinstance(sequence, list):
+        raise ToolError(f"{where}: region {region_id!r} has no 'sequence' list of keyframes", EXIT_VALUE)
+    run = _RunTrack(track, video)
+    items = sorted(sequence, key=_keyframe_order)
+    hidden = False  # a new absence is open: the next keyframe, which shows the object, ends it (see CVAT)
+    for n, item in enumerate(items):
+        try:
+            frame = int(item["frame"]) - 1
+            pct = [float(item[k]) for k in ("x", "y", "width", "height")]
+        except (KeyError, TypeError, ValueError):
+            raise ToolError(f"{where}: keyframe {item!r} of region {region_id!r} needs an integer 'frame' and "
+                            "numeric x, y, width, height (percent)", EXIT_VALUE) from None
+        if frame < 0:
+            raise ToolError(f"{where}: keyframe frame {frame + 1} of region {region_id!r} must be >= 1", EXIT_VALUE)
+        xywh = _checked_box((pct[0] * video.width / 100.0, pct[1] * video.height / 100.0,
+                             pct[2] * video.width / 100.0, pct[3] * video.height / 100.0), where,
+                            f"x={pct[0]:g}% y={pct[1]:g}% width={pct[2]:g}% height={pct[3]:g}%")
+        enabled = item.get("enabled", True) is not False
+        if given is not None:
+            # Changed relative to the prediction: the box differs from what Label Studio showed there.
+            was_hidden_after = frame + 1 in given.at and not given.at[frame + 1][1]
+            # A keyframe switched back on shows the object after it: its box anchors the re-track from there.
+            box_changed = not _same_box(given.shown(frame + 1), xywh) or (enabled and was_hidden_after)
+        else:
+            box_changed = run.box_changed(frame, xywh)
+            was_hidden_after = False
+        if hidden or box_changed:
+            corrections.append(Correction(frame=frame, box_xywh=xywh, track_id=track.track_id, where=where))
+        hidden = False
+        if not enabled:
+            # Hidden from the next processed frame until the next keyframe.
+            after = _next_processed(frames, frame)
+            next_key = int(items[n + 1]["frame"]) - 1 if n + 1 < len(items) else None
+            news = not was_hidden_after if given is not None else after is not None and run.absence_changed(after)
+            if after is not None and (next_key is None or after < next_key) and news:
+                corrections.append(Correction(frame=after, box_xywh=None, track_id=track.track_id, where=where))
+                hidden = True
     return corrections
 
 

@@ -51,7 +51,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
-import json
 import os
 import shutil
 import tempfile
@@ -60,26 +59,27 @@ from pathlib import Path
 from typing import Any
 
 from annotator import __version__
-from annotator.atomic import ctrl_c_ignored, write_text_atomic
+from annotator.atomic import ctrl_c_ignored
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
-from annotator.exports import ExportOptions, record_review_exports, write_exports
+from annotator.exports import ExportOptions
 from annotator.frames import DecodeError
 from annotator.progress import Progress
-from annotator.provenance import content_hash, json_default
+from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
+from annotator.pipeline import OverlaySink, SpanThumbnail, render_tracks
+from annotator.provenance import content_hash
+from annotator.publish import OVERLAY_NAME, RUN_JSON, run_fingerprint, write_run_files
+from annotator.render import OverlayWriter
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
 from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
-from annotator.review.pass_cache import (PASSES_NAME, keep_anchored, pass_fingerprint, read_pass_cache,
-                                         write_pass_cache)
 from annotator.review.retrack import RetrackResult, retrack_tracks
-from annotator.review.run import RUN_JSON, LoadedRun, load_run
-from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.review.run import LoadedRun, load_run
+from annotator.store import STORE_NAME, RunStore
+from annotator.tracks import TrackResult
 from annotator.wording import plural
 
 __all__ = ["ReviewResult", "apply_corrections"]
-
-OVERLAY_NAME = "overlay.mp4"
 
 
 @dataclass
@@ -188,14 +188,40 @@ def apply_corrections(
     """
     out_dir = Path(out_dir)
     corrections_path = Path(corrections_path)
+    run, resolved = _run_and_corrections(out_dir, corrections_path, media_url)
+    provider, checked = _open_input(run, verify_input=verify_input, input_path=input_path,
+                                    input_checked=input_checked)
+    result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
+    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
+    passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
+    try:
+        result.retrack = _retrack(run, resolved, provider, merge=merge, passes=passes, show_progress=show_progress)
+        result.flagged_after = sum(int(t.flagged.sum()) for t in result.retrack.tracks)
+        _rewrite_if_needed(result, run, provider, corrections_path, merge=merge, show_progress=show_progress,
+                           passes=passes, render=render, always=rewrite_unchanged or media_url is not None)
+    finally:
+        provider.close()
+    return result
+
+
+def _run_and_corrections(out_dir: Path, corrections_path: Path, media_url: str | None) -> tuple[LoadedRun, dict]:
+    """The run in ``out_dir`` (with a new ``media_url`` recorded) and its corrections, checked against it."""
     run = load_run(out_dir)
     corrections = read_run_corrections(corrections_path, video=run.video, tracks=run.tracks,
                                        frames=range(run.store.start, run.store.stop, run.store.step),
                                        exported=run.info.get("review_exports"))
     if media_url is not None:
         run.info["export_options"] = {**(run.info.get("export_options") or {}), "media_url": media_url}
-    resolved = resolve_corrections(corrections, frame_indices=run.frame_indices, track_ids=[t.track_id for t in run.tracks],
+    resolved = resolve_corrections(corrections, frame_indices=run.frame_indices,
+                                   track_ids=[t.track_id for t in run.tracks],
                                    width=run.video.width, height=run.video.height)
+    return run, resolved
+
+
+def _open_input(run: LoadedRun, *, verify_input: bool, input_path: str | os.PathLike | None,
+                input_checked: bool) -> tuple[SourceFrames, bool]:
+    """The run's frames, decoded again (from ``input_path`` when it moved, recorded in the run), and whether its
+    content hash was checked."""
     source = open_run_source(run, verify_input=verify_input, input_path=input_path, input_checked=input_checked)
     # Kept passes only for the bytes they were computed on: an input that was not checked (--no-verify, or a run
     # without a content hash) may have changed, and its passes would be stored under the recorded hash.
@@ -204,7 +230,12 @@ def apply_corrections(
         moved = str(Path(input_path).resolve())
         run.info["input"] = {**run.info["input"], "path": moved}
         run.store = dataclasses.replace(run.store, video=dataclasses.replace(run.store.video, path=moved))
-    provider = SourceFrames(source, run.frame_indices)
+    return SourceFrames(source, run.frame_indices), checked
+
+
+def _retrack(run: LoadedRun, resolved: dict, provider: SourceFrames, *, merge: str, passes: dict | None,
+             show_progress: bool) -> RetrackResult:
+    """Re-track what the corrections affect, with a progress bar once the work is known."""
     bar: list[Progress] = []
 
     def progress(done: int, total: int) -> None:
@@ -212,34 +243,30 @@ def apply_corrections(
             bar.append(Progress(total, label="re-tracked frames", enabled=show_progress))
         bar[0].advance(done - bar[0].done)
 
-    result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
-    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
-    passes = read_pass_cache(out_dir / PASSES_NAME, _fingerprint(run)) if checked else None
     try:
-        try:
-            max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
-            retrack = retrack_tracks(provider, run.frame_indices, resolved, run.config, previous=run.previous(),
-                                     width=run.video.width, height=run.video.height, merge=merge, progress=progress,
-                                     max_buffer_frames=max_buffer, pass_cache=passes)
-        except DecodeError as exc:
-            raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
-        finally:
-            if bar:
-                bar[0].close()
-        result.retrack = retrack
-        result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
-        # A run whose overlay a --no-render round removed gets it back from the next round that renders.
-        overlay_missing = render and "overlay" in run.formats and (
-            not (out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
-        if not retrack.changed and not rewrite_unchanged and not overlay_missing and media_url is None:
-            return result
-        result.written, result.overlay_removed = _write_all(
-            run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
-            render=render)
-        result.overlay_restored = overlay_missing
+        max_buffer = max(8, BUFFER_BYTES // (run.video.width * run.video.height * 3))
+        return retrack_tracks(provider, run.frame_indices, resolved, run.config, previous=run.previous(),
+                              width=run.video.width, height=run.video.height, merge=merge, progress=progress,
+                              max_buffer_frames=max_buffer, pass_cache=passes)
+    except DecodeError as exc:
+        raise ToolError(f"{exc}; nothing in {run.out_dir} was changed", EXIT_INPUT) from None
     finally:
-        provider.close()
-    return result
+        if bar:
+            bar[0].close()
+
+
+def _rewrite_if_needed(result: ReviewResult, run: LoadedRun, provider: SourceFrames, corrections_path: Path, *,
+                       merge: str, show_progress: bool, passes: dict | None, render: bool, always: bool) -> None:
+    """Rewrite the outputs when the re-track changed something, when ``always``, or when this round renders the
+    overlay a ``--no-render`` round removed (it gets it back)."""
+    overlay_missing = render and "overlay" in run.formats and (
+        not (run.out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
+    if not result.retrack.changed and not always and not overlay_missing:
+        return
+    result.written, result.overlay_removed = _write_all(
+        run, result.retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
+        render=render)
+    result.overlay_restored = overlay_missing
 
 
 def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Path, merge: str,
@@ -267,10 +294,6 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
             "seconds": round(retrack.seconds, 3),
         })
     return {"anchors": [anchors[k] for k in sorted(anchors)], "retracks": history}
-
-
-def _fingerprint(run: LoadedRun) -> str:
-    return pass_fingerprint(run.info.get("config", {}), run.info["input"].get("content_hash"), run.info["range"])
 
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
@@ -335,59 +358,24 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,
                    *, merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
-    from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
-    from annotator.render import OverlayRenderer, OverlayWriter, items_from_tracks
-    from annotator.report import corrections_section, render_report, track_summary
+    tracks = retrack.tracks
+    store = RunStore(video=run.video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
+    rendered = "overlay" in run.formats and render
+    thumbnails = _render_overlay(tmp / OVERLAY_NAME, run, tracks, provider, show_progress) if rendered else []
+    info = {**run.info, "review": _review_section(run, retrack, corrections_path, merge, rendered)}
+    written = write_run_files(
+        tmp, store, info, settings=run.config.to_dict(),
+        options=ExportOptions(media_url=(run.info.get("export_options") or {}).get("media_url")),
+        # Without passes (input not checked) the folder's file is left as it was: still right for the recorded input.
+        passes=keep_anchored(passes, tracks) if passes is not None else None,
+        passes_kept=(run.out_dir / PASSES_NAME).is_file(), thumbnails=thumbnails, overlay=rendered)
+    return [path.relative_to(tmp) for paths in written.values() for path in paths]
 
-    formats, tracks, video = run.formats, retrack.tracks, run.video
-    store = RunStore(video=video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
-    written: dict[str, list[Path]] = {"store": [write_store(tmp / STORE_NAME, store).relative_to(tmp)]}
-    if passes is not None:  # else the file is left as it was: still right for the recorded input
-        written["passes"] = [write_pass_cache(tmp / PASSES_NAME, keep_anchored(passes, tracks),
-                                              _fingerprint(run)).relative_to(tmp)]
-    options = ExportOptions(media_url=(run.info.get("export_options") or {}).get("media_url"))
-    written.update({name: [p.relative_to(tmp) for p in paths]
-                    for name, paths in write_exports(tmp, store, formats, options).items()})
-    thumbnails: list[SpanThumbnail] = []
-    rendered = "overlay" in formats and render
-    if rendered:
-        renderer = OverlayRenderer()
-        capture = WorstFrameThumbnails()
-        p_fail = {t.track_id: t.p_fail for t in tracks}
-        n = len(run.frame_indices)
-        with (Progress(n, label="overlay frames", enabled=show_progress) as bar,
-              OverlayWriter(tmp / OVERLAY_NAME, fps=video.fps, width=video.width, height=video.height) as writer):
-            for position, frame in provider.frames(0, n):
-                index = int(run.frame_indices[position])
-                drawn = renderer.annotate(frame, items_from_tracks(tracks, index))
-                writer.write(drawn)
-                for t in tracks:
-                    capture.add(t.track_id, position, index, flagged=bool(t.flagged[position]),
-                                p_fail=float(p_fail[t.track_id][position]), drawn=drawn)
-                bar.advance()
-        thumbnails = capture.finish()
-        written["overlay"] = [Path(OVERLAY_NAME)]
-    info = dict(run.info)
-    info["tracks"] = [track_summary(t) for t in tracks]
-    review_exports = record_review_exports(info.get("review_exports"), store, formats)
-    if review_exports:
-        info["review_exports"] = review_exports
-    info["review"] = _review_section(run, retrack, corrections_path, merge, rendered)
-    if "report" in formats:
-        timings = info.get("timings") or {}
-        render_report(
-            tmp / "report.html", video=video, tracks=tracks, thumbnails=thumbnails, settings=run.config.to_dict(),
-            run_info={**info, "frames_processed": info.get("frames_processed", len(run.frame_indices)),
-                      "seconds_total": timings.get("seconds_total") or 0.0,
-                      "seconds_tracking": timings.get("seconds_tracking") or 0.0,
-                      "seconds_outside": timings.get("seconds_outside_tracker") or 0.0},
-            overlay_name=OVERLAY_NAME if rendered else None,
-            review=corrections_section(info["review"], tracks, video.fps),
-        )
-        written["report"] = [Path("report.html")]
-    info["outputs"] = {k: [str(p) for p in v] for k, v in written.items()}
-    if passes is None and (run.out_dir / PASSES_NAME).is_file():
-        info["outputs"]["passes"] = [PASSES_NAME]  # left as it was (input not checked), and still the folder's
-    write_text_atomic(tmp / RUN_JSON, json.dumps(info, indent=2, default=json_default) + "\n")
-    files = [p for paths in written.values() for p in paths]
-    return files + [Path(RUN_JSON)]
+
+def _render_overlay(path: Path, run: LoadedRun, tracks: list[TrackResult], provider: SourceFrames,
+                    show_progress: bool) -> list[SpanThumbnail]:
+    """The overlay of the re-tracked run, drawn from its tracks by the pipeline's overlay sink; its thumbnails."""
+    n, video = len(run.frame_indices), run.video
+    with (Progress(n, label="overlay frames", enabled=show_progress) as bar,
+          OverlayWriter(path, fps=video.fps, width=video.width, height=video.height) as writer):
+        return render_tracks(OverlaySink(writer), provider.frames(0, n), run.frame_indices, tracks, progress=bar)

@@ -7,7 +7,6 @@ whole tracks from each row's stored scores (:func:`reflag`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -17,6 +16,7 @@ from annotator.failure import SIGNALS, FailureModel, load_model, score_track
 from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, logit
 from annotator.failure.signals import NEUTRAL, STAND_IN
 from annotator.flagging import flag_p_fail
+from annotator.pass_cache import NO_SCORING, PassResult
 from annotator.review.segments import Box
 from sptpt.boxes import iou_xywh
 
@@ -44,8 +44,6 @@ MERGES = ("chosen", "anchored", "confidence", "blend", "handover")
 #: ``benchmarks/pass_choice.py`` (RESULTS.md, "pass-choice").
 DEFAULT_MERGE = "chosen"
 
-#: ``scoring`` value of rows no tracker scored (``outside`` rows).
-NO_SCORING = "none"
 #: Track signal holding each row's :attr:`PassResult.pass_iou` (NaN where the row was not merged from two passes).
 PASS_IOU = "pass_iou"
 #: Track signal holding each row's :attr:`PassResult.choice`: the index in
@@ -54,40 +52,6 @@ PASS_CHOICE = "pass_choice"
 
 
 
-@dataclass
-class PassResult:
-    """One tracker pass over a segment's interior, rows in increasing position order."""
-
-    boxes_xywh: np.ndarray
-    confidence: np.ndarray
-    log_likelihood: np.ndarray
-    accepted: np.ndarray
-    scoring: np.ndarray
-    seconds: np.ndarray
-    #: (n, len(SIGNALS)) failure signals of the pass's rows (annotator.failure.SIGNALS order), NaN where not run.
-    signals: np.ndarray | None = None
-    #: (n,) IoU of the forward and the backward pass's boxes on a merged row; NaN for a single pass.
-    pass_iou: np.ndarray | None = None
-    #: (n,) index in PASS_OPTIONS of the box the ``chosen`` merge took where the passes disagreed; NaN elsewhere.
-    choice: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.signals is None:
-            self.signals = np.full((len(self.confidence), len(SIGNALS)), np.nan)
-        if self.pass_iou is None:
-            self.pass_iou = np.full(len(self.confidence), np.nan)
-        if self.choice is None:
-            self.choice = np.full(len(self.confidence), np.nan)
-
-    @classmethod
-    def empty(cls, n: int) -> PassResult:
-        return cls(np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan), np.zeros(n, bool),
-                   np.full(n, NO_SCORING, dtype=object), np.zeros(n))
-
-    def take(self, index) -> PassResult:
-        """Copies of the rows at ``index`` (a slice or indices), as a pass of their own (no ``pass_iou``)."""
-        return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
-                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
 
 def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_MERGE, *,
                  model: FailureModel | None = None, ends: tuple[Box, Box] | None = None) -> PassResult:

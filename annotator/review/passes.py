@@ -15,8 +15,8 @@ import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
 from annotator.pipeline import seed_for_track
-from annotator.review.merge import PassResult
-from annotator.review.pass_cache import CachedPass, PassKey, pass_key
+from annotator.pass_cache import PassResult
+from annotator.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker

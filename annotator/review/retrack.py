@@ -31,7 +31,7 @@ anchor ``C`` splits ``A .. B``, the forward pass from the unchanged ``A`` over
 meets it there (and the forward pass from ``C`` meets the one from ``B``).
 Re-running the unchanged side costs time but changes nothing;
 ``pass_cache`` skips it when a caller keeps the passes: the command line
-keeps them in the run folder (:mod:`annotator.review.pass_cache`), the
+keeps them in the run folder (:mod:`annotator.pass_cache`), the
 simulated reviewer in memory.
 
 Frames: passes read frames through a :class:`FrameProvider`, one ordered
@@ -68,7 +68,6 @@ from annotator.review.segments import (
     AnchorChange,
     Box,
     PreviousTrack,
-    Segment,
     SegmentChange,
     plan_segments,
     same_box,
@@ -160,57 +159,110 @@ def retrack_tracks(
         raise ValueError(f"max_buffer_frames must be >= 1, got {max_buffer_frames}")
     started = time.perf_counter()
     frame_indices = np.asarray(frame_indices, dtype=np.int64)
-    n = len(frame_indices)
     previous = dict(previous or {})
     width = np.inf if width is None else width
     height = np.inf if height is None else height
     track_ids = list(dict.fromkeys([*previous, *anchors]))
 
+    plans, runs, anchor_changes = _plan_runs(track_ids, anchors, previous, frame_indices, config, width, height,
+                                             max_buffer_frames, pass_cache)
+    _run_passes(frames, runs, max_buffer_frames, progress)
+    results, scorings, changes = _assemble_tracks(track_ids, plans, runs, anchor_changes, previous, labels or {},
+                                                  frame_indices, config, merge)
+    return RetrackResult(tracks=results, scoring=scorings, anchors=anchor_changes,
+                         segments=sorted(changes, key=lambda c: (c.first_frame, c.track_id)),
+                         frames_tracked=sum(r.calls for r in runs), seconds=time.perf_counter() - started,
+                         passes={(r.segment.track_id, r.segment.start, r.segment.stop): (r.fwd, r.bwd)
+                                 for r in runs if r.segment.forward})
+
+
+def _plan_runs(track_ids: list[int], anchors: Mapping, previous: dict[int, PreviousTrack], frame_indices: np.ndarray,
+               config: RunConfig, width: float, height: float, max_buffer_frames: int, pass_cache: dict | None,
+               ) -> tuple[dict[int, dict[int, Box | None]], list[SegmentRun], list[AnchorChange]]:
+    """Each track's anchors in force, the segment runs their changes need, and the changes themselves."""
+    n = len(frame_indices)
     runs: list[SegmentRun] = []
-    plans: dict[int, tuple[dict, list[Segment]]] = {}
+    plans: dict[int, dict[int, Box | None]] = {}
     anchor_changes: list[AnchorChange] = []
     for tid in track_ids:
-        given = {int(p): (v if isinstance(v, tuple) and len(v) == 2 and not _is_number(v[0]) else (v, ""))
-                 for p, v in (anchors.get(tid) or {}).items()}
-        for p in given:
-            if not 0 <= p < n:
-                raise ValueError(f"track {tid}: anchor position {p} is outside the {n} processed frames")
-        if tid in previous:
-            prev = previous[tid]
-            if len(prev.track) != n:
-                raise ValueError(f"track {tid} has {len(prev.track)} rows but {n} frame indices were given")
-            current = prev.anchors()
-            changed = set()
-            for p, (box, where) in sorted(given.items()):
-                box = None if box is None else tuple(float(v) for v in box)
-                if p in current and same_box(current[p], box, width=width, height=height):
-                    continue
-                before = None if prev.track.outside[p] else tuple(float(v) for v in prev.track.boxes_xywh[p])
-                anchor_changes.append(AnchorChange(tid, p, int(frame_indices[p]), before, box, p in current, where))
-                current[p] = box
-                changed.add(p)
-        else:
-            if 0 not in given:
-                raise ValueError(f"track {tid} has no previous rows and no anchor at position 0 to start from")
-            current = {p: (None if b is None else tuple(float(v) for v in b)) for p, (b, _) in given.items()}
-            changed = set(current)
-            anchor_changes.extend(AnchorChange(tid, p, int(frame_indices[p]), None, current[p], False, given[p][1])
-                                  for p in sorted(changed))
-        segments = plan_segments(tid, current, changed, n)
-        plans[tid] = (current, segments)
-        for seg in segments:
+        current, changed, track_changes = _anchors_in_force(tid, anchors.get(tid) or {}, previous.get(tid),
+                                                            frame_indices, width, height)
+        anchor_changes += track_changes
+        plans[tid] = current
+        for seg in plan_segments(tid, current, changed, n):
             box_stop = current.get(seg.stop) if seg.stop < n else None
             runs.append(SegmentRun(seg, current[seg.start], box_stop, frame_indices, config.tracker, config.seed,
-                                    max_buffer_frames, pass_cache))
+                                   max_buffer_frames, pass_cache))
+    return plans, runs, anchor_changes
 
-    # One ordered sweep over the frames any pass needs.
+
+def _assemble_tracks(track_ids: list[int], plans: dict[int, dict[int, Box | None]], runs: list[SegmentRun],
+                     anchor_changes: list[AnchorChange], previous: dict[int, PreviousTrack], labels: Mapping[int, str],
+                     frame_indices: np.ndarray, config: RunConfig, merge: str,
+                     ) -> tuple[list[TrackResult], dict[int, np.ndarray], list[SegmentChange]]:
+    """The new tracks: the previous rows with the re-tracked segments written over them, flagged again."""
+    n = len(frame_indices)
+    model = load_model(config.failure_model)
+    results: list[TrackResult] = []
+    scorings: dict[int, np.ndarray] = {}
+    changes: list[SegmentChange] = []
+    for tid in track_ids:
+        prev = previous.get(tid)
+        columns = _Columns.of(prev, n) if prev is not None else _Columns.empty(n, labels.get(tid, "object"))
+        for change in anchor_changes:
+            if change.track_id == tid:
+                columns.sources[change.position] = change.where or KEYFRAME_GIVEN
+        track_runs = [run for run in runs if run.segment.track_id == tid]
+        for run in track_runs:
+            columns.rewrite(run, plans[tid], merge, model)
+        # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
+        track = columns.track(tid, frame_indices, config, model)
+        results.append(track)
+        scorings[tid] = columns.scoring
+        changes += _segment_changes(tid, track_runs, prev, columns, track.flagged, frame_indices)
+    return results, scorings, changes
+
+
+def _anchors_in_force(tid: int, given_anchors: Mapping, prev: PreviousTrack | None, frame_indices: np.ndarray,
+                      width: float, height: float) -> tuple[dict[int, Box | None], set[int], list[AnchorChange]]:
+    """A track's anchors once ``given_anchors`` are applied, the positions that changed, and the changes."""
+    n = len(frame_indices)
+    given = {int(p): (v if isinstance(v, tuple) and len(v) == 2 and not _is_number(v[0]) else (v, ""))
+             for p, v in given_anchors.items()}
+    for p in given:
+        if not 0 <= p < n:
+            raise ValueError(f"track {tid}: anchor position {p} is outside the {n} processed frames")
+    if prev is None:
+        if 0 not in given:
+            raise ValueError(f"track {tid} has no previous rows and no anchor at position 0 to start from")
+        current = {p: (None if b is None else tuple(float(v) for v in b)) for p, (b, _) in given.items()}
+        return current, set(current), [AnchorChange(tid, p, int(frame_indices[p]), None, current[p], False,
+                                                    given[p][1]) for p in sorted(current)]
+    if len(prev.track) != n:
+        raise ValueError(f"track {tid} has {len(prev.track)} rows but {n} frame indices were given")
+    current = prev.anchors()
+    changed: set[int] = set()
+    changes: list[AnchorChange] = []
+    for p, (box, where) in sorted(given.items()):
+        box = None if box is None else tuple(float(v) for v in box)
+        if p in current and same_box(current[p], box, width=width, height=height):
+            continue
+        before = None if prev.track.outside[p] else tuple(float(v) for v in prev.track.boxes_xywh[p])
+        changes.append(AnchorChange(tid, p, int(frame_indices[p]), before, box, p in current, where))
+        current[p] = box
+        changed.add(p)
+    return current, changed, changes
+
+
+def _run_passes(frames: FrameProvider, runs: list[SegmentRun], max_buffer_frames: int,
+                progress: Callable[[int, int], None] | None) -> None:
+    """Every segment's passes, in one ordered sweep over the frames any of them needs, then the deferred ones."""
     spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
-    intervals = _merge_intervals([span for span, _ in spans])
     by_start = sorted(spans, key=lambda item: item[0][0])
     active: list[tuple[tuple[int, int], SegmentRun]] = []
     nxt = 0
     planned = sum(r.planned for r in runs)
-    for lo, hi in intervals:
+    for lo, hi in _merge_intervals([span for span, _ in spans]):
         for position, frame in frames.frames(lo, hi):
             while nxt < len(by_start) and by_start[nxt][0][0] <= position:
                 active.append(by_start[nxt])
@@ -226,115 +278,130 @@ def retrack_tracks(
             if progress is not None:
                 progress(sum(r.calls for r in runs), planned)
 
-    # Assemble the new rows.
-    model = load_model(config.failure_model)
-    results: list[TrackResult] = []
-    scorings: dict[int, np.ndarray] = {}
-    changes: list[SegmentChange] = []
-    runs_by_track: dict[int, list[SegmentRun]] = {}
-    for run in runs:
-        runs_by_track.setdefault(run.segment.track_id, []).append(run)
-    for tid in track_ids:
-        current, segments = plans[tid]
-        prev = previous.get(tid)
-        if prev is not None:
-            t = prev.track
-            boxes, conf, ll = t.boxes_xywh.copy(), t.confidence.copy(), t.log_likelihood.copy()
-            accepted, seconds = t.accepted.copy(), t.seconds.copy()
-            keyframe, outside, occluded = t.keyframe.copy(), t.outside.copy(), t.occluded.copy()
-            scoring = prev.scoring.copy()
-            sources = list(t.keyframe_source)
-            label = t.label
-            signals = np.stack([np.asarray(t.signals.get(name, np.full(n, np.nan)), dtype=np.float64)
-                                for name in SIGNALS], axis=1)
-            pass_iou = np.array(t.signals.get(PASS_IOU, np.full(n, np.nan)), dtype=np.float64)
-            choice = np.array(t.signals.get(PASS_CHOICE, np.full(n, np.nan)), dtype=np.float64)
+
+@dataclass
+class _Columns:
+    """A track's per-row columns while its re-tracked segments are written into them."""
+
+    label: str
+    boxes: np.ndarray
+    conf: np.ndarray
+    ll: np.ndarray
+    accepted: np.ndarray
+    seconds: np.ndarray
+    keyframe: np.ndarray
+    outside: np.ndarray
+    occluded: np.ndarray
+    scoring: np.ndarray
+    sources: list[str]
+    signals: np.ndarray  # (n, len(SIGNALS))
+    pass_iou: np.ndarray
+    choice: np.ndarray
+
+    @classmethod
+    def of(cls, prev: PreviousTrack, n: int) -> _Columns:
+        """Copies of the previous track's rows: what segments no new anchor touches keep."""
+        t = prev.track
+        return cls(
+            label=t.label, boxes=t.boxes_xywh.copy(), conf=t.confidence.copy(), ll=t.log_likelihood.copy(),
+            accepted=t.accepted.copy(), seconds=t.seconds.copy(), keyframe=t.keyframe.copy(),
+            outside=t.outside.copy(), occluded=t.occluded.copy(), scoring=prev.scoring.copy(),
+            sources=list(t.keyframe_source),
+            signals=np.stack([np.asarray(t.signals.get(name, np.full(n, np.nan)), dtype=np.float64)
+                              for name in SIGNALS], axis=1),
+            pass_iou=np.array(t.signals.get(PASS_IOU, np.full(n, np.nan)), dtype=np.float64),
+            choice=np.array(t.signals.get(PASS_CHOICE, np.full(n, np.nan)), dtype=np.float64))
+
+    @classmethod
+    def empty(cls, n: int, label: str) -> _Columns:
+        """A track tracked from scratch: every row is written by a segment."""
+        return cls(
+            label=label, boxes=np.full((n, 4), np.nan), conf=np.zeros(n), ll=np.full(n, np.nan),
+            accepted=np.zeros(n, bool), seconds=np.zeros(n), keyframe=np.zeros(n, bool), outside=np.zeros(n, bool),
+            occluded=np.zeros(n, bool), scoring=np.full(n, NO_SCORING, dtype=object), sources=[""] * n,
+            signals=np.full((n, len(SIGNALS)), np.nan), pass_iou=np.full(n, np.nan), choice=np.full(n, np.nan))
+
+    def rewrite(self, run: SegmentRun, current: Mapping[int, Box | None], merge: str, model) -> None:
+        """Write a re-tracked segment: its start anchor's row when it sets one, and its interior."""
+        seg = run.segment
+        if seg.set_start:
+            self._anchor_row(seg.start, current[seg.start], run.start_row)
+        rows = slice(seg.start + 1, seg.stop)
+        self.keyframe[rows] = False
+        self.sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
+        self.occluded[rows] = False
+        if seg.forward:
+            merged = merge_passes(run.fwd, run.bwd, merge, model=model,
+                                  ends=(current[seg.start], current.get(seg.stop)) if run.bwd is not None else None)
+            self.boxes[rows], self.conf[rows] = merged.boxes_xywh, merged.confidence
+            self.ll[rows], self.accepted[rows] = merged.log_likelihood, merged.accepted
+            self.scoring[rows], self.seconds[rows] = merged.scoring, merged.seconds
+            self.signals[rows] = merged.signals
+            self.pass_iou[rows], self.choice[rows] = merged.pass_iou, merged.choice
+            self.outside[rows] = False
         else:
-            boxes, conf, ll = np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan)
-            accepted, seconds = np.zeros(n, bool), np.zeros(n)
-            keyframe, outside, occluded = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
-            scoring = np.full(n, NO_SCORING, dtype=object)
-            sources = [""] * n
-            label = (labels or {}).get(tid, "object")
-            signals = np.full((n, len(SIGNALS)), np.nan)
-            pass_iou = np.full(n, np.nan)
-            choice = np.full(n, np.nan)
-        for change in anchor_changes:
-            if change.track_id == tid:
-                sources[change.position] = change.where or KEYFRAME_GIVEN
-        rewritten: list[tuple[int, int]] = []
-        for run in runs_by_track.get(tid, []):
-            seg = run.segment
-            lo = seg.start if seg.set_start else seg.start + 1
-            rewritten.append((lo, seg.stop))
-            if seg.set_start:
-                box = current[seg.start]
-                keyframe[seg.start] = True
-                occluded[seg.start] = False
-                signals[seg.start] = np.nan  # a person's box: nothing measured, nothing doubtful
-                pass_iou[seg.start] = choice[seg.start] = np.nan
-                if box is None:
-                    boxes[seg.start], conf[seg.start], ll[seg.start] = np.nan, 0.0, np.nan
-                    accepted[seg.start], seconds[seg.start] = False, 0.0
-                    outside[seg.start], scoring[seg.start] = True, NO_SCORING
-                else:
-                    loglik, secs = run.start_row
-                    boxes[seg.start], conf[seg.start], ll[seg.start] = box, 1.0, loglik
-                    accepted[seg.start], seconds[seg.start] = True, secs
-                    outside[seg.start], scoring[seg.start] = False, "init"
-            rows = slice(seg.start + 1, seg.stop)
-            keyframe[rows] = False
-            sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
-            occluded[rows] = False
-            if seg.forward:
-                merged = merge_passes(run.fwd, run.bwd, merge, model=model,
-                                      ends=(current[seg.start], current.get(seg.stop)) if run.bwd is not None else None)
-                boxes[rows], conf[rows], ll[rows] = merged.boxes_xywh, merged.confidence, merged.log_likelihood
-                accepted[rows], scoring[rows], seconds[rows] = merged.accepted, merged.scoring, merged.seconds
-                signals[rows] = merged.signals
-                pass_iou[rows], choice[rows] = merged.pass_iou, merged.choice
-                outside[rows] = False
-            else:
-                boxes[rows], conf[rows], ll[rows] = np.nan, 0.0, np.nan
-                accepted[rows], scoring[rows], seconds[rows] = False, NO_SCORING, 0.0
-                signals[rows] = np.nan
-                pass_iou[rows] = choice[rows] = np.nan
-                outside[rows] = True
-        # Anchors set without a segment of their own cannot occur: every changed anchor starts one.
-        by_name = {name: signals[:, k] for k, name in enumerate(SIGNALS)}
-        flagged, reasons, p_fail = reflag(by_name, keyframe, outside, config, pass_iou=pass_iou, model=model)
-        conf = np.where(outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
+            self.boxes[rows], self.conf[rows], self.ll[rows] = np.nan, 0.0, np.nan
+            self.accepted[rows], self.scoring[rows], self.seconds[rows] = False, NO_SCORING, 0.0
+            self.signals[rows] = np.nan
+            self.pass_iou[rows] = self.choice[rows] = np.nan
+            self.outside[rows] = True
+
+    def _anchor_row(self, position: int, box: Box | None, start_row: tuple[float, float]) -> None:
+        self.keyframe[position] = True
+        self.occluded[position] = False
+        self.signals[position] = np.nan  # a person's box: nothing measured, nothing doubtful
+        self.pass_iou[position] = self.choice[position] = np.nan
+        if box is None:
+            self.boxes[position], self.conf[position], self.ll[position] = np.nan, 0.0, np.nan
+            self.accepted[position], self.seconds[position] = False, 0.0
+            self.outside[position], self.scoring[position] = True, NO_SCORING
+        else:
+            loglik, secs = start_row
+            self.boxes[position], self.conf[position], self.ll[position] = box, 1.0, loglik
+            self.accepted[position], self.seconds[position] = True, secs
+            self.outside[position], self.scoring[position] = False, "init"
+
+    def track(self, tid: int, frame_indices: np.ndarray, config: RunConfig, model) -> TrackResult:
+        """The track of these rows, flagged again from their signals."""
+        by_name = {name: self.signals[:, k] for k, name in enumerate(SIGNALS)}
+        flagged, reasons, p_fail = reflag(by_name, self.keyframe, self.outside, config, pass_iou=self.pass_iou,
+                                          model=model)
+        conf = np.where(self.outside, 0.0, 1.0 - np.nan_to_num(p_fail, nan=1.0))
         # Only a track with rows merged from two passes carries the column: a run nobody corrected keeps its files.
-        passes = {PASS_IOU: pass_iou} if np.any(~np.isnan(pass_iou)) else {}
-        if np.any(~np.isnan(choice)):
-            passes[PASS_CHOICE] = choice
-        track = TrackResult(
-            track_id=tid, label=label, frame_indices=frame_indices, boxes_xywh=boxes, confidence=conf,
-            log_likelihood=ll, accepted=accepted, flagged=flagged, reasons=reasons, keyframe=keyframe,
-            outside=outside, seconds=seconds, occluded=occluded, scoring=tuple(str(v) for v in scoring),
-            keyframe_source=tuple(sources), signals={**by_name, "p_fail": p_fail, **passes},
+        passes = {PASS_IOU: self.pass_iou} if np.any(~np.isnan(self.pass_iou)) else {}
+        if np.any(~np.isnan(self.choice)):
+            passes[PASS_CHOICE] = self.choice
+        return TrackResult(
+            track_id=tid, label=self.label, frame_indices=frame_indices, boxes_xywh=self.boxes, confidence=conf,
+            log_likelihood=self.ll, accepted=self.accepted, flagged=flagged, reasons=reasons, keyframe=self.keyframe,
+            outside=self.outside, seconds=self.seconds, occluded=self.occluded,
+            scoring=tuple(str(v) for v in self.scoring), keyframe_source=tuple(self.sources),
+            signals={**by_name, "p_fail": p_fail, **passes},
         )
-        results.append(track)
-        scorings[tid] = scoring
-        for lo, hi in rewritten:
-            if hi <= lo:
-                continue
-            if prev is not None:
-                iou = np.nan_to_num(iou_xywh(prev.track.boxes_xywh[lo:hi], boxes[lo:hi]), nan=0.0)  # a missing box overlaps nothing
-                both_outside = prev.track.outside[lo:hi] & outside[lo:hi]
-                iou = np.where(both_outside, 1.0, iou)
-                mean_iou, moved = float(iou.mean()), int((iou < 0.5).sum())
-                before = int(prev.track.flagged[lo:hi].sum())
-            else:
-                mean_iou, moved, before = float("nan"), 0, 0
-            changes.append(SegmentChange(tid, int(frame_indices[lo]), int(frame_indices[hi - 1]), hi - lo,
-                                         round(mean_iou, 4) if np.isfinite(mean_iou) else mean_iou, moved, before,
-                                         int(flagged[lo:hi].sum())))
-    return RetrackResult(tracks=results, scoring=scorings, anchors=anchor_changes,
-                         segments=sorted(changes, key=lambda c: (c.first_frame, c.track_id)),
-                         frames_tracked=sum(r.calls for r in runs), seconds=time.perf_counter() - started,
-                         passes={(r.segment.track_id, r.segment.start, r.segment.stop): (r.fwd, r.bwd)
-                                 for r in runs if r.segment.forward})
+
+
+def _segment_changes(tid: int, runs: list[SegmentRun], prev: PreviousTrack | None, columns: _Columns,
+                     flagged: np.ndarray, frame_indices: np.ndarray) -> list[SegmentChange]:
+    """What each re-tracked segment of a track changed: boxes moved and flags before and after."""
+    changes = []
+    for run in runs:
+        seg = run.segment
+        lo, hi = (seg.start if seg.set_start else seg.start + 1), seg.stop
+        if hi <= lo:
+            continue
+        if prev is not None:
+            # A missing box overlaps nothing.
+            iou = np.nan_to_num(iou_xywh(prev.track.boxes_xywh[lo:hi], columns.boxes[lo:hi]), nan=0.0)
+            both_outside = prev.track.outside[lo:hi] & columns.outside[lo:hi]
+            iou = np.where(both_outside, 1.0, iou)
+            mean_iou, moved = float(iou.mean()), int((iou < 0.5).sum())
+            before = int(prev.track.flagged[lo:hi].sum())
+        else:
+            mean_iou, moved, before = float("nan"), 0, 0
+        changes.append(SegmentChange(tid, int(frame_indices[lo]), int(frame_indices[hi - 1]), hi - lo,
+                                     round(mean_iou, 4) if np.isfinite(mean_iou) else mean_iou, moved, before,
+                                     int(flagged[lo:hi].sum())))
+    return changes
 
 
 def _is_number(value) -> bool:

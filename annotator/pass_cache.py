@@ -31,11 +31,50 @@ import numpy as np
 from annotator import __version__
 from annotator.atomic import atomic_path
 from annotator.failure import SIGNALS
-from annotator.review.merge import PassResult
 from annotator.tracks import TrackResult
 
-__all__ = ["PASSES_NAME", "CachedPass", "PassKey", "first_pass", "keep_anchored", "pass_fingerprint", "pass_key",
-           "read_pass_cache", "write_pass_cache"]
+__all__ = ["NO_SCORING", "PASSES_NAME", "CachedPass", "PassKey", "PassResult", "first_pass", "keep_anchored",
+           "pass_fingerprint", "pass_key", "read_pass_cache", "write_pass_cache"]
+
+#: ``scoring`` value of rows no tracker scored (``outside`` rows).
+NO_SCORING = "none"
+
+
+@dataclass
+class PassResult:
+    """One tracker pass over a segment's interior, rows in increasing position order."""
+
+    boxes_xywh: np.ndarray
+    confidence: np.ndarray
+    log_likelihood: np.ndarray
+    accepted: np.ndarray
+    scoring: np.ndarray
+    seconds: np.ndarray
+    #: (n, len(SIGNALS)) failure signals of the pass's rows (annotator.failure.SIGNALS order), NaN where not run.
+    signals: np.ndarray | None = None
+    #: (n,) IoU of the forward and the backward pass's boxes on a merged row; NaN for a single pass.
+    pass_iou: np.ndarray | None = None
+    #: (n,) index in PASS_OPTIONS of the box the ``chosen`` merge took where the passes disagreed; NaN elsewhere.
+    choice: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.signals is None:
+            self.signals = np.full((len(self.confidence), len(SIGNALS)), np.nan)
+        if self.pass_iou is None:
+            self.pass_iou = np.full(len(self.confidence), np.nan)
+        if self.choice is None:
+            self.choice = np.full(len(self.confidence), np.nan)
+
+    @classmethod
+    def empty(cls, n: int) -> PassResult:
+        return cls(np.full((n, 4), np.nan), np.zeros(n), np.full(n, np.nan), np.zeros(n, bool),
+                   np.full(n, NO_SCORING, dtype=object), np.zeros(n))
+
+    def take(self, index) -> PassResult:
+        """Copies of the rows at ``index`` (a slice or indices), as a pass of their own (no ``pass_iou``)."""
+        return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
+                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
+
 
 #: File name of the kept passes in a run folder.
 PASSES_NAME = "passes.npz"

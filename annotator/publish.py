@@ -1,0 +1,111 @@
+"""Writing a run's files: one way for a first run and for a re-track.
+
+The track store is written first; every other file is a view of it (the
+exports, the report) or says what the folder holds (run.json, written last:
+its presence marks a finished run, and batch resumption relies on it). The
+overlay is not written here: it is a sink of the tracking pipeline
+(:class:`annotator.pipeline.OverlaySink`), streamed by a first run while it
+tracks and rendered from the tracks by a re-track, before the files here.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from annotator.atomic import write_text_atomic
+from annotator.exports import ExportOptions, record_review_exports, write_exports
+from annotator.pipeline import SpanThumbnail
+from annotator.provenance import json_default
+from annotator.report import corrections_section, render_report, track_summary
+from annotator.pass_cache import PASSES_NAME, pass_fingerprint, write_pass_cache
+from annotator.store import STORE_NAME, RunStore, write_store
+
+__all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "run_fingerprint", "write_run_files"]
+
+OVERLAY_NAME = "overlay.mp4"
+REPORT_NAME = "report.html"
+RUN_JSON = "run.json"
+
+
+def run_fingerprint(info: Mapping[str, Any]) -> str:
+    """The pass cache's fingerprint of a run: its config as run.json holds it, input content hash and range."""
+    config = json.loads(json.dumps(info.get("config", {}), default=json_default))  # as it reads back
+    return pass_fingerprint(config, info["input"].get("content_hash"), info["range"])
+
+
+def write_run_files(
+    folder: Path,
+    store: RunStore,
+    info: Mapping[str, Any],
+    *,
+    settings: Mapping[str, Any],
+    options: ExportOptions,
+    passes: Mapping | None,
+    thumbnails: Sequence[SpanThumbnail] = (),
+    overlay: bool = False,
+    passes_kept: bool = False,
+) -> dict[str, list[Path]]:
+    """Write ``store`` into ``folder``, then every view of it that ``info["formats"]`` asks for, run.json last.
+
+    Parameters
+    ----------
+    folder : Path
+        A staging folder (the caller moves the files into the output folder).
+    store : RunStore
+        The run's tracks: every export, the report and run.json's track summaries are written from it.
+    info : mapping
+        run.json's content without ``tracks`` and ``outputs`` (filled in here); ``formats``, ``config``,
+        ``input`` and ``range`` as a run writes them, ``timings`` for the report, and for a re-track the
+        ``review`` section the report lists.
+    settings : mapping
+        The configuration the report shows (``RunConfig.to_dict()``).
+    options : ExportOptions
+    passes : mapping or None
+        The forward passes to keep for the next re-track (:mod:`annotator.pass_cache`); None writes none.
+    thumbnails : sequence of SpanThumbnail
+        The flagged spans' overlay frames, for the report.
+    overlay : bool
+        ``folder`` holds the overlay the pipeline rendered (:data:`OVERLAY_NAME`).
+    passes_kept : bool
+        With ``passes`` None: the output folder's pass cache stays as it is and run.json still lists it.
+
+    Returns
+    -------
+    dict of str to list of Path
+        The files written, by kind, run.json under ``provenance`` (last).
+    """
+    formats = list(info["formats"])
+    outputs: dict[str, list[Path]] = {"store": [write_store(folder / STORE_NAME, store)]}
+    if passes is not None:
+        outputs["passes"] = [write_pass_cache(folder / PASSES_NAME, passes, run_fingerprint(info))]
+    outputs.update(write_exports(folder, store, formats, options))
+    if overlay:
+        outputs["overlay"] = [folder / OVERLAY_NAME]
+    info = {**info, "tracks": [track_summary(t) for t in store.tracks]}
+    if record := record_review_exports(info.get("review_exports"), store, formats):
+        info["review_exports"] = record
+    if "report" in formats:
+        render_report(folder / REPORT_NAME, video=store.video, tracks=store.tracks, thumbnails=thumbnails,
+                      settings=dict(settings), run_info=_report_run_info(info, store),
+                      overlay_name=OVERLAY_NAME if overlay else None,
+                      review=corrections_section(info["review"], store.tracks, store.video.fps)
+                      if "review" in info else None)
+        outputs["report"] = [folder / REPORT_NAME]
+    info["outputs"] = {kind: [str(p.relative_to(folder)) for p in paths] for kind, paths in outputs.items()}
+    if passes is None and passes_kept:
+        info["outputs"]["passes"] = [PASSES_NAME]
+    write_text_atomic(folder / RUN_JSON, json.dumps(info, indent=2, default=json_default) + "\n")
+    outputs["provenance"] = [folder / RUN_JSON]
+    return outputs
+
+
+def _report_run_info(info: Mapping[str, Any], store: RunStore) -> dict[str, Any]:
+    """run.json's content with the figures the report's summary shows; a run.json written before they were
+    recorded shows the frames its store holds and no time."""
+    timings = info.get("timings") or {}
+    return {**info, "frames_processed": info.get("frames_processed", len(store.frame_indices)),
+            "seconds_total": timings.get("seconds_total") or 0.0,
+            "seconds_tracking": timings.get("seconds_tracking") or 0.0,
+            "seconds_outside": timings.get("seconds_outside_tracker") or 0.0}
