@@ -1,7 +1,7 @@
 """Success AUC of two sets of stored batch runs of the same sequences and seeds, paired.
 
     python -m benchmarks.compare_runs --otb ../shared/otb \\
-        --before 'benchmarks/_runs/failure/otb/unscreened-s*' --after 'benchmarks/_runs/failure/otb/robust-s*'
+        --before 'benchmarks/_runs/failure/otb/robust-s*' --after 'benchmarks/_runs/failure/otb/prescreen-s*'
 
 Each glob names batch output folders (``sptpt-annotate batch --otb-root ... --seed S``, one folder per seed, as
 ``benchmarks/failure_model.py``'s docstring makes them). Runs are paired by seed (``summary.json``) and

@@ -162,8 +162,11 @@ class TrackerParams:
     """Share of each round's candidates that SPTPT evaluates in full (superpixels, features, codes, subspace
     score): those whose grey template correlates best with the run's recent look (:mod:`sptpt.prescreen`). The
     rest are dropped unscored; the candidates are still drawn, so the random stream is the same. Negatives are
-    not prescreened. 1 evaluates every candidate (paper, fast). [ours, benchmarks/RESULTS.md "Speed: the
-    prescreen"]"""
+    not prescreened. 1 evaluates every candidate, as every preset does. A third, with ``robust``'s other values,
+    tracked 1.5x faster (whole process 0.37x CSRT's speed against 0.24x) and scored 0.618 ± 0.013 on
+    ``../shared/otb`` (3 seeds) against 0.607 ± 0.015, but 0.321 ± 0.018 against 0.381 ± 0.015 on the unseen
+    ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset uses it. [ours,
+    benchmarks/RESULTS.md "The default's speed"]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
@@ -305,7 +308,6 @@ PRESETS: dict[str, TrackerParams] = {
         level_window=20, level_min_count=5, accept_drop=3.0,
         redetect_after=5, redetect_particles=150, redetect_sigma=1.0, independent_runs=3, run_choice="consensus",
         filter_vote=True, contrast_candidates=5, reported_scale_filter=True, reported_translation_filter=True,
-        prescreen_share=1 / 3,
     ),
 }
 

@@ -8,7 +8,9 @@ candidate SPTPT scored best was among the third of the candidates most like the 
 in 81% of the rounds (a random third: 33%), and where it was not, the best of that third scored within
 0.09 standard deviations of it (a screen on stored rounds, grey as the mean of the channels; the
 prescreen uses BT.601 luma; ``benchmarks/HISTORY.md``, "Speed, memory and throughput").
-``TrackerParams.prescreen_share``.
+``TrackerParams.prescreen_share``. No preset uses it: with ``robust`` it kept the accuracy on
+``../shared/otb``, where it was designed, and lost 0.06 of success AUC on the unseen ``../shared/otb_extra``
+(``benchmarks/RESULTS.md``, "The default's speed").
 
 The cue is normalised cross-correlation (NCC) of grey templates: the warped ``T x T`` candidate
 against a running mean of the templates of the run's accepted estimates. NCC ignores a change of

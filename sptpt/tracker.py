@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from concurrent.futures import wait
 from typing import Callable, ContextManager
 
 import numba
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from sptpt._kernels import map_on_threads, run_beside
+from sptpt._kernels import map_on_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh, lies_outside, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
@@ -44,9 +43,9 @@ from sptpt.translation import TranslationFilter
 
 __all__ = ["STAGES", "Tracker"]
 
-#: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``scale`` only with ``scale_filter`` or ``reported_scale_filter``,
-#: ``translation`` only with ``reported_translation_filter``, ``filter_vote`` only where the correlation-filter tracker
-#: votes: ``filter_vote`` with ``run_choice="consensus"`` and two runs or more).
+#: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``scale`` only with
+#: ``scale_filter`` or ``reported_scale_filter``, ``translation`` only with ``reported_translation_filter``,
+#: ``filter_vote`` only where the correlation-filter tracker votes: ``run_choice="consensus"`` and two runs or more).
 STAGES = ("warp", "prescreen", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale",
           "translation", "filter_vote")
 
@@ -173,23 +172,15 @@ class Tracker:
         FrameResult
         """
         with _single_threaded_blas():
-            rgb = _as_rgb(frame)
-            voting = None
-            if self._filter_voter is not None and rgb.shape[:2] == self._runs[0].frame_shape:
-                # The voter shares nothing with the runs, so it tracks on a thread of its own meanwhile, in the time
-                # their kernels leave a core idle; its box is the same as after them. Only on a frame the runs will
-                # take: on any other they raise, and the voter must not have moved on.
-                voting = run_beside(self._vote, rgb)
-            try:
-                # Each run checks the frame (and that init came first) itself.
-                results = self._update_runs(frame, details)
-            except BaseException:
-                if voting is not None:
-                    wait([voting])
-                raise
-            voter_boxes = [] if voting is None else [voting.result()]
+            # Each run checks the frame (and that init came first) itself.
+            results = self._update_runs(frame, details)
             if len(results) == 1:
                 return results[0]
+            rgb = _as_rgb(frame)
+            voter_boxes = []
+            if self._filter_voter is not None:
+                with self._time("filter_vote"):
+                    voter_boxes.append(self._filter_voter.update(rgb))
         chosen = _more_confident(results)
         if self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
@@ -198,10 +189,6 @@ class Tracker:
             chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
             return dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         return _reported(results, chosen)
-
-    def _vote(self, rgb: np.ndarray) -> np.ndarray:
-        with self._time("filter_vote"):
-            return self._filter_voter.update(rgb)
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
         """Every run's update; runs side by side, one kernel thread each: all of them when there are no more runs
@@ -243,13 +230,13 @@ class _Run:
                 f"{self.n_superpixels} superpixels per template; lower it"
             )
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
-        self.frame_shape: tuple[int, int] | None = None
+        self._frame_shape: tuple[int, int] | None = None
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         rgb = _as_rgb(frame)
         box = _validate_box(box_xywh, rgb.shape[:2])
         p = self.params
-        self.frame_shape = rgb.shape[:2]
+        self._frame_shape = rgb.shape[:2]
         self._state = state_from_box_xywh(box, p.template_size)
         shifted = np.repeat(self._state[None], len(_INIT_SHIFTS), axis=0)
         shifted[:, :2] += _INIT_SHIFTS
@@ -293,13 +280,13 @@ class _Run:
         )
 
     def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
-        if self.frame_shape is None:
+        if self._frame_shape is None:
             raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
         rgb = _as_rgb(frame)
-        if rgb.shape[:2] != self.frame_shape:
+        if rgb.shape[:2] != self._frame_shape:
             raise ValueError(
                 f"frame has size {rgb.shape[1]}x{rgb.shape[0]} but the first frame was "
-                f"{self.frame_shape[1]}x{self.frame_shape[0]}: every frame of a sequence must have the same size"
+                f"{self._frame_shape[1]}x{self._frame_shape[0]}: every frame of a sequence must have the same size"
             )
         p = self.params
         self._frame_number += 1
@@ -381,7 +368,7 @@ class _Run:
         if details:
             # The labels are the winner's template's, so they are placed with the winner's state (before any
             # scale filter step or translation filter shift of the reported box).
-            frame_labels, origin = template_labels_to_frame(labels[best], states[best], self.frame_shape)
+            frame_labels, origin = template_labels_to_frame(labels[best], states[best], self._frame_shape)
             extra = dict(
                 particles_xywh=box_xywh_from_states(states, p.template_size),
                 particle_scores=scores,
@@ -402,7 +389,7 @@ class _Run:
         p = self.params
         states = draw_candidates(state, n, sigma, self._rng, min_scale=1.0 / p.template_size)
         # Keep centres on the frame: a box whose centre left the image cannot be followed anyway.
-        height, width = self.frame_shape
+        height, width = self._frame_shape
         np.clip(states[:, 0], 1.0, width, out=states[:, 0])
         np.clip(states[:, 1], 1.0, height, out=states[:, 1])
         return states
@@ -421,7 +408,7 @@ class _Run:
         p = self.params
         spread = p.redetect_sigma * _size(anchor, p.template_size) * np.sqrt(self._misses - p.redetect_after + 1)
         sigma = self._motion_sigma(anchor).copy()
-        sigma[:2] = min(spread, float(max(self.frame_shape)))
+        sigma[:2] = min(spread, float(max(self._frame_shape)))
         return sigma
 
     def _level(self) -> tuple[float, float] | None:

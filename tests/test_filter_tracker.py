@@ -70,42 +70,12 @@ def test_update_before_init_is_refused():
         FilterTracker(32).update(np.zeros((40, 40, 3), np.uint8))
 
 
-def test_in_robust_it_votes_from_a_thread_of_its_own_with_the_boxes_it_gives_alone():
-    # The tracker runs the voter beside its runs (sptpt._kernels.run_beside); the boxes it votes with must be those
-    # it gives alone, in frame order.
-    import dataclasses
-    import threading
-
-    from sptpt.params import get_preset
-    from sptpt.tracker import Tracker
-
-    frames, boxes = moving_clip()
-    tracker = Tracker(dataclasses.replace(get_preset("robust"), prescreen_share=1.0), seed=0)
-    threads, voted = set(), []
-    voter = tracker._filter_voter
-    own_update = voter.update
-
-    def update(rgb):
-        threads.add(threading.current_thread().name)
-        voted.append(own_update(rgb))
-        return voted[-1]
-
-    voter.update = update
-    tracker.init(frames[0], boxes[0])
-    for frame in frames[1:6]:
-        tracker.update(frame)
-    assert threads == {"sptpt-beside_0"}
-    np.testing.assert_array_equal(np.array(voted), _track(frames[:6], boxes[0]))
-
-
 def test_a_frame_the_runs_refuse_does_not_move_the_voter():
-    import dataclasses
-
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker
 
     frames, boxes = moving_clip()
-    params = dataclasses.replace(get_preset("robust"), prescreen_share=1.0)
+    params = get_preset("robust")
 
     def track(bad_frame_at: int | None) -> np.ndarray:
         tracker = Tracker(params, seed=1)

@@ -29,10 +29,9 @@ REFIND = 10
 
 def _params(preset: str):
     # robust as it was before each of its later switches: each switch alone changes the boxes.
-    before_prescreen = dataclasses.replace(get_preset("robust"), prescreen_share=1.0)
-    if preset == "robust-unscreened":  # before a prescreen chose the candidates evaluated in full
-        return before_prescreen
-    before_voter = dataclasses.replace(before_prescreen, filter_vote=False)
+    if preset == "robust-prescreen":  # a switch no preset uses: a third of the candidates evaluated in full
+        return dataclasses.replace(get_preset("robust"), prescreen_share=1 / 3)
+    before_voter = dataclasses.replace(get_preset("robust"), filter_vote=False)
     if preset == "robust-three-runs":  # before a correlation-filter tracker voted with the runs
         return before_voter
     before_consensus = dataclasses.replace(before_voter, independent_runs=2, run_choice="contrast")
@@ -131,16 +130,16 @@ def test_robust_finds_the_target_again_within_ten_frames(make, seed):
 
 @pytest.mark.parametrize("preset", ["paper", "fast", "robust-one-run", "robust-confidence", "robust-best-score",
                                     "robust-unfiltered", "robust-untranslated", "robust-two-runs", "robust-three-runs",
-                                    "robust-unscreened", "robust"])
+                                    "robust", "robust-prescreen"])
 def test_preset_boxes_are_unchanged(preset):
     # robust's one-run boxes were recorded before the scale_filter and independent_runs switches; its two-run
     # boxes by confidence when robust became two runs (each of its runs is a one-run tracker:
     # test_independent_runs), by contrast when run_choice became "contrast", with the candidates re-ranked
     # by contrast when contrast_candidates became 5, with the reported box sized by the scale filter when
     # reported_scale_filter became True, placed by the translation filter when reported_translation_filter
-    # became True, the box three runs agree on when independent_runs became 3 with run_choice "consensus", the same
-    # with the correlation-filter tracker's vote when filter_vote became True (robust-unscreened), and with a third
-    # of the candidates evaluated in full when prescreen_share became 1/3.
+    # became True, the box three runs agree on when independent_runs became 3 with run_choice "consensus", and the
+    # same with the correlation-filter tracker's vote when filter_vote became True. robust-prescreen (recorded when
+    # the switch was added) keeps the prescreen's boxes, which no preset uses.
     # When make_clip stopped rendering with OpenCV (whose warpAffine differs between OpenCV 4 and 5), the clip
     # changed in 1 value in 100,000, by 1 grey level: seven presets gave their recorded boxes on it, and
     # robust-two-runs, robust-three-runs and robust boxes that moved by under 0.001 px, re-recorded then.

@@ -14,25 +14,21 @@ from __future__ import annotations
 
 import os
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba
 
-__all__ = ["map_on_threads", "run_beside", "run_in_chunks"]
+__all__ = ["map_on_threads", "run_in_chunks"]
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 
 
-_BESIDE: ThreadPoolExecutor | None = None
-
-
 def _forget_pool() -> None:
     # A forked child inherits the pool object but not its threads; it would wait forever on them (nor the
     # lock's state, if another thread held it at the fork).
-    global _POOL, _POOL_LOCK, _BESIDE
+    global _POOL, _POOL_LOCK
     _POOL = None
-    _BESIDE = None
     _POOL_LOCK = threading.Lock()
 
 
@@ -113,23 +109,3 @@ def map_on_threads(function, items, n_threads: int) -> list:
 
     run_in_chunks(call_range, len(items), n_threads)
     return results
-
-
-def run_beside(function, *args) -> Future:
-    """``function(*args)`` on a thread of its own, beside the caller and the kernel threads; its future.
-
-    For serial work (NumPy, FFTs) that shares nothing with what the caller does meanwhile, to fill the time the
-    caller's kernels leave a core idle. One thread for the process, so calls run one after another in the order
-    they were made. The call runs with one numba thread: its kernels never wait for the kernel pool's worker.
-    """
-    global _BESIDE
-    with _POOL_LOCK:
-        if _BESIDE is None:
-            _BESIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-beside")
-        beside = _BESIDE
-
-    def alone():
-        numba.set_num_threads(1)  # thread-local in numba, and this thread is only ever used here
-        return function(*args)
-
-    return beside.submit(alone)
