@@ -24,6 +24,7 @@ import numpy as np
 from annotator.evaluation import evaluate_sequence
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
+from benchmarks.failure_model import ground_truth_file
 
 
 def load_runs(pattern: str, roots: list[Path]) -> tuple[dict[tuple[str, int], float], dict[int, float]]:
@@ -38,12 +39,7 @@ def load_runs(pattern: str, roots: list[Path]) -> tuple[dict[tuple[str, int], fl
         per_frame = []
         for folder in sorted(p for p in run.iterdir() if (p / STORE_NAME).is_file()):
             track = read_store(folder / STORE_NAME).tracks[0]
-            gt_file = next((r / folder.name / "groundtruth_rect.txt" for r in roots
-                            if (r / folder.name / "groundtruth_rect.txt").is_file()), None)
-            if gt_file is None:
-                raise SystemExit(f"no ground truth for {folder.name} under {', '.join(map(str, roots))}: give its "
-                                 "OTB root with --otb")
-            gt = read_otb_boxes(gt_file)[track.frame_indices]
+            gt = read_otb_boxes(ground_truth_file(roots, folder.name))[track.frame_indices]
             aucs[(folder.name, seed)] = evaluate_sequence(track.boxes_xywh, gt, name=folder.name).auc
             per_frame.append(track.seconds[1:])
         seconds[seed] = float(np.concatenate(per_frame).mean())
@@ -52,7 +48,7 @@ def load_runs(pattern: str, roots: list[Path]) -> tuple[dict[tuple[str, int], fl
 
 def compare(before: dict, after: dict, worst: float) -> list[str]:
     """The report's lines: overall per seed, mean ± std, paired difference; then per sequence."""
-    pairs = sorted(set(before) & set(after))
+    pairs = set(before) & set(after)
     if not pairs:
         raise SystemExit("the two sets of runs share no (sequence, seed): compare runs of the same sequences and seeds")
     seeds = sorted({seed for _, seed in pairs})
@@ -61,8 +57,8 @@ def compare(before: dict, after: dict, worst: float) -> list[str]:
              "| seed | before | after | after - before |", "|---:|---:|---:|---:|"]
     overall = {side: [] for side in ("before", "after")}
     for seed in seeds:
-        b = np.mean([before[(s, seed)] for s in sequences if (s, seed) in before and (s, seed) in after])
-        a = np.mean([after[(s, seed)] for s in sequences if (s, seed) in before and (s, seed) in after])
+        b = np.mean([before[(s, seed)] for s in sequences if (s, seed) in pairs])
+        a = np.mean([after[(s, seed)] for s in sequences if (s, seed) in pairs])
         overall["before"].append(b)
         overall["after"].append(a)
         lines.append(f"| {seed} | {b:.3f} | {a:.3f} | {a - b:+.3f} |")
@@ -71,8 +67,8 @@ def compare(before: dict, after: dict, worst: float) -> list[str]:
                  f"{a.mean():.3f} ± {a.std(ddof=1) if len(a) > 1 else 0:.3f} | {(a - b).mean():+.3f} |")
     lines += ["", "| sequence | before | after | after - before |", "|---|---:|---:|---:|"]
     for name in sequences:
-        b_seq = np.mean([before[(name, s)] for s in seeds if (name, s) in before and (name, s) in after])
-        a_seq = np.mean([after[(name, s)] for s in seeds if (name, s) in before and (name, s) in after])
+        b_seq = np.mean([before[(name, s)] for s in seeds if (name, s) in pairs])
+        a_seq = np.mean([after[(name, s)] for s in seeds if (name, s) in pairs])
         mark = " **lower by more than %.2f**" % worst if a_seq - b_seq < -worst else ""
         lines.append(f"| {name} | {b_seq:.3f} | {a_seq:.3f} | {a_seq - b_seq:+.3f}{mark} |")
     return lines

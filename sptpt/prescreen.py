@@ -42,6 +42,12 @@ def _grey_rows(templates: np.ndarray) -> np.ndarray:
     return (templates.reshape(-1, 3) @ _GREY32).reshape(len(templates), -1)
 
 
+def _grey_image(template: np.ndarray) -> np.ndarray:
+    """One ``(T, T, 3)`` uint8 template -> its ``(T, T)`` float64 luma (the running mean is kept in float64)."""
+    template = np.asarray(template)
+    return _grey_rows(template[None])[0].reshape(template.shape[:2]).astype(np.float64)
+
+
 def grey_ncc(templates: np.ndarray, reference_grey: np.ndarray) -> np.ndarray:
     """NCC in [-1, 1] of each ``(N, T, T, 3)`` uint8 template's luma with a ``(T, T)`` grey reference.
 
@@ -65,12 +71,11 @@ class AppearanceReference:
     each round and ``learn`` on each accepted estimate's template."""
 
     def __init__(self, template: np.ndarray) -> None:
-        self.grey = _grey_rows(np.asarray(template)[None])[0].reshape(np.shape(template)[:2]).astype(np.float64)
+        self.grey = _grey_image(template)
 
     def learn(self, template: np.ndarray) -> None:
         """Blend an accepted estimate's ``(T, T, 3)`` uint8 template into the running mean."""
-        grey = _grey_rows(np.asarray(template)[None])[0].reshape(self.grey.shape)
-        self.grey = (1.0 - LEARNING_RATE) * self.grey + LEARNING_RATE * grey
+        self.grey = (1.0 - LEARNING_RATE) * self.grey + LEARNING_RATE * _grey_image(template)
 
     def most_alike(self, templates: np.ndarray, share: float) -> np.ndarray:
         """Indices, ascending, of the ``ceil(share * N)`` templates most like the reference (exact ties: the earlier)."""
