@@ -13,13 +13,14 @@ and calls :meth:`TrackRecorder.to_result` at the end, or after a
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping, Sequence
+from typing import Mapping, Sequence, TypeVar
 
 import numpy as np
 
-__all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder"]
+__all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder", "select_rows"]
 
 #: How the tracker scored a row: the first frame (``init``), before both subspace models exist
 #: (``bootstrap``), with them (``subspace``), or not at all (``none``: an absence anchor and its span).
@@ -84,6 +85,27 @@ def _frozen(values: np.ndarray) -> np.ndarray:
     values = np.array(values, copy=True)
     values.setflags(write=False)
     return values
+
+
+Rows = TypeVar("Rows")
+
+
+def select_rows(record: Rows, picked: np.ndarray) -> Rows:
+    """A struct-of-arrays dataclass with only the rows ``picked`` (indices, in that order).
+
+    Every array field is indexed, every tuple field picked item by item and every mapping's arrays indexed; the
+    other fields (a track's id and label) are kept. The copy is built by the class, so it is validated as any is.
+    """
+    def rows(value):
+        if isinstance(value, np.ndarray):
+            return value[picked]
+        if isinstance(value, tuple):
+            return tuple(value[i] for i in picked)
+        if isinstance(value, Mapping):
+            return {key: values[picked] for key, values in value.items()}
+        return value
+
+    return dataclasses.replace(record, **{f.name: rows(getattr(record, f.name)) for f in dataclasses.fields(record)})
 
 
 @dataclass(frozen=True)
@@ -297,25 +319,7 @@ class TrackResult:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (len(self),):
             raise ValueError(f"mask must have shape ({len(self)},), got {mask.shape}")
-        picked = np.flatnonzero(mask)
-        return TrackResult(
-            track_id=self.track_id,
-            label=self.label,
-            frame_indices=self.frame_indices[picked],
-            boxes_xywh=self.boxes_xywh[picked],
-            confidence=self.confidence[picked],
-            log_likelihood=self.log_likelihood[picked],
-            accepted=self.accepted[picked],
-            flagged=self.flagged[picked],
-            reasons=tuple(self.reasons[i] for i in picked),
-            keyframe=self.keyframe[picked],
-            outside=self.outside[picked],
-            seconds=self.seconds[picked],
-            occluded=self.occluded[picked],
-            scoring=tuple(self.scoring[i] for i in picked),
-            keyframe_source=tuple(self.keyframe_source[i] for i in picked),
-            signals={key: values[picked] for key, values in self.signals.items()},
-        )
+        return select_rows(self, np.flatnonzero(mask))
 
     def equals(self, other: TrackResult) -> bool:
         """Whether two tracks hold the same rows bit for bit (NaN equals NaN; a lossless round trip)."""

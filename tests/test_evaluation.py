@@ -29,6 +29,7 @@ from annotator.evaluation import (
     flag_quality_dataset,
     iou_xywh,
     load_dataset_pairs,
+    plot_otb,
     plot_precision,
     plot_success,
     precision_curve,
@@ -624,6 +625,12 @@ def test_plots_are_png_of_the_requested_size(tmp_path):
     with Image.open(precision) as image:
         assert image.size == (400, 320)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["precision.png", "success.png"]  # no temp files left
+
+
+def test_plot_otb_names_an_unknown_kind(tmp_path):
+    with pytest.raises(ValueError, match="plot kind 'recall' is unknown: expected one of success, precision"):
+        plot_otb(two_trackers(), tmp_path / "x.png", kind="recall")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_markdown_and_json_tables(tmp_path):

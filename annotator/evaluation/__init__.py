@@ -55,6 +55,7 @@ from annotator.evaluation.metrics import (
 )
 from annotator.evaluation.report import (
     PROTOCOL,
+    plot_otb,
     plot_precision,
     plot_success,
     results_json,
@@ -96,6 +97,7 @@ __all__ = [
     "iou_xywh",
     "load_dataset_pairs",
     "load_sequence_pair",
+    "plot_otb",
     "plot_precision",
     "plot_success",
     "precision_curve",

@@ -37,7 +37,7 @@ per-sequence results, from which a per-sequence (macro) view can be read.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Mapping
 
 import numpy as np
@@ -53,8 +53,17 @@ __all__ = [
 ]
 
 
-def _ratio(numerator: int, denominator: int) -> float:
-    return float(numerator) / denominator if denominator > 0 else float("nan")
+class _Ratio:
+    """A ratio of two of the counts, read like an attribute; NaN when the denominator is 0."""
+
+    def __init__(self, numerator: str, denominator: str, doc: str) -> None:
+        self.numerator, self.denominator, self.__doc__ = numerator, denominator, doc
+
+    def __get__(self, counts: object, owner: type | None = None):
+        if counts is None:
+            return self
+        denominator = getattr(counts, self.denominator)
+        return float(getattr(counts, self.numerator)) / denominator if denominator > 0 else float("nan")
 
 
 @dataclass(frozen=True)
@@ -84,37 +93,18 @@ class FlagQuality:
     n_failure_spans: int
     n_detected_spans: int
 
-    @property
-    def precision(self) -> float:
-        """Flagged failure frames / flagged frames; NaN when nothing is flagged."""
-        return _ratio(self.n_flagged_failures, self.n_flagged)
-
-    @property
-    def recall(self) -> float:
-        """Flagged failure frames / failure frames; NaN when there is no failure."""
-        return _ratio(self.n_flagged_failures, self.n_failure_frames)
-
-    @property
-    def flagged_share(self) -> float:
-        """Flagged frames / frames; NaN for an empty sequence."""
-        return _ratio(self.n_flagged, self.n_frames)
-
-    @property
-    def onset_recall(self) -> float:
-        """Detected failure spans / failure spans; NaN when there is no span."""
-        return _ratio(self.n_detected_spans, self.n_failure_spans)
+    precision = _Ratio("n_flagged_failures", "n_flagged",
+                       "Flagged failure frames / flagged frames; NaN when nothing is flagged.")
+    recall = _Ratio("n_flagged_failures", "n_failure_frames",
+                    "Flagged failure frames / failure frames; NaN when there is no failure.")
+    flagged_share = _Ratio("n_flagged", "n_frames", "Flagged frames / frames; NaN for an empty sequence.")
+    onset_recall = _Ratio("n_detected_spans", "n_failure_spans",
+                          "Detected failure spans / failure spans; NaN when there is no span.")
 
     def __add__(self, other: FlagQuality) -> FlagQuality:
         if not isinstance(other, FlagQuality):
             return NotImplemented
-        return FlagQuality(
-            n_frames=self.n_frames + other.n_frames,
-            n_flagged=self.n_flagged + other.n_flagged,
-            n_failure_frames=self.n_failure_frames + other.n_failure_frames,
-            n_flagged_failures=self.n_flagged_failures + other.n_flagged_failures,
-            n_failure_spans=self.n_failure_spans + other.n_failure_spans,
-            n_detected_spans=self.n_detected_spans + other.n_detected_spans,
-        )
+        return FlagQuality(**{f.name: getattr(self, f.name) + getattr(other, f.name) for f in fields(self)})
 
     def to_dict(self) -> dict:
         """JSON-ready dict of counts and ratios; undefined ratios are ``None``."""

@@ -130,6 +130,15 @@ def _as_boxes(boxes: np.ndarray, name: str) -> np.ndarray:
     return array
 
 
+def _paired_boxes(a: np.ndarray, b: np.ndarray, function: str) -> tuple[np.ndarray, np.ndarray]:
+    """``a`` and ``b`` as (N, 4) arrays of as many rows, which ``function`` pairs row by row."""
+    a = _as_boxes(a, "a")
+    b = _as_boxes(b, "b")
+    if a.shape != b.shape:
+        raise EvaluationError(f"{function} pairs boxes row by row: got {len(a)} and {len(b)} rows")
+    return a, b
+
+
 def valid_boxes_xywh(boxes: np.ndarray) -> np.ndarray:
     """Which boxes are usable: every value finite and ``w > 0`` and ``h > 0``.
 
@@ -168,11 +177,7 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     The arithmetic is :func:`sptpt.boxes.iou_xywh`'s, shared with the tracker; this checks the shapes.
     """
-    a = _as_boxes(a, "a")
-    b = _as_boxes(b, "b")
-    if a.shape != b.shape:
-        raise EvaluationError(f"iou_xywh pairs boxes row by row: got {len(a)} and {len(b)} rows")
-    return boxes_iou_xywh(a, b)
+    return boxes_iou_xywh(*_paired_boxes(a, b, "iou_xywh"))
 
 
 def center_error_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -191,10 +196,7 @@ def center_error_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     error : (N,) float64 ndarray
         NaN where a row holds NaN.
     """
-    a = _as_boxes(a, "a")
-    b = _as_boxes(b, "b")
-    if a.shape != b.shape:
-        raise EvaluationError(f"center_error_xywh pairs boxes row by row: got {len(a)} and {len(b)} rows")
+    a, b = _paired_boxes(a, b, "center_error_xywh")
     center_a = a[:, :2] + (a[:, 2:] - 1.0) / 2.0
     center_b = b[:, :2] + (b[:, 2:] - 1.0) / 2.0
     return np.hypot(center_a[:, 0] - center_b[:, 0], center_a[:, 1] - center_b[:, 1])

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -33,6 +34,7 @@ from annotator.evaluation.metrics import (
 
 __all__ = [
     "PROTOCOL",
+    "plot_otb",
     "plot_success",
     "plot_precision",
     "results_markdown",
@@ -84,62 +86,41 @@ def _ranked(scores: list[DatasetScore], key: str) -> list[DatasetScore]:
     return sorted(scores, key=lambda s: (-getattr(s, key), s.tracker))
 
 
-def _plot(
-    scores: list[DatasetScore],
-    path: Path,
-    *,
-    x: np.ndarray,
-    curve: str,
-    key: str,
-    title: str,
-    xlabel: str,
-    ylabel: str,
-    xlim: tuple[float, float],
-    legend_loc: str,
-    max_trackers: int | None,
-    figsize: tuple[float, float],
-    dpi: int,
-) -> Path:
-    # The object API with an explicit Agg canvas: no pyplot global state, no
-    # display needed, and the process-wide backend of a caller is left alone.
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+@dataclass(frozen=True)
+class _Curve:
+    """What one kind of OTB plot draws: a curve of each score against ``x``, its legend value ``key``."""
 
-    ranked = _ranked(scores, key)
-    if max_trackers is not None:
-        ranked = ranked[:max_trackers]
-    fig = Figure(figsize=figsize, dpi=dpi)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    for index, score in enumerate(ranked):
-        ax.plot(
-            x,
-            getattr(score, curve),
-            color=_COLOURS[index % len(_COLOURS)],
-            linestyle=_LINESTYLES[(index // len(_COLOURS)) % len(_LINESTYLES)],
-            linewidth=2.0 if index < 3 else 1.5,
-            label=f"{score.tracker} [{getattr(score, key):.3f}]",
-        )
-    ax.set(xlabel=xlabel, ylabel=ylabel, title=title, xlim=xlim, ylim=(0.0, 1.0))
-    ax.grid(True, linestyle=":", linewidth=0.5)
-    ax.legend(loc=legend_loc, fontsize="small", frameon=True)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    return path
+    title: str
+    x: np.ndarray
+    curve: str
+    key: str
+    xlabel: str
+    ylabel: str
+    xlim: tuple[float, float]
+    legend_loc: str
 
 
-def plot_success(
+_CURVES = {
+    "success": _Curve(title="Success plots of OPE", x=SUCCESS_THRESHOLDS, curve="success_curve", key="auc",
+                      xlabel="Overlap threshold", ylabel="Success rate", xlim=(0.0, 1.0), legend_loc="lower left"),
+    # Legend scores are precision at 20 px.
+    "precision": _Curve(title="Precision plots of OPE", x=PRECISION_THRESHOLDS, curve="precision_curve",
+                        key="precision_20", xlabel="Location error threshold", ylabel="Precision",
+                        xlim=(0.0, float(PRECISION_THRESHOLDS[-1])), legend_loc="lower right"),
+}
+
+
+def plot_otb(
     scores: DatasetScore | Sequence[DatasetScore],
     path: str | os.PathLike,
     *,
-    title: str = "Success plots of OPE",
+    kind: str = "success",
+    title: str | None = None,
     max_trackers: int | None = None,
     figsize: tuple[float, float] = (6.4, 4.8),
     dpi: int = 100,
 ) -> Path:
-    """Draw the OTB success plot of one or more trackers to a PNG file.
+    """Draw the OTB success or precision plot of one or more trackers to a PNG file.
 
     Parameters
     ----------
@@ -147,8 +128,10 @@ def plot_success(
         One entry per tracker (a single sequence: evaluate it as a dataset of one).
     path : path-like
         PNG file to write (atomically).
-    title : str
-        Plot title.
+    kind : {"success", "precision"}
+        The success plot (legend: AUC) or the precision plot (legend: precision at 20 px).
+    title : str, optional
+        Plot title; default OTB's ("Success plots of OPE", "Precision plots of OPE").
     max_trackers : int, optional
         Draw only the best this-many trackers (OTB draws 10).
     figsize : (float, float)
@@ -161,51 +144,48 @@ def plot_success(
     Path
         ``path``.
     """
-    return _plot(
-        _as_score_list(scores),
-        Path(path),
-        x=SUCCESS_THRESHOLDS,
-        curve="success_curve",
-        key="auc",
-        title=title,
-        xlabel="Overlap threshold",
-        ylabel="Success rate",
-        xlim=(0.0, 1.0),
-        legend_loc="lower left",
-        max_trackers=max_trackers,
-        figsize=figsize,
-        dpi=dpi,
-    )
+    if kind not in _CURVES:
+        raise ValueError(f"plot kind {kind!r} is unknown: expected one of {', '.join(_CURVES)}")
+    kind = _CURVES[kind]
+    title = kind.title if title is None else title
+    # The object API with an explicit Agg canvas: no pyplot global state, no
+    # display needed, and the process-wide backend of a caller is left alone.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ranked = _ranked(_as_score_list(scores), kind.key)
+    if max_trackers is not None:
+        ranked = ranked[:max_trackers]
+    fig = Figure(figsize=figsize, dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    for index, score in enumerate(ranked):
+        ax.plot(
+            kind.x,
+            getattr(score, kind.curve),
+            color=_COLOURS[index % len(_COLOURS)],
+            linestyle=_LINESTYLES[(index // len(_COLOURS)) % len(_LINESTYLES)],
+            linewidth=2.0 if index < 3 else 1.5,
+            label=f"{score.tracker} [{getattr(score, kind.key):.3f}]",
+        )
+    ax.set(xlabel=kind.xlabel, ylabel=kind.ylabel, title=title, xlim=kind.xlim, ylim=(0.0, 1.0))
+    ax.grid(True, linestyle=":", linewidth=0.5)
+    ax.legend(loc=kind.legend_loc, fontsize="small", frameon=True)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
+    return path
 
 
-def plot_precision(
-    scores: DatasetScore | Sequence[DatasetScore],
-    path: str | os.PathLike,
-    *,
-    title: str = "Precision plots of OPE",
-    max_trackers: int | None = None,
-    figsize: tuple[float, float] = (6.4, 4.8),
-    dpi: int = 100,
-) -> Path:
-    """Draw the OTB precision plot of one or more trackers to a PNG file.
+def plot_success(scores: DatasetScore | Sequence[DatasetScore], path: str | os.PathLike, **options) -> Path:
+    """The OTB success plot: :func:`plot_otb` with ``kind="success"``."""
+    return plot_otb(scores, path, kind="success", **options)
 
-    Legend scores are precision at 20 px. Parameters as :func:`plot_success`.
-    """
-    return _plot(
-        _as_score_list(scores),
-        Path(path),
-        x=PRECISION_THRESHOLDS,
-        curve="precision_curve",
-        key="precision_20",
-        title=title,
-        xlabel="Location error threshold",
-        ylabel="Precision",
-        xlim=(0.0, float(PRECISION_THRESHOLDS[-1])),
-        legend_loc="lower right",
-        max_trackers=max_trackers,
-        figsize=figsize,
-        dpi=dpi,
-    )
+
+def plot_precision(scores: DatasetScore | Sequence[DatasetScore], path: str | os.PathLike, **options) -> Path:
+    """The OTB precision plot: :func:`plot_otb` with ``kind="precision"``."""
+    return plot_otb(scores, path, kind="precision", **options)
 
 
 def _fmt(value: float, digits: int = 3) -> str:

@@ -36,7 +36,7 @@ from typing import Sequence
 import numpy as np
 
 from annotator.atomic import atomic_open
-from annotator.tracks import TrackResult
+from annotator.tracks import TrackResult, select_rows
 
 __all__ = ["FLAGS_HEADER", "FlagTable", "FlagsFormatError", "read_flags_csv", "write_flags_csv"]
 
@@ -72,16 +72,7 @@ class FlagTable:
 
     def for_track(self, track_id: int) -> FlagTable:
         """The rows of one track."""
-        keep = np.flatnonzero(self.track == track_id)
-        return FlagTable(
-            frame=self.frame[keep],
-            track=self.track[keep],
-            confidence=self.confidence[keep],
-            log_likelihood=self.log_likelihood[keep],
-            accepted=self.accepted[keep],
-            flagged=self.flagged[keep],
-            reason=tuple(self.reason[i] for i in keep),
-        )
+        return select_rows(self, np.flatnonzero(self.track == track_id))
 
 
 def signal_columns(tracks: Sequence[TrackResult]) -> list[str]:
