@@ -45,11 +45,11 @@ def test_a_store_of_part_of_the_video_scores_exactly_its_frames(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     write_store(out / STORE_NAME, RunStore(video=VIDEO, start=4, stop=16, step=2, tracks=[_track(frames, pred)]))
-    notes: list[str] = []
-    score = evaluate_result_file(out, tmp_path / "gt.txt", name="Alpha", notes=notes)
+    pairs: list = []
+    score = evaluate_result_file(out, tmp_path / "gt.txt", name="Alpha", pairs=pairs)
     expected = evaluate_sequence(pred, gt[frames], name="Alpha")
     assert score.auc == expected.auc and score.precision_20 == expected.precision_20
-    assert notes == ["Alpha: scored the 6 frames the run processed (source frames 4-14, every 2nd) against those "
+    assert [pair.note for pair, _ in pairs] == ["Alpha: scored the 6 frames the run processed (source frames 4-14, every 2nd) against those "
                      "rows of the 20-row ground truth"]
 
 
@@ -59,8 +59,8 @@ def test_a_whole_run_needs_no_note_and_a_longer_store_is_refused(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=8, step=1, tracks=[_track(np.arange(8), gt)]))
-    notes: list[str] = []
-    assert evaluate_result_file(out, tmp_path / "gt.txt", notes=notes).auc > 0.95 and notes == []
+    pairs: list = []
+    assert evaluate_result_file(out, tmp_path / "gt.txt", pairs=pairs).auc > 0.95 and pairs[0][0].note is None
     write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=9, step=1,
                                            tracks=[_track(np.arange(9), np.vstack([gt, gt[:1]]))]))
     with pytest.raises(EvaluationError, match=r"source frames up to 8 but the ground truth .* has 8 rows"):

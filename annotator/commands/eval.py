@@ -28,7 +28,6 @@ def eval_command(
     from annotator.evaluation.calibration import failure_markdown, failure_summary, plot_calibration
     from annotator.otb import OTBFormatError
 
-    notes: list[str] = []
     pairs: list = []
     try:
         if out is not None and out.exists() and not out.is_dir():
@@ -41,13 +40,12 @@ def eval_command(
                 if names == []:
                     raise ToolError(f"--sequences {sequences!r} names no sequence: give names such as "
                                     "--sequences Coke,David", EXIT_VALUE)
-                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names,
-                                             notes=notes, pairs=pairs)
+                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names, pairs=pairs)
             else:
                 if sequences is not None:
                     raise ToolError("--sequences picks sequences of a dataset: give an OTB-layout root as "
                                     "GROUND_TRUTH, or drop --sequences", EXIT_VALUE)
-                sequence = evaluate_result_file(results, ground_truth, notes=notes, pairs=pairs)
+                sequence = evaluate_result_file(results, ground_truth, pairs=pairs)
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
@@ -55,8 +53,9 @@ def eval_command(
             raise ToolError(str(exc), EXIT_INPUT) from None
         except (EvaluationError, OTBFormatError) as exc:
             raise ToolError(str(exc), EXIT_VALUE) from None
-        for note in notes:
-            typer.echo(note, err=True)
+        for pair, _ in pairs:
+            if pair.note:
+                typer.echo(pair.note, err=True)
         typer.echo(results_markdown([score]))
         failure = failure_summary(pairs)
         if failure is not None:

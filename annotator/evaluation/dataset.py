@@ -44,11 +44,9 @@ from typing import Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from annotator.evaluation.metrics import (
-    DEFAULT_INVALID_PRED,
     DatasetScore,
     EvaluationError,
     MissingInputError,
-    InvalidPredRule,
     SequenceScore,
     evaluate_sequence,
 )
@@ -373,10 +371,8 @@ def evaluate_result_file(
     ground_truth: str | os.PathLike,
     *,
     name: str | None = None,
-    replace_first: bool = True,
-    invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
-    notes: list[str] | None = None,
     pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
+    **rules,
 ) -> SequenceScore:
     """Score one result file (or output folder) against one ground-truth file.
 
@@ -389,20 +385,17 @@ def evaluate_result_file(
         OTB ground-truth file (1-based), e.g. ``<root>/David/groundtruth_rect.txt``.
     name : str, optional
         Sequence name; defaults to the ground-truth file's folder name.
-    replace_first, invalid_pred
-        As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
-    notes : list of str, optional
-        Receives :attr:`SequencePair.note` when only part of the ground truth is scored.
     pairs : list, optional
-        Receives ``(SequencePair, SequenceScore)`` (for the failure-probability metrics).
+        Receives ``(SequencePair, SequenceScore)`` (for the failure-probability metrics); the pair's
+        :attr:`SequencePair.note` says when only part of the ground truth was scored.
+    **rules
+        ``replace_first`` and ``invalid_pred``, as in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
     """
     ground_truth = Path(ground_truth)
     name = name or _sequence_name(ground_truth)
     result_path = find_result_file(result, name=name)
     pair = load_sequence_pair(result_path, ground_truth, name=name)
-    if notes is not None and pair.note:
-        notes.append(pair.note)
-    score = evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+    score = evaluate_sequence(pair.pred, pair.gt, name=name, **rules)
     if pairs is not None:
         pairs.append((pair, score))
     return score
@@ -415,10 +408,8 @@ def evaluate_results_dir(
     tracker: str | None = None,
     sequences: Iterable[str] | None = None,
     locate: ResultLocator = default_result_candidates,
-    replace_first: bool = True,
-    invalid_pred: InvalidPredRule = DEFAULT_INVALID_PRED,
-    notes: list[str] | None = None,
     pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
+    **rules,
 ) -> DatasetScore:
     """Score a folder of results against an OTB-layout root (one tracker).
 
@@ -432,12 +423,10 @@ def evaluate_results_dir(
         Name for plots and tables; defaults to the results folder's name.
     sequences, locate
         As in :func:`load_dataset_pairs`.
-    replace_first, invalid_pred
-        As in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
-    notes : list of str, optional
-        Receives :attr:`SequencePair.note` of each sequence scored only in part.
     pairs : list, optional
-        Receives ``(SequencePair, SequenceScore)`` of every sequence.
+        Receives ``(SequencePair, SequenceScore)`` of every sequence (:attr:`SequencePair.note`: scored in part).
+    **rules
+        ``replace_first`` and ``invalid_pred``, as in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
 
     Returns
     -------
@@ -445,10 +434,8 @@ def evaluate_results_dir(
     """
     results_dir = Path(results_dir)
     loaded = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
-    if notes is not None:
-        notes.extend(pair.note for pair in loaded.values() if pair.note)
     scores = {
-        name: evaluate_sequence(pair.pred, pair.gt, name=name, replace_first=replace_first, invalid_pred=invalid_pred)
+        name: evaluate_sequence(pair.pred, pair.gt, name=name, **rules)
         for name, pair in loaded.items()
     }
     if pairs is not None:

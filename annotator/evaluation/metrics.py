@@ -181,20 +181,11 @@ def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def center_error_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Euclidean distance between box centres, in pixels.
+    """Euclidean distance between the centres of paired boxes, in pixels: an (N,) float64 array.
 
-    Centre ``= (x + (w - 1) / 2, y + (h - 1) / 2)`` as in OTB
-    ``calcSeqErrRobust.m``, got10k ``center_error`` and pysot.
-
-    Parameters
-    ----------
-    a, b : (N, 4) array_like
-        ``xywh`` boxes, paired row by row.
-
-    Returns
-    -------
-    error : (N,) float64 ndarray
-        NaN where a row holds NaN.
+    ``a`` and ``b`` are (N, 4) ``xywh`` boxes paired row by row, as for :func:`iou_xywh`; a row holding NaN gives
+    NaN. Centre ``= (x + (w - 1) / 2, y + (h - 1) / 2)`` as in OTB ``calcSeqErrRobust.m``, got10k
+    ``center_error`` and pysot.
     """
     a, b = _paired_boxes(a, b, "center_error_xywh")
     center_a = a[:, :2] + (a[:, 2:] - 1.0) / 2.0
