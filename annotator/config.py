@@ -26,7 +26,7 @@ import yaml
 
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.text import read_given_file
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
 
 __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "resolve_config"]
@@ -75,15 +75,8 @@ class RunConfig:
 def load_config_file(path: str | Path) -> dict[str, Any]:
     """Read a YAML config file into a mapping, with errors naming the file."""
     path = Path(path)
-    try:
-        text = read_text(path)
-    except FileNotFoundError:
-        raise ConfigError(f"config file {path} does not exist: give the path of a YAML file", EXIT_INPUT) from None
-    except OSError as exc:
-        raise ConfigError(f"config file {path} cannot be read: {exc.strerror}", EXIT_INPUT) from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"config file {path} is not text ({TEXT_ENCODINGS}): give a YAML file with preset, seed, tracker "
-                          "and flags keys") from None
+    text = read_given_file(path, what="config file", expected="a YAML file with preset, seed, tracker and flags keys",
+                           error=ConfigError)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -163,7 +156,7 @@ def check_failure_model(path: str) -> None:
     try:
         load_model(path)
     except FailureModelError as exc:
-        raise ConfigError(str(exc), EXIT_INPUT if not Path(path).is_file() else EXIT_VALUE) from None
+        raise ConfigError(str(exc), exc.exit_code) from None
 
 
 def _check_tracker_accepts(params: TrackerParams) -> None:

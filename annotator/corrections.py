@@ -46,7 +46,7 @@ import numpy as np
 
 from annotator.box_input import Box, BoxError, parse_box
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.text import read_given_file
 from sptpt.boxes import lies_outside
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]
@@ -102,18 +102,8 @@ def read_corrections(path: str | os.PathLike) -> list[Correction]:
         naming ``FILE:LINE``, the value given and the value expected.
     """
     path = Path(path)
-    try:
-        text = read_text(path)
-    except FileNotFoundError:
-        raise ToolError(f"corrections file {path} does not exist: give a CSV frame,x,y,w,h[,track_id] "
-                        "or a COCO annotations.json", EXIT_INPUT) from None
-    except IsADirectoryError:
-        raise ToolError(f"corrections file {path} is a folder: give the CSV or COCO file inside it", EXIT_INPUT) from None
-    except UnicodeDecodeError:
-        raise ToolError(f"corrections file {path} is not text ({TEXT_ENCODINGS}): expected a CSV frame,x,y,w,h[,track_id] "
-                        "or a COCO JSON file", EXIT_VALUE) from None
-    except OSError as exc:
-        raise ToolError(f"corrections file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
+    text = read_given_file(path, what="corrections file",
+                           expected="a CSV frame,x,y,w,h[,track_id] or a COCO annotations.json")
     head = text.lstrip()
     if head.startswith("<") or head.startswith("["):
         kind = "a CVAT XML" if head.startswith("<") else "a Label Studio JSON"

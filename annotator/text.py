@@ -5,8 +5,11 @@ from __future__ import annotations
 import codecs
 import os
 from pathlib import Path
+from typing import Callable
 
-__all__ = ["TEXT_ENCODINGS", "decode_text", "read_text"]
+from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+
+__all__ = ["TEXT_ENCODINGS", "decode_text", "read_text", "read_given_file"]
 
 #: What :func:`decode_text` reads, as error messages say it.
 TEXT_ENCODINGS = "UTF-8, or UTF-16 with a byte-order mark"
@@ -34,3 +37,24 @@ def read_text(path: str | os.PathLike) -> str:
     """The text of ``path`` decoded by :func:`decode_text`, with ``\\r\\n`` and ``\\r`` read as ``\\n`` (as
     :meth:`pathlib.Path.read_text` reads them)."""
     return decode_text(Path(path).read_bytes()).replace("\r\n", "\n").replace("\r", "\n")
+
+
+def read_given_file(path: str | os.PathLike, *, what: str, expected: str,
+                    error: Callable[[str, int], Exception] = ToolError) -> str:
+    """The text of a file the user gave (:func:`read_text`), or one line that says what is wrong and what to give.
+
+    ``what`` names the file in the message ("corrections file"), ``expected`` says what to give instead ("a CSV
+    frame,x,y,w,h"). ``error(message, exit_code)`` is raised: exit 3 (EXIT_INPUT) when the file is missing, a
+    folder or unreadable, 4 (EXIT_VALUE) when it is not text.
+    """
+    try:
+        return read_text(path)
+    except FileNotFoundError:
+        raise error(f"{what} {path} does not exist: give {expected}", EXIT_INPUT) from None
+    except IsADirectoryError:
+        raise error(f"{what} {path} is a folder: give {expected}", EXIT_INPUT) from None
+    except UnicodeDecodeError:
+        raise error(f"{what} {path} is not text ({TEXT_ENCODINGS}): give {expected}", EXIT_VALUE) from None
+    except OSError as exc:
+        raise error(f"{what} {path} cannot be read ({exc.strerror or exc}): check its permissions, or give "
+                    f"{expected}", EXIT_INPUT) from None

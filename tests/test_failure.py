@@ -648,10 +648,13 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
     code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "m.json", "--out", tmp_path / "o")
     assert code == 4 and "m.json is not a sptpt-annotate failure model" in output
     code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "nope.json")
-    assert code == 3 and "nope.json cannot be read" in output
+    assert code == 3 and "failure model " in output and "nope.json does not exist: give a model JSON" in output
     (tmp_path / "m.bin").write_bytes(b"\x00\xff\xfe\x9c" * 50)
     code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "m.bin", "--out", tmp_path / "o")
-    assert code == 4 and "m.bin is not a text file" in output and output.strip().count("\n") == 0
+    assert code == 4 and "m.bin is not text (UTF-8" in output and output.strip().count("\n") == 0
+    (tmp_path / "folder").mkdir()
+    code, output = _run(tmp_path, "--box", "1,2,3,4", "--failure-model", tmp_path / "folder")
+    assert code == 3 and "folder is a folder: give a model JSON" in output
     assert not (tmp_path / "o").exists()
 
 

@@ -73,6 +73,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from annotator.errors import EXIT_VALUE
+from annotator.text import read_given_file
 from annotator.failure.signals import SIGNALS, measured_mean
 
 __all__ = [
@@ -242,7 +244,14 @@ class PassChoice:
 
 
 class FailureModelError(ValueError):
-    """A failure-model file that cannot be used; the message names the file and says what is wrong."""
+    """A failure-model file that cannot be used; the message names the file and says what is wrong.
+
+    ``exit_code``: 3 (EXIT_INPUT) when the file cannot be read, 4 (EXIT_VALUE) when what it holds cannot be used.
+    """
+
+    def __init__(self, message: str, exit_code: int = EXIT_VALUE) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 class _Causal:
@@ -415,14 +424,9 @@ def load_model(path: str | os.PathLike | None = None) -> FailureModel:
             raise FailureModelError(f"{where} cannot be read ({exc}); reinstall sptpt-annotate") from None
     else:
         where = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise FailureModelError(f"failure model {path} cannot be read ({exc.strerror or exc}): check the path, "
-                                    "or leave --failure-model out to use the shipped model") from None
-        except UnicodeDecodeError:
-            raise FailureModelError(f"failure model {path} is not a text file: give a model JSON written by "
-                                    "benchmarks/failure_model.py --write, or leave --failure-model out") from None
+        text = read_given_file(path, what="failure model", error=FailureModelError,
+                               expected="a model JSON written by benchmarks/failure_model.py --write, or leave "
+                                        "--failure-model out to use the shipped model")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -64,7 +64,7 @@ from annotator.corrections import Correction
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
 from annotator.exports.review_tools import check_frame_range, visible
 from annotator.exports.labelstudio import labelstudio_region_id
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.text import read_given_file, read_text
 from annotator.tracks import TrackResult, VideoInfo
 from annotator.wording import plural
 from sptpt.boxes import clip_xywh, xywh_to_xyxy, xyxy_to_xywh
@@ -79,16 +79,7 @@ Box = tuple[float, float, float, float]
 
 
 def _read_text(path: Path, what: str) -> str:
-    try:
-        return read_text(path)
-    except FileNotFoundError:
-        raise ToolError(f"{what} file {path} does not exist", EXIT_INPUT) from None
-    except IsADirectoryError:
-        raise ToolError(f"{what} file {path} is a folder: give the exported file inside it", EXIT_INPUT) from None
-    except UnicodeDecodeError:
-        raise ToolError(f"{what} file {path} is not text ({TEXT_ENCODINGS}): expected the {what} export", EXIT_VALUE) from None
-    except OSError as exc:
-        raise ToolError(f"{what} file {path} cannot be read ({exc.strerror})", EXIT_INPUT) from None
+    return read_given_file(path, what=f"{what} file", expected=f"the file {what} exported")
 
 
 class _RunTrack:
@@ -659,6 +650,6 @@ def read_run_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: S
     if start.startswith("<"):
         return read_cvat_corrections(path, video=video, tracks=tracks, frames=frames,
                                      exported=(exported or {}).get("cvat"))
-    if start.startswith("[") or (start.startswith("{") and _looks_like_labelstudio(_read_text(path, "Label Studio export"))):
+    if start.startswith("[") or (start.startswith("{") and _looks_like_labelstudio(_read_text(path, "Label Studio"))):
         return read_labelstudio_corrections(path, video=video, tracks=tracks, frames=frames)
     return read_corrections(path)
