@@ -23,7 +23,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from annotator.batch import ItemJob, is_item_finished, item_seed, plan_batch, read_run_json, run_batch
+from annotator.batch import BatchRequest, ItemJob, is_item_finished, item_seed, plan_batch, read_run_json, run_batch
 from annotator.cli import main
 from annotator.config import load_config_file
 from annotator.frames import open_frames
@@ -163,7 +163,7 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     out1 = dataset / "out1"
     items = read_manifest(dataset / "good.jsonl")
     config = load_config_file(dataset / "fast.yaml")
-    result = run_batch(items, out_dir=out1, config_values=config, workers=1, show_progress=False)
+    result = run_batch(items, BatchRequest(config_values=config), out_dir=out1, workers=1, show_progress=False)
     assert result.exit_code == 0 and result.counts["done"] == 3
     for name in GOOD:
         assert item_outputs(out1 / name) == item_outputs(out2 / name), name
@@ -173,14 +173,15 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
 
     # A rerun keeps every finished item untouched.
     stamps = {name: (out1 / name / "run.json").stat().st_mtime_ns for name in GOOD}
-    again = run_batch(items, out_dir=out1, config_values=config, workers=1, show_progress=False)
+    again = run_batch(items, BatchRequest(config_values=config), out_dir=out1, workers=1, show_progress=False)
     assert again.exit_code == 0 and again.counts["reused"] == 3 and again.frames_this_run == 0
     assert {name: (out1 / name / "run.json").stat().st_mtime_ns for name in GOOD} == stamps
     assert json.loads((out1 / "annotations.json").read_text()) == merged1
 
     # Changed params, a changed input or --force make an item's outputs stale; nothing else does.
-    def reuse(**kwargs):
-        plans = plan_batch(items, out_dir=out1, config_values=kwargs.pop("config", config), **kwargs)
+    def reuse(force=False, **kwargs):
+        request = BatchRequest(config_values=kwargs.pop("config", config), **kwargs)
+        plans = plan_batch(items, request, out_dir=out1, force=force)
         return {p.item.id: p.reuse for p in plans}
 
     assert reuse() == {"v0": True, "v1": True, "v2": True}
@@ -191,7 +192,7 @@ def test_one_and_two_workers_give_identical_outputs_and_reruns_skip(first_run, d
     assert reuse(config={"tracker": {"n_particles": 61, "n_negatives": 20}})["v0"] is False
     edited = [*items]
     edited[1] = type(items[1])(**{**items[1].__dict__, "params": {"flags": {"merge_gap": 2}}})
-    plans = plan_batch(edited, out_dir=out1, config_values=config)
+    plans = plan_batch(edited, BatchRequest(config_values=config), out_dir=out1)
     assert [p.reuse for p in plans] == [True, False, True]
     job: ItemJob = plans[0].job
     run = read_run_json(out1 / "v0")
@@ -289,8 +290,8 @@ def test_kill_9_mid_item_then_rerun_finishes_the_rest_without_redoing(dataset, l
     assert finished and running
     kept = {d.name: ((d / "run.json").read_bytes(), (d / "run.json").stat().st_mtime_ns) for d in finished}
 
-    result = run_batch(read_manifest(longer), out_dir=out, config_values=load_config_file(dataset / "fast.yaml"),
-                       workers=1, show_progress=False)
+    result = run_batch(read_manifest(longer), BatchRequest(config_values=load_config_file(dataset / "fast.yaml")),
+                       out_dir=out, workers=1, show_progress=False)
     assert result.exit_code == 0 and result.counts["done"] == 3
     assert {r["id"] for r in result.rows if r["reused"]} == set(kept)
     for name, (content, mtime) in kept.items():
@@ -369,8 +370,8 @@ def test_dask_local_cluster_gives_the_same_outputs(first_run, dataset):
     out = dataset / "dask"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None) as cluster:
-        result = run_batch(read_manifest(dataset / "good.jsonl"), out_dir=out,
-                           config_values=load_config_file(dataset / "fast.yaml"),
+        result = run_batch(read_manifest(dataset / "good.jsonl"),
+                           BatchRequest(config_values=load_config_file(dataset / "fast.yaml")), out_dir=out,
                            scheduler=cluster.scheduler_address, show_progress=False)
     assert result.exit_code == 0 and result.counts["done"] == 3
     summary = json.loads((out / "summary.json").read_text())

@@ -29,7 +29,7 @@ from typing import Any, Mapping, Sequence
 
 from annotator import __version__
 from annotator.atomic import write_text_atomic
-from annotator.batch.plan import PlannedItem, normalised_json, read_run_json
+from annotator.batch.plan import BatchRequest, PlannedItem, normalised_json, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
 from annotator.pages import BATCH_TEMPLATE, template_environment
@@ -177,11 +177,11 @@ def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
     write_text_atomic(path, page)
 
 
-def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, ItemOutcome], *, out_dir: Path,
-                        seconds: float, manifest: str | None, formats: Sequence[str], seed: int | None,
-                        config_values: Mapping[str, Any] | None, preset: str | None, settings: Mapping[str, Any],
-                        interrupted: bool, media_url: str | None = None) -> BatchResult:
+def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, ItemOutcome], request: BatchRequest,
+                        *, out_dir: Path, seconds: float, manifest: str | None, settings: Mapping[str, Any],
+                        interrupted: bool) -> BatchResult:
     """Write every batch-level file from all planned items (reused ones included) and say what the run did."""
+    formats, seed, config_values, media_url = request.formats, request.seed, request.config_values, request.media_url
     from annotator.exports.coco import save_coco
 
     rows = [_status_row(plan, outcomes.get(plan.item.id), read_run_json(plan.job.folder), out_dir)
@@ -200,7 +200,8 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "manifest": manifest,
         "out": str(out_dir.resolve()),
-        "settings": {"base_seed": base_seed, "preset": preset, "config": normalised_json(dict(config_values or {})),
+        "settings": {"base_seed": base_seed, "preset": request.preset,
+                     "config": normalised_json(dict(config_values or {})),
                      "formats": list(formats), **dict(settings)},
         "counts": counts,
         "exit_code": exit_code,

@@ -159,24 +159,44 @@ def _estimate_frames(item: BatchItem, start: int, stop: int | None, step: int) -
     return max(0, (end - start + step - 1) // step) * max(1, len(item.targets))
 
 
-def plan_batch(
-    items: Sequence[BatchItem],
-    *,
-    out_dir: str | os.PathLike,
-    config_values: Mapping[str, Any] | None = None,
-    config_source: str = "config",
-    preset: str | None = None,
-    seed: int | None = None,
-    formats: Sequence[str] = DEFAULT_FORMATS,
-    force: bool = False,
-    start: int | None = None,
-    stop: int | None = None,
-    step: int | None = None,
-    media_url: str | None = None,
-) -> list[PlannedItem]:
+@dataclass(frozen=True)
+class BatchRequest:
+    """What a batch asks of every item, as ``sptpt-annotate batch`` takes it from the command line.
+
+    Attributes
+    ----------
+    config_values : mapping, optional
+        A ``--config`` file's mapping (item params override it).
+    config_source : str
+        Where it came from, for error messages.
+    preset : str, optional
+        ``--preset``.
+    seed : int, optional
+        The base seed (``--seed``): item ``id`` gets :func:`item_seed` ``(seed, id)``.
+    formats : sequence of str
+        Outputs of each item (``otb, coco, flags, overlay, report``, ...).
+    start, stop, step : int, optional
+        Frame range of items whose manifest row gives none.
+    media_url : str, optional
+        The prefix of each video's URL in the review tools' task files.
+    """
+
+    config_values: Mapping[str, Any] | None = None
+    config_source: str = "config"
+    preset: str | None = None
+    seed: int | None = None
+    formats: Sequence[str] = DEFAULT_FORMATS
+    start: int | None = None
+    stop: int | None = None
+    step: int | None = None
+    media_url: str | None = None
+
+
+def plan_batch(items: Sequence[BatchItem], request: BatchRequest = BatchRequest(), *, out_dir: str | os.PathLike,
+               force: bool = False) -> list[PlannedItem]:
     """Resolve every item's settings and decide which finished outputs to keep.
 
-    ``start``, ``stop``, ``step`` are defaults for items that give no range.
+    ``request``'s ``start``, ``stop``, ``step`` are defaults for items that give no range.
 
     Raises
     ------
@@ -187,7 +207,8 @@ def plan_batch(
         The batch configuration itself is invalid (exit code 4).
     """
     out_dir = Path(out_dir)
-    file_values = dict(config_values or {})
+    config_source, preset, seed, formats = request.config_source, request.preset, request.seed, request.formats
+    file_values = dict(request.config_values or {})
     unknown = sorted(set(formats) - set(ALL_FORMATS))
     if unknown:
         raise ToolError(f"--formats {','.join(unknown)} is not known: choose from {','.join(ALL_FORMATS)}", EXIT_VALUE)
@@ -203,12 +224,12 @@ def plan_batch(
         except ConfigError as exc:
             errors.append(ManifestError(item.source, item.line, "params", f"{exc}; fix the item's params"))
             continue
-        item_start = item.start if item.start is not None else (start or 0)
-        item_stop = item.stop if item.stop is not None else stop
-        item_step = item.step if item.step is not None else (step or 1)
+        item_start = item.start if item.start is not None else (request.start or 0)
+        item_stop = item.stop if item.stop is not None else request.stop
+        item_step = item.step if item.step is not None else (request.step or 1)
         job = ItemJob(item_id=item.id, input_path=str(item.input_path), targets=tuple(item.targets),
                       start=item_start, stop=item_stop, step=item_step, config=config,
-                      folder=str(out_dir / item.id), formats=tuple(formats), media_url=media_url)
+                      folder=str(out_dir / item.id), formats=tuple(formats), media_url=request.media_url)
         reuse = not force and is_item_finished(job, read_run_json(job.folder))
         planned.append(PlannedItem(item, job, reuse, _estimate_frames(item, item_start, item_stop, item_step)))
     if errors:

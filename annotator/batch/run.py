@@ -15,13 +15,12 @@ import dataclasses
 import os
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence, TextIO
+from typing import Sequence, TextIO
 
-from annotator.formats import DEFAULT_FORMATS
 from annotator.batch.executors import (check_scheduler_address, default_workers, execute_items, threads_per_worker,
                                        worker_context)
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
-from annotator.batch.plan import PlannedItem, is_item_finished, plan_batch, read_run_json
+from annotator.batch.plan import BatchRequest, PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
 from annotator.manifest import BatchItem
@@ -104,8 +103,8 @@ def _remove_stale_temporaries(out_dir: Path) -> None:
                 path.unlink()
 
 
-def _check_batch_settings(*, workers: int | None, start: int | None, stop: int | None, step: int | None,
-                          scheduler: str | None) -> None:
+def _check_batch_settings(request: BatchRequest, *, workers: int | None, scheduler: str | None) -> None:
+    start, stop, step = request.start, request.stop, request.step
     if workers is not None and workers < 1:
         raise ToolError(f"--workers {workers} is invalid: give 1 or more worker processes", EXIT_VALUE)
     if start is not None and start < 0:
@@ -159,23 +158,15 @@ def _run_items(planned: list, out_dir: Path, *, force: bool, scheduler: str | No
 
 def run_batch(
     items: Sequence[BatchItem],
+    request: BatchRequest = BatchRequest(),
     *,
     out_dir: str | os.PathLike,
-    config_values: Mapping[str, Any] | None = None,
-    config_source: str = "config",
-    preset: str | None = None,
-    seed: int | None = None,
-    formats: Sequence[str] = DEFAULT_FORMATS,
     force: bool = False,
-    start: int | None = None,
-    stop: int | None = None,
-    step: int | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     show_progress: bool = True,
     manifest: str | None = None,
     stream: TextIO | None = None,
-    media_url: str | None = None,
 ) -> BatchResult:
     """Run every item, skipping finished ones; write the batch-level files.
 
@@ -184,18 +175,12 @@ def run_batch(
     items : sequence of BatchItem
         From :func:`~annotator.manifest.read_manifest` or
         :func:`~annotator.manifest.items_from_otb_root`.
+    request : BatchRequest
+        What every item is asked for: configuration, seed, formats, default frame range, media URL.
     out_dir : path-like
         ``OUT``; each item writes to ``OUT/<id>/``.
-    config_values, config_source, preset, seed
-        The batch configuration as for ``sptpt-annotate VIDEO`` (a
-        ``--config`` file's mapping and its name, ``--preset``, ``--seed``);
-        item params override it; ``seed`` is the base seed.
-    formats : sequence of str
-        Outputs of each item (``otb, coco, flags, overlay, report``).
     force : bool
         Redo finished items too.
-    start, stop, step : int, optional
-        Frame range of items whose manifest row gives none.
     workers : int, optional
         Local worker processes (default: the number of cores).
     scheduler : str, optional
@@ -220,20 +205,18 @@ def run_batch(
         After stopping the workers and writing the batch files for what finished.
     """
     out_dir = Path(out_dir)
-    _check_batch_settings(workers=workers, start=start, stop=stop, step=step, scheduler=scheduler)
+    _check_batch_settings(request, workers=workers, scheduler=scheduler)
     # Settings are checked before the output folder is touched; finished outputs are judged under the lock.
-    planned = plan_batch(items, out_dir=out_dir, config_values=config_values, config_source=config_source,
-                         preset=preset, seed=seed, formats=formats, force=True, start=start, stop=stop, step=step,
-                         media_url=media_url)
+    planned = plan_batch(items, request, out_dir=out_dir, force=True)
     _prepare_out_dir(out_dir, planned)
     started = time.perf_counter()
     with _exclusive(out_dir):
         outcomes, interrupted, settings = _run_items(planned, out_dir, force=force, scheduler=scheduler,
                                                      workers=workers or default_workers(),
                                                      show_progress=show_progress, stream=stream)
-        result = write_batch_outputs(planned, outcomes, out_dir=out_dir, seconds=time.perf_counter() - started,
-                                     manifest=manifest, formats=formats, seed=seed, config_values=config_values,
-                                     preset=preset, settings=settings, interrupted=interrupted, media_url=media_url)
+        result = write_batch_outputs(planned, outcomes, request, out_dir=out_dir,
+                                     seconds=time.perf_counter() - started, manifest=manifest, settings=settings,
+                                     interrupted=interrupted)
     if interrupted:
         raise KeyboardInterrupt
     return result

@@ -35,7 +35,7 @@ def batch_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Label a dataset: every manifest item in parallel; finished items are skipped on a rerun; failures stay isolated."""
-    from annotator.batch import run_batch
+    from annotator.batch import BatchRequest, run_batch
     from annotator.config import ConfigError, load_config_file
     from annotator.manifest import InvalidManifestError, items_from_otb_root, read_manifest
 
@@ -54,11 +54,11 @@ def batch_command(
                                 "appended", EXIT_VALUE)
             if no_render:
                 chosen = [f for f in chosen if f != "overlay"]
-            result = run_batch(items, out_dir=out, config_values=file_values,
-                               config_source=str(config_file or "command line"), preset=preset, seed=seed,
-                               formats=chosen, force=force, start=start, stop=stop, workers=workers,
-                               scheduler=scheduler, show_progress=not quiet, manifest=str(otb_root or manifest),
-                               media_url=media_url)
+            request = BatchRequest(config_values=file_values, config_source=str(config_file or "command line"),
+                                   preset=preset, seed=seed, formats=chosen, start=start, stop=stop,
+                                   media_url=media_url)
+            result = run_batch(items, request, out_dir=out, force=force, workers=workers, scheduler=scheduler,
+                               show_progress=not quiet, manifest=str(otb_root or manifest))
         except InvalidManifestError as exc:
             if debug:
                 raise
