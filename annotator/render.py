@@ -30,6 +30,7 @@ import numpy as np
 from annotator.atomic import atomic_path
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.boxes import xywh_to_xyxy
+from sptpt.results import checked_box, checked_particles
 
 __all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks", "label_text"]
 
@@ -90,25 +91,13 @@ class OverlayItem:
     superpixel_origin_xy: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        box = np.asarray(self.box_xywh, dtype=np.float64)
-        if box.shape != (4,):
-            raise ValueError(f"OverlayItem.box_xywh must have shape (4,), got {box.shape}")
-        object.__setattr__(self, "box_xywh", box)
+        object.__setattr__(self, "box_xywh", checked_box(self.box_xywh, "OverlayItem: "))
         if not isinstance(self.keyframe_source, str):
             raise ValueError(f"OverlayItem.keyframe_source must be a string ('{KEYFRAME_GIVEN}', 'FILE:LINE' or ''), "
                              f"got {self.keyframe_source!r}")
-        if (self.particles_xywh is None) != (self.particle_scores is None):
-            raise ValueError("OverlayItem: particles_xywh and particle_scores come together or not at all")
-        if self.particles_xywh is not None:
-            particles = np.asarray(self.particles_xywh, dtype=np.float64)
-            scores = np.asarray(self.particle_scores, dtype=np.float64)
-            if particles.ndim != 2 or particles.shape[1] != 4 or scores.shape != (particles.shape[0],):
-                raise ValueError(
-                    f"OverlayItem: particles_xywh must be (N, 4) and particle_scores (N,), "
-                    f"got {particles.shape} and {scores.shape}"
-                )
-            object.__setattr__(self, "particles_xywh", particles)
-            object.__setattr__(self, "particle_scores", scores)
+        particles, scores = checked_particles(self.particles_xywh, self.particle_scores, "OverlayItem: ")
+        object.__setattr__(self, "particles_xywh", particles)
+        object.__setattr__(self, "particle_scores", scores)
         if (self.superpixel_labels is None) != (self.superpixel_origin_xy is None):
             raise ValueError("OverlayItem: superpixel_labels and superpixel_origin_xy come together or not at all")
         if self.superpixel_labels is not None:

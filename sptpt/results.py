@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FrameResult", "confidence_from_log_likelihood"]
+__all__ = ["FrameResult", "checked_box", "checked_particles", "confidence_from_log_likelihood"]
 
 
 def confidence_from_log_likelihood(log_likelihood: float, *, scale: float) -> float:
@@ -20,6 +20,32 @@ def confidence_from_log_likelihood(log_likelihood: float, *, scale: float) -> fl
     if not np.isfinite(log_likelihood):
         return 0.0
     return float(1.0 / (1.0 + np.exp(-log_likelihood / scale)))
+
+
+def checked_box(box_xywh, owner: str = "") -> np.ndarray:
+    """One box ``(x, y, w, h)`` as a (4,) float64 array; a ValueError whose message starts with ``owner`` if not."""
+    box = np.asarray(box_xywh, dtype=np.float64)
+    if box.shape != (4,):
+        raise ValueError(f"{owner}box_xywh must have shape (4,), got {box.shape}")
+    return box
+
+
+def checked_particles(particles_xywh, particle_scores, owner: str = "") -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Candidate boxes ``(N, 4)`` and their scores ``(N,)`` as float64 arrays, or both None.
+
+    Raises ValueError (its message starts with ``owner``, e.g. ``"OverlayItem: "``) when only one is given or
+    their shapes do not pair up.
+    """
+    if (particles_xywh is None) != (particle_scores is None):
+        raise ValueError(f"{owner}particles_xywh and particle_scores come together or not at all")
+    if particles_xywh is None:
+        return None, None
+    particles = np.asarray(particles_xywh, dtype=np.float64)
+    scores = np.asarray(particle_scores, dtype=np.float64)
+    if particles.ndim != 2 or particles.shape[1] != 4 or scores.shape != (particles.shape[0],):
+        raise ValueError(f"{owner}particles_xywh must be (N, 4) and particle_scores (N,), "
+                         f"got {particles.shape} and {scores.shape}")
+    return particles, scores
 
 
 @dataclass(frozen=True)
@@ -74,25 +100,14 @@ class FrameResult:
     run_boxes_xywh: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        box = np.asarray(self.box_xywh, dtype=np.float64)
-        if box.shape != (4,):
-            raise ValueError(f"box_xywh must have shape (4,), got {box.shape}")
-        object.__setattr__(self, "box_xywh", box)
+        object.__setattr__(self, "box_xywh", checked_box(self.box_xywh))
         if not 0.0 <= self.confidence <= 1.0:
             raise ValueError(f"confidence must lie in [0, 1], got {self.confidence}")
         if self.scoring not in ("init", "bootstrap", "subspace"):
             raise ValueError(f"scoring must be 'init', 'bootstrap' or 'subspace', got {self.scoring!r}")
-        if (self.particles_xywh is None) != (self.particle_scores is None):
-            raise ValueError("particles_xywh and particle_scores come together or not at all")
-        if self.particles_xywh is not None:
-            particles = np.asarray(self.particles_xywh, dtype=np.float64)
-            scores = np.asarray(self.particle_scores, dtype=np.float64)
-            if particles.ndim != 2 or particles.shape[1] != 4 or scores.shape != (particles.shape[0],):
-                raise ValueError(
-                    f"particles_xywh must be (N, 4) and particle_scores (N,), got {particles.shape} and {scores.shape}"
-                )
-            object.__setattr__(self, "particles_xywh", particles)
-            object.__setattr__(self, "particle_scores", scores)
+        particles, scores = checked_particles(self.particles_xywh, self.particle_scores)
+        object.__setattr__(self, "particles_xywh", particles)
+        object.__setattr__(self, "particle_scores", scores)
         if (self.superpixel_labels is None) != (self.superpixel_origin_xy is None):
             raise ValueError("superpixel_labels and superpixel_origin_xy come together or not at all")
         if self.run_boxes_xywh is not None:

@@ -315,3 +315,20 @@ def test_writer_argument_errors(tmp_path, kwargs, needle):
     args = {"fps": 25.0, "width": 32, "height": 32, **kwargs}
     with pytest.raises(ValueError, match=needle):
         OverlayWriter(tmp_path / "x.mp4", **args)
+
+
+@pytest.mark.parametrize("make", [
+    lambda **kw: OverlayItem(**{"box_xywh": (1, 2, 3, 4), "track_id": 1, "confidence": 0.5, **kw}),
+    lambda **kw: FrameResult(**{"box_xywh": (1, 2, 3, 4), "log_likelihood": 0.0, "confidence": 0.5,
+                                "accepted": True, "scoring": "subspace", **kw}),
+])
+def test_frame_results_and_overlay_items_check_their_particles_alike(make):
+    item = make(particles_xywh=[[0, 0, 2, 2], [1, 1, 2, 2]], particle_scores=[0.1, 0.2])
+    assert item.particles_xywh.dtype == np.float64 and item.particle_scores.shape == (2,)
+    with pytest.raises(ValueError, match="particles_xywh and particle_scores come together or not at all"):
+        make(particles_xywh=[[0, 0, 2, 2]])
+    with pytest.raises(ValueError, match=r"particles_xywh must be \(N, 4\) and particle_scores \(N,\), "
+                                         r"got \(1, 4\) and \(2,\)"):
+        make(particles_xywh=[[0, 0, 2, 2]], particle_scores=[0.1, 0.2])
+    with pytest.raises(ValueError, match=r"box_xywh must have shape \(4,\), got \(3,\)"):
+        make(box_xywh=(1, 2, 3))
