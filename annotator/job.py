@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import errno
 import json
 import numbers
 import os
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Sequence
 
 from annotator import __version__
-from annotator.atomic import atomic_path, ctrl_c_ignored
+from annotator.atomic import ctrl_c_ignored
 from annotator.box_input import parse_box
 from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
@@ -36,7 +35,7 @@ from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import CountNote, Progress
 from annotator.pass_cache import first_pass
 from annotator.provenance import content_hash
-from annotator.publish import OVERLAY_NAME, write_run_files
+from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
 from annotator.store import STORE_NAME, RunStore
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
@@ -278,8 +277,8 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
                     # A partial run kept beside an earlier finished one is out of date once that one is replaced.
                     shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
                 _publish(result, destination)
-        except OSError as exc:
-            keep_staging = True
+        except MoveError as failed:
+            keep_staging, exc = True, failed.cause
             raise ToolError(f"{exc.filename or destination}: {exc.strerror or exc} while moving the results into "
                             f"{destination}; this run's complete results are in {staging}: move them by hand "
                             "or rerun with another --out", EXIT_OUTPUT) from None
@@ -315,35 +314,13 @@ def _publish(result: AnnotateResult, out_dir: Path) -> None:
     disagree with the new run.json. ``result`` then names the files where they ended up.
     """
     staging = result.out_dir
-    out_dir.mkdir(exist_ok=True)
-    previous = previous_outputs(out_dir)
     names = [str(p.relative_to(staging)) for paths in result.outputs.values() for p in paths]
-    with contextlib.suppress(FileNotFoundError):
-        (out_dir / "run.json").unlink()
-    for name in names:
-        if name != "run.json":
-            (out_dir / name).parent.mkdir(parents=True, exist_ok=True)
-            _move(staging / name, out_dir / name)
-    for name in sorted(previous - set(names)):
-        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
-            (out_dir / name).unlink()
-    _move(staging / "run.json", out_dir / "run.json")
+    retire = sorted(previous_outputs(out_dir) - set(names)) if out_dir.is_dir() else []
+    move_into_place(staging, out_dir, names, retire=retire, unmark_first=True)
     result.out_dir = out_dir
     result.outputs = {kind: [out_dir / p.relative_to(staging) for p in paths] for kind, paths in result.outputs.items()}
     if result.run.overlay_path is not None:
         result.run.overlay_path = out_dir / result.run.overlay_path.relative_to(staging)
-
-
-def _move(source: Path, target: Path) -> None:
-    """Rename ``source`` onto ``target``; across file systems (a symlinked subfolder), copy it atomically."""
-    try:
-        os.replace(source, target)
-    except OSError as exc:
-        if exc.errno != errno.EXDEV:
-            raise
-        with atomic_path(target) as tmp:
-            shutil.copyfile(source, tmp)
-        source.unlink()
 
 
 @contextlib.contextmanager

@@ -6,15 +6,23 @@ its presence marks a finished run, and batch resumption relies on it). The
 overlay is not written here: it is a sink of the tracking pipeline
 (:class:`annotator.pipeline.OverlaySink`), streamed by a first run while it
 tracks and rendered from the tracks by a re-track, before the files here.
+
+Both write into a staging folder and :func:`move_into_place` moves the
+complete set into the output folder, the track store next to last and
+run.json last, so that an earlier run stays whole until then.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import os
+import shutil
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
-from annotator.atomic import write_text_atomic
+from annotator.atomic import atomic_path, write_text_atomic
 from annotator.exports import ExportOptions, record_review_exports, write_exports
 from annotator.pipeline import SpanThumbnail
 from annotator.provenance import json_default
@@ -22,7 +30,8 @@ from annotator.report import corrections_section, render_report, track_summary
 from annotator.pass_cache import PASSES_NAME, pass_fingerprint, write_pass_cache
 from annotator.store import STORE_NAME, RunStore, write_store
 
-__all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "run_fingerprint", "write_run_files"]
+__all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "MoveError", "move_into_place", "run_fingerprint",
+           "write_run_files"]
 
 OVERLAY_NAME = "overlay.mp4"
 REPORT_NAME = "report.html"
@@ -109,3 +118,90 @@ def _report_run_info(info: Mapping[str, Any], store: RunStore) -> dict[str, Any]
             "seconds_total": timings.get("seconds_total") or 0.0,
             "seconds_tracking": timings.get("seconds_tracking") or 0.0,
             "seconds_outside": timings.get("seconds_outside_tracker") or 0.0}
+
+
+class MoveError(Exception):
+    """:func:`move_into_place` stopped: ``cause`` says why, ``moved`` what was already in place (relative names).
+
+    ``blocked`` is the earlier file that could not be moved aside (then nothing changed), else None.
+    """
+
+    def __init__(self, cause: OSError, moved: Sequence[Path], blocked: Path | None = None) -> None:
+        super().__init__(str(cause))
+        self.cause, self.moved, self.blocked = cause, list(moved), blocked
+
+
+def move_into_place(staging: Path, out_dir: Path, names: Iterable[str | os.PathLike], *,
+                    retire: Iterable[str | os.PathLike] = (), unmark_first: bool = False) -> list[Path]:
+    """Move the files ``names`` (relative to ``staging``) into ``out_dir``, the track store next to last and
+    run.json last; return where they are.
+
+    Parameters
+    ----------
+    staging, out_dir : Path
+    names : iterable of path-like
+        The files a run wrote into ``staging``.
+    retire : iterable of path-like
+        Files of ``out_dir`` that the new run does not write and that would disagree with it. Each is moved aside
+        before anything else, so that one that cannot be (a video open in a player on Windows) stops the move
+        with nothing changed; they are deleted once every file is in place, and put back if a move fails.
+    unmark_first : bool
+        Remove ``out_dir``'s run.json before anything moves, so that a crash part-way leaves a folder that holds no
+        finished run (a first run: batch resumption redoes it). A re-track keeps it: the earlier run.json goes on
+        describing the earlier track store until both are replaced, so the re-track can be run again.
+
+    Raises
+    ------
+    MoveError
+        A file could not be moved aside (nothing changed) or moved in (``moved`` lists what had been).
+    """
+    names = [Path(name) for name in names]
+    last = [name for name in (Path(STORE_NAME), Path(RUN_JSON)) if name in names]
+    order = [*(name for name in names if name not in last), *last]
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise MoveError(exc, []) from None
+    aside: dict[Path, Path] = {}
+    for name in map(Path, retire):
+        target = out_dir / name
+        if target.is_file():
+            try:
+                os.replace(target, target.with_name(f".{target.name}.stale"))
+            except OSError as exc:
+                _put_back(aside)
+                raise MoveError(exc, [], blocked=target) from None
+            aside[target] = target.with_name(f".{target.name}.stale")
+    moved: list[Path] = []
+    try:
+        if unmark_first:
+            (out_dir / RUN_JSON).unlink(missing_ok=True)
+        for name in order:
+            (out_dir / name).parent.mkdir(parents=True, exist_ok=True)
+            _move(staging / name, out_dir / name)
+            moved.append(name)
+    except OSError as exc:
+        _put_back(aside)
+        raise MoveError(exc, moved) from None
+    for stale in aside.values():
+        with contextlib.suppress(OSError):
+            stale.unlink()
+    return [out_dir / name for name in order]
+
+
+def _put_back(aside: Mapping[Path, Path]) -> None:
+    for target, stale in aside.items():
+        with contextlib.suppress(OSError):
+            os.replace(stale, target)
+
+
+def _move(source: Path, target: Path) -> None:
+    """Rename ``source`` onto ``target``; across file systems (a symlinked subfolder), copy it atomically."""
+    try:
+        os.replace(source, target)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        with atomic_path(target) as tmp:
+            shutil.copyfile(source, tmp)
+        source.unlink()

@@ -403,8 +403,6 @@ def test_results_reach_a_subfolder_on_another_file_system_and_a_failed_move_keep
                                                                                           monkeypatch):
     import errno
 
-    import annotator.job as job_module
-
     out = work / "moved"
     replace = os.replace
 
@@ -420,12 +418,12 @@ def test_results_reach_a_subfolder_on_another_file_system_and_a_failed_move_keep
     assert (out / "mot" / "gt" / "gt.txt").is_file() and not list(out.glob(".sptpt-run.*"))
     monkeypatch.setattr(os, "replace", replace)
 
-    def full_disk(source, target):
-        if Path(target).name == "tracks.npz":
+    def full_disk(source, target):  # moving the track store out of the staging folder
+        if Path(target).name == "tracks.npz" and ".sptpt-run." in str(source) and ".sptpt-run." not in str(target):
             raise OSError(errno.ENOSPC, "No space left on device", str(target))
         replace(source, target)
 
-    monkeypatch.setattr(job_module, "_move", full_disk)
+    monkeypatch.setattr(os, "replace", full_disk)
     failed = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--force",
                     "--formats", "otb", "--quiet")
     assert failed.exit_code == 5 and failed.stderr.count("\n") == 1, failed.stderr

@@ -33,9 +33,10 @@ and what changed in them.
 Atomicity
 ---------
 Every output is first written into a temporary folder beside the output
-folder; only when all of them are complete are they moved in with
-``os.replace`` (``run.json`` last). Any error before that leaves the output
-folder exactly as it was, and the temporary folder is removed.
+folder; only when all of them are complete are they moved in by
+:func:`annotator.publish.move_into_place` (the track store next to last,
+``run.json`` last). Any error before that leaves the output folder exactly
+as it was, and the temporary folder is removed.
 
 Overlay
 -------
@@ -48,7 +49,6 @@ frames only would suggest a difference that is not there.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import datetime as _dt
 import os
@@ -68,14 +68,14 @@ from annotator.progress import Progress
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
 from annotator.pipeline import OverlaySink, SpanThumbnail, render_tracks
 from annotator.provenance import content_hash
-from annotator.publish import OVERLAY_NAME, RUN_JSON, run_fingerprint, write_run_files
+from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, run_fingerprint, write_run_files
 from annotator.render import OverlayWriter
 from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
 from annotator.review.imports import read_run_corrections
 from annotator.review.merge import DEFAULT_MERGE
 from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import LoadedRun, load_run
-from annotator.store import STORE_NAME, RunStore
+from annotator.store import RunStore
 from annotator.tracks import TrackResult
 from annotator.wording import plural
 
@@ -317,40 +317,22 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
         except OSError as exc:
             raise ToolError(f"cannot write the new outputs beside {out_dir} ({exc}); nothing was changed",
                             EXIT_OUTPUT) from None
-        # Everything is complete: move it in, the track store (which tells a later re-track what is applied) next
-        # to last and run.json last (its presence marks a finished run). A stale overlay (a --no-render round: it
-        # shows the boxes before this re-track) is first moved aside, so that a failure leaves it as it was.
-        first = [rel for rel in written if rel not in (Path(STORE_NAME), Path(RUN_JSON))]
-        order = [*first, *(rel for rel in (Path(STORE_NAME), Path(RUN_JSON)) if rel in written)]
-        stale = out_dir / OVERLAY_NAME if not render and "overlay" in run.formats else None
-        aside = out_dir / f".{OVERLAY_NAME}.stale"
-        done: list[Path] = []
+        # Everything is complete: move it in. A stale overlay (a --no-render round: it shows the boxes before this
+        # re-track) goes with it; run.json is kept until the last move, so that a failure leaves a run to re-track.
+        stale = [OVERLAY_NAME] if not render and "overlay" in run.formats and (out_dir / OVERLAY_NAME).is_file() else []
         with ctrl_c_ignored():
-            if stale is not None and stale.exists():
-                try:
-                    os.replace(stale, aside)
-                except OSError as exc:
-                    raise ToolError(f"{stale} cannot be removed ({exc.strerror}; is it open in a player?): close it "
-                                    "and run the re-track again; nothing was changed", EXIT_OUTPUT) from None
-            else:
-                stale = None
             try:
-                for rel in order:
-                    target = out_dir / rel
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(tmp / rel, target)
-                    done.append(rel)
-            except OSError as exc:
-                if stale is not None:
-                    with contextlib.suppress(OSError):
-                        os.replace(aside, stale)
-                raise ToolError(f"output folder {out_dir} could not take the new outputs ({exc}) after "
-                                f"{', '.join(map(str, done)) or 'no file'} had been replaced; run.json still "
+                paths = move_into_place(tmp, out_dir, written, retire=stale)
+            except MoveError as exc:
+                if exc.blocked is not None:
+                    raise ToolError(f"{exc.blocked} cannot be removed ({exc.cause.strerror}; is it open in a "
+                                    "player?): close it and run the re-track again; nothing was changed",
+                                    EXIT_OUTPUT) from None
+                raise ToolError(f"output folder {out_dir} could not take the new outputs ({exc.cause}) after "
+                                f"{', '.join(map(str, exc.moved)) or 'no file'} had been replaced; run.json still "
                                 "describes the previous state - fix the folder and run the re-track again",
                                 EXIT_OUTPUT) from None
-            if stale is not None:
-                aside.unlink(missing_ok=True)
-        return [out_dir / rel for rel in order], stale is not None
+        return paths, bool(stale)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
