@@ -27,6 +27,18 @@ def _folder(tmp_path: Path, files: dict[str, str]) -> Path:
     return out
 
 
+def _failing_replace(monkeypatch, fails, error: OSError) -> None:
+    """os.replace raises ``error`` where ``fails(source, target)``, and works elsewhere."""
+    replace = os.replace
+
+    def patched(source, target):
+        if fails(Path(source), Path(target)):
+            raise error
+        replace(source, target)
+
+    monkeypatch.setattr(os, "replace", patched)
+
+
 def test_the_store_goes_next_to_last_and_run_json_last(tmp_path, monkeypatch):
     names = ["run.json", "tracks.npz", "flags.csv", "mot/gt/gt.txt"]
     staging, out = _staged(tmp_path, names), _folder(tmp_path, {"run.json": "old"})
@@ -47,14 +59,8 @@ def test_retired_files_go_only_once_everything_is_in_place(tmp_path):
 def test_a_retired_file_that_cannot_be_moved_changes_nothing(tmp_path, monkeypatch):
     staging = _staged(tmp_path, ["run.json", "flags.csv"])
     out = _folder(tmp_path, {"run.json": "old", "flags.csv": "old flags", "overlay.mp4": "open in a player"})
-    replace = os.replace
-
-    def locked(source, target):
-        if Path(source).name == "overlay.mp4":
-            raise PermissionError(errno.EACCES, "Permission denied", str(source))
-        replace(source, target)
-
-    monkeypatch.setattr(os, "replace", locked)
+    _failing_replace(monkeypatch, lambda source, _: source.name == "overlay.mp4",
+                     PermissionError(errno.EACCES, "Permission denied"))
     with pytest.raises(MoveError) as info:
         move_into_place(staging, out, ["run.json", "flags.csv"], retire=["overlay.mp4"], unmark_first=True)
     assert info.value.blocked == out / "overlay.mp4" and info.value.moved == []
@@ -65,14 +71,8 @@ def test_a_retired_file_that_cannot_be_moved_changes_nothing(tmp_path, monkeypat
 def test_a_failed_move_puts_the_retired_files_back_and_says_what_moved(tmp_path, monkeypatch):
     staging = _staged(tmp_path, ["run.json", "tracks.npz", "flags.csv"])
     out = _folder(tmp_path, {"run.json": "old", "overlay.mp4": "old video"})
-    replace = os.replace
-
-    def full_disk(source, target):
-        if Path(target).name == "tracks.npz":
-            raise OSError(errno.ENOSPC, "No space left on device", str(target))
-        replace(source, target)
-
-    monkeypatch.setattr(os, "replace", full_disk)
+    _failing_replace(monkeypatch, lambda _, target: target.name == "tracks.npz",
+                     OSError(errno.ENOSPC, "No space left on device"))
     with pytest.raises(MoveError) as info:
         move_into_place(staging, out, ["run.json", "tracks.npz", "flags.csv"], retire=["overlay.mp4"])
     assert info.value.moved == [Path("flags.csv")] and info.value.cause.errno == errno.ENOSPC
@@ -84,9 +84,7 @@ def test_a_failed_move_puts_the_retired_files_back_and_says_what_moved(tmp_path,
 def test_unmark_first_leaves_no_run_json_when_a_move_fails(tmp_path, monkeypatch):
     staging = _staged(tmp_path, ["run.json", "tracks.npz"])
     out = _folder(tmp_path, {"run.json": "old", "tracks.npz": "old store"})
-    replace = os.replace
-    monkeypatch.setattr(os, "replace", lambda a, b: (_ for _ in ()).throw(OSError(errno.EIO, "I/O error"))
-                        if Path(b).name == "tracks.npz" else replace(a, b))
+    _failing_replace(monkeypatch, lambda _, target: target.name == "tracks.npz", OSError(errno.EIO, "I/O error"))
     with pytest.raises(MoveError):
         move_into_place(staging, out, ["run.json", "tracks.npz"], unmark_first=True)
     assert not (out / "run.json").exists()  # a first run cut short here: the folder holds no finished run
