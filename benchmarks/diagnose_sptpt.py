@@ -12,8 +12,9 @@ of the particle cloud (score-weighted std of the centres, px) and the scale
 of the estimate against the ground truth's. It writes one ``.npz`` per
 sequence and prints a summary of the first failure per sequence.
 
-It reads the tracker's private models on purpose: this is a diagnostic, not
-part of the tool.
+The models' view comes from :meth:`sptpt.tracker.Tracker.inspect`, which
+scores boxes under the run's current models without changing the run, so the
+boxes are the benchmark's.
 """
 
 from __future__ import annotations
@@ -28,25 +29,10 @@ import numpy as np
 from annotator.evaluation.metrics import iou_xywh
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
-from sptpt.affine import state_from_box_xywh
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
-from sptpt.subspace import reconstruction_error
 from sptpt.tracker import Tracker
 
 HERE = Path(__file__).resolve().parent
-
-
-def _errors(run, codes: np.ndarray) -> dict[str, np.ndarray]:
-    p = run.params
-    out = {}
-    for name, model in (("pos", run._positive), ("neg", run._negative)):
-        if model is None:
-            out[f"{name}_modes"] = out[f"{name}_sample"] = out[f"{name}_re"] = np.full(len(codes), np.nan)
-            continue
-        modes, sample = model.errors(codes)
-        out[f"{name}_modes"], out[f"{name}_sample"] = modes, sample
-        out[f"{name}_re"] = reconstruction_error(model, codes, gamma=p.gamma, mode=p.re_mode)
-    return out
 
 
 def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) -> dict[str, np.ndarray]:
@@ -55,37 +41,33 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
     gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")
     # Same seeding as benchmarks/_sptpt_runner.py, so the boxes equal the benchmark's.
     tracker = Tracker(params, seed=np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())])))
-    run = tracker._runs[0]  # the one run (main() refuses several): its models and state
     rows: dict[str, list] = {k: [] for k in (
         "iou", "log_likelihood", "accepted", "scoring", "pos_modes", "pos_sample", "neg_modes", "neg_sample",
         "gt_log_likelihood", "spread_px", "scale", "gt_scale", "positive_batches", "pos_rank3", "neg_rank3",
         "centre_error_px")}
-    batches = 0
     for k, (_, frame) in enumerate(open_frames(seq_dir, stop=stop)):
         if k == 0:
             result = tracker.init(frame, gt[0])
             continue
-        had_positive = run._positive
         result = tracker.update(frame, details=True)
-        if run._positive is not had_positive:
-            batches += 1
         box = result.box_xywh
         rows["iou"].append(float(iou_xywh(box[None], gt[k][None])[0]))
         rows["centre_error_px"].append(float(np.hypot(*(box[:2] + box[2:] / 2 - gt[k][:2] - gt[k][2:] / 2))))
         rows["log_likelihood"].append(result.log_likelihood)
         rows["accepted"].append(result.accepted)
         rows["scoring"].append(result.scoring)
-        # Errors of the winner and of the ground truth under the models as they are *after* this frame's
-        # update would mix two models; re-scoring the winner with the current models is close enough for
-        # a diagnosis and identical whenever the frame was rejected.
-        rgb = np.ascontiguousarray(frame if frame.ndim == 3 else np.repeat(frame[:, :, None], 3, axis=2))
-        states = np.stack([run._state, state_from_box_xywh(gt[k], params.template_size)])
-        features, _ = run._features(rgb, states)
-        codes = run._code(features)
-        errs = _errors(run, codes)
-        for key in ("pos_modes", "pos_sample", "neg_modes", "neg_sample"):
-            rows[key].append(float(errs[key][0]))
-        rows["gt_log_likelihood"].append(float(errs["neg_re"][1] - errs["pos_re"][1]))
+        # The run's estimate (row 0) and the ground truth (row 1) scored by the models as they are *after* this
+        # frame's update: the winner's own score would mix two models; re-scoring it with the current ones is
+        # close enough for a diagnosis and the same whenever the frame was rejected. (Run 0: main() refuses
+        # several.)
+        estimate = tracker.inspect(frame).estimate_xywh[0]
+        inspection = tracker.inspect(frame, [estimate, gt[k]])
+        for key, field in (("pos_modes", "positive_error_modes"), ("pos_sample", "positive_error_sample"),
+                           ("neg_modes", "negative_error_modes"), ("neg_sample", "negative_error_sample")):
+            rows[key].append(float(getattr(inspection, field)[0, 0]))
+        # RE- - RE+ only: before both models exist the run's score is the bootstrap intersection, not logged here.
+        rows["gt_log_likelihood"].append(float(inspection.log_likelihood[0, 1]) if inspection.subspace[0]
+                                         else float("nan"))
         scores = result.particle_scores
         w = np.exp(scores - scores.max())
         w /= w.sum()
@@ -94,9 +76,9 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
         rows["spread_px"].append(float(np.sqrt((w * ((centres - mean) ** 2).sum(1)).sum())))
         rows["scale"].append(float(box[2] * box[3]) ** 0.5)
         rows["gt_scale"].append(float(gt[k][2] * gt[k][3]) ** 0.5)
-        rows["positive_batches"].append(batches)
-        rows["pos_rank3"].append(0 if run._positive is None else run._positive.sample.basis.shape[1])
-        rows["neg_rank3"].append(0 if run._negative is None else run._negative.sample.basis.shape[1])
+        rows["positive_batches"].append(int(inspection.positive_updates[0]))
+        rows["pos_rank3"].append(int(inspection.positive_ranks[0, 2]))
+        rows["neg_rank3"].append(int(inspection.negative_ranks[0, 2]))
     return {k: np.array(v) for k, v in rows.items()}
 
 
@@ -138,7 +120,7 @@ def main() -> None:
     params = params_from_mapping(json.loads(args.set), base=get_preset(args.preset))
     if params.independent_runs != 1:
         parser.error(f"--preset {args.preset} tracks {params.independent_runs} independent runs; this diagnosis "
-                     "reads one run's models: add --set '{\"independent_runs\": 1}'")
+                     "inspects one run's models: add --set '{\"independent_runs\": 1}'")
     out = args.out / (args.label or args.preset)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.sequences.split(","):

@@ -215,14 +215,7 @@ def encode_tensors(
 
 def _encode(signals: np.ndarray, dictionary: np.ndarray, lam: float, *, group: int) -> np.ndarray:
     """Validated arguments into the kernel; (M / group, z, group) codes."""
-    signals = _as_matrix(signals, "signals")
-    dictionary = _as_matrix(dictionary, "dictionary")
-    lam = _nonnegative_float(lam, "lam")
-    if signals.shape[1] != dictionary.shape[0]:
-        raise ValueError(
-            f"signals has {signals.shape[1]} features per row but dictionary has "
-            f"{dictionary.shape[0]} rows; dictionary must be (B, z) with atoms as columns"
-        )
+    signals, dictionary, lam = _lasso_arguments(signals, dictionary, lam)
     n_atoms = dictionary.shape[1]
     if signals.shape[0] == 0 or n_atoms == 0:
         return np.zeros((signals.shape[0] // group, n_atoms, group), dtype=np.float64)
@@ -269,15 +262,8 @@ def kkt_residual(
     ValueError
         On non-finite or mismatched arrays, or a negative ``lam``.
     """
-    signals = _as_matrix(signals, "signals")
-    dictionary = _as_matrix(dictionary, "dictionary")
+    signals, dictionary, lam = _lasso_arguments(signals, dictionary, lam)
     codes = _as_matrix(codes, "codes")
-    lam = _nonnegative_float(lam, "lam")
-    if signals.shape[1] != dictionary.shape[0]:
-        raise ValueError(
-            f"signals has {signals.shape[1]} features per row but dictionary has "
-            f"{dictionary.shape[0]} rows"
-        )
     expected = (signals.shape[0], dictionary.shape[1])
     if codes.shape != expected:
         raise ValueError(f"codes must have shape (M, z) = {expected}, got {codes.shape}")
@@ -287,6 +273,20 @@ def kkt_residual(
     violation = np.where(codes > 0.0, np.abs(gradient), np.maximum(gradient, 0.0))
     violation = np.maximum(violation, np.maximum(-codes, 0.0))
     return violation.max(axis=1)
+
+
+def _lasso_arguments(signals: object, dictionary: object, lam: object) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``(M, B)`` signals and ``(B, z)`` dictionary as :func:`_as_matrix` makes them and ``lam`` as a float >= 0,
+    or an error naming the argument at fault."""
+    signals = _as_matrix(signals, "signals")
+    dictionary = _as_matrix(dictionary, "dictionary")
+    lam = _nonnegative_float(lam, "lam")
+    if signals.shape[1] != dictionary.shape[0]:
+        raise ValueError(
+            f"signals has {signals.shape[1]} features per row but dictionary has "
+            f"{dictionary.shape[0]} rows; dictionary must be (B, z) with atoms as columns"
+        )
+    return signals, dictionary, lam
 
 
 def _as_matrix(value: object, name: str) -> np.ndarray:

@@ -51,15 +51,14 @@ def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     rgb : (..., 3) uint8 ndarray
+        Gamma-encoded sRGB (D65), linearised through :data:`SRGB_TO_LINEAR`.
 
     Returns
     -------
     lab : (..., 3) float64 ndarray
         ``L`` in [0, 100], ``a`` and ``b`` roughly in [-128, 127].
     """
-    rgb = np.asarray(rgb)
-    if rgb.dtype != np.uint8 or rgb.shape[-1:] != (3,):
-        raise TypeError(f"rgb must be a uint8 array of shape (..., 3), got {rgb.dtype} {rgb.shape}")
+    rgb = _uint8_rgb(rgb)
     linear = SRGB_TO_LINEAR[rgb]
     xyz = linear @ RGB_TO_XYZ.T / WHITE
     f = np.where(xyz > _EPSILON, np.cbrt(xyz), (_KAPPA * xyz + 16.0) / 116.0)
@@ -82,15 +81,14 @@ def rgb_to_hsi(rgb: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     rgb : (..., 3) uint8 ndarray
+        Taken as stored, divided by 255 (no gamma decoding, as ``rgb2hsi``).
 
     Returns
     -------
     hsi : (..., 3) float64 ndarray
         ``H``, ``S``, ``I``, each in [0, 1].
     """
-    rgb = np.asarray(rgb)
-    if rgb.dtype != np.uint8 or rgb.shape[-1:] != (3,):
-        raise TypeError(f"rgb must be a uint8 array of shape (..., 3), got {rgb.dtype} {rgb.shape}")
+    rgb = _uint8_rgb(rgb)
     eps = np.finfo(np.float64).eps
     unit = rgb.astype(np.float64) / 255.0
     r, g, b = unit[..., 0], unit[..., 1], unit[..., 2]
@@ -104,3 +102,11 @@ def rgb_to_hsi(rgb: np.ndarray) -> np.ndarray:
     hue = np.where(saturation == 0.0, 0.0, hue)
     intensity = (r + g + b) / 3.0
     return np.stack([hue, saturation, intensity], axis=-1)
+
+
+def _uint8_rgb(rgb: np.ndarray) -> np.ndarray:
+    """``rgb`` as an ndarray, checked to be uint8 with three channels last, or an error saying what it is."""
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.shape[-1:] != (3,):
+        raise TypeError(f"rgb must be a uint8 array of shape (..., 3), got {rgb.dtype} {rgb.shape}")
+    return rgb

@@ -15,7 +15,8 @@ Danelljan et al., "Accurate Scale Estimation for Robust Visual Tracking"
 :data:`N_SCALES` scales ``STEP**k`` around the current one, each described by
 gradient-orientation histograms, and a one-dimensional correlation filter
 over the scale axis, learned in the Fourier domain and updated with a
-running average. The scale whose response peaks is the new scale. All
+running average (:class:`sptpt.correlation.CorrelationFilter`). The scale
+whose response peaks is the new scale. All
 constants are the paper's (33 scales, step 1.02, Gaussian label of
 ``sqrt(33) / 4`` scales, learning rate 0.025, regularisation 0.01), except
 the sampling and the features. Samples are the 32x32 templates the tracker
@@ -38,6 +39,7 @@ import math
 import numpy as np
 
 from sptpt.affine import warp_candidates
+from sptpt.correlation import CorrelationFilter
 from sptpt.gradients import GREY, orientation_split
 
 __all__ = ["ScaleFilter", "orientation_histograms", "N_SCALES", "STEP"]
@@ -80,17 +82,16 @@ def orientation_histograms(templates: np.ndarray, *, cell: int = CELL, bins: int
 class ScaleFilter:
     """DSST's scale filter on affine states: ``init`` at the first box, then ``factor`` and ``update`` per frame.
 
-    Deterministic: no randomness, so the tracker's seed alone fixes its output.
+    Deterministic: no randomness, so the tracker's seed alone fixes its output. ``correlation`` is the filter over
+    the scales (its ``A`` and ``B`` can be read there).
     """
 
     def __init__(self, template_size: int) -> None:
         self.template_size = template_size
         k = np.arange(N_SCALES) - (N_SCALES - 1) / 2
         self.factors = STEP ** (-k)  # largest first, as in DSST; the label peaks at factor 1
-        self._label = np.fft.fft(np.exp(-0.5 * (k / LABEL_SIGMA) ** 2))
-        self._window = np.hanning(N_SCALES)
-        self._numerator: np.ndarray | None = None
-        self._denominator: np.ndarray | None = None
+        self.correlation = CorrelationFilter(np.exp(-0.5 * (k / LABEL_SIGMA) ** 2), np.hanning(N_SCALES),
+                                         learning_rate=LEARNING_RATE, regularisation=REGULARISATION)
         # The scales step() keeps to; set by init() from the frame and the first state.
         self.min_scale, self.max_scale = 0.0, math.inf
 
@@ -103,11 +104,7 @@ class ScaleFilter:
         states = np.repeat(np.asarray(state, dtype=np.float64)[None], N_SCALES, axis=0)
         states[:, 2] *= self.factors
         samples = orientation_histograms(warp_candidates(rgb, states, self.template_size))
-        return np.fft.fft(samples.T * self._window[None], axis=1)
-
-    def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
-        return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
+        return self.correlation.spectrum(samples.T)
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Learn the filter from the samples around the first state, and bound the scales :meth:`step` gives.
@@ -118,14 +115,14 @@ class ScaleFilter:
         """
         self.min_scale = 1.0 / self.template_size
         self.max_scale = max(max(rgb.shape[:2]) / self.template_size, float(state[2]))
-        self._numerator, self._denominator = self._terms(self._spectrum(rgb, state))
+        self.correlation.learn(self._spectrum(rgb, state))
 
     def factor(self, rgb: np.ndarray, state: np.ndarray) -> float:
         """The scale change (a factor of ``state``'s scale) whose samples the filter answers most strongly.
 
         Response ``y = IFFT(sum conj(A) Z / (B + lambda))`` over the scales, as in DSST; its peak's factor.
         """
-        if self._numerator is None:
+        if not self.correlation.learned:
             raise RuntimeError("ScaleFilter.factor() before init()")
         return self._factor(self._spectrum(rgb, state))
 
@@ -136,7 +133,7 @@ class ScaleFilter:
         The same numbers as the two calls, sampling once where the scale stays (a factor of exactly 1, on most
         frames, or a bound that holds it): the update's samples around the new state are then the factor's.
         """
-        if self._numerator is None:
+        if not self.correlation.learned:
             raise RuntimeError("ScaleFilter.step() before init()")
         spectrum = self._spectrum(rgb, state)
         scale = min(max(float(state[2]) * self._factor(spectrum), self.min_scale), self.max_scale)
@@ -145,24 +142,17 @@ class ScaleFilter:
                 moved = np.array(state, dtype=np.float64)
                 moved[2] = scale
                 spectrum = self._spectrum(rgb, moved)
-            self._blend(spectrum)
+            self.correlation.blend(spectrum)
         return scale
 
     def _factor(self, spectrum: np.ndarray) -> float:
-        response = np.fft.ifft((np.conj(self._numerator) * spectrum).sum(axis=0)
-                               / (self._denominator + REGULARISATION)).real
-        return float(self.factors[int(np.argmax(response))])
+        return float(self.factors[int(np.argmax(self.correlation.response(spectrum)))])
 
     def update(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Blend the samples around ``state`` (the accepted estimate) into ``A`` and ``B``, as in DSST.
 
         The running average weighs the new samples by :data:`LEARNING_RATE`.
         """
-        if self._numerator is None:
+        if not self.correlation.learned:
             raise RuntimeError("ScaleFilter.update() before init()")
-        self._blend(self._spectrum(rgb, state))
-
-    def _blend(self, spectrum: np.ndarray) -> None:
-        numerator, denominator = self._terms(spectrum)
-        self._numerator = (1 - LEARNING_RATE) * self._numerator + LEARNING_RATE * numerator
-        self._denominator = (1 - LEARNING_RATE) * self._denominator + LEARNING_RATE * denominator
+        self.correlation.blend(self._spectrum(rgb, state))

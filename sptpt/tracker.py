@@ -41,7 +41,7 @@ from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
 from sptpt.translation import TranslationFilter
 
-__all__ = ["STAGES", "Tracker"]
+__all__ = ["STAGES", "Tracker", "TrackerInspection"]
 
 #: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``scale`` only with
 #: ``scale_filter`` or ``reported_scale_filter``, ``translation`` only with ``reported_translation_filter``,
@@ -74,6 +74,68 @@ def _single_threaded_blas() -> ContextManager:
     if _THREADPOOLS is None:
         _THREADPOOLS = ThreadpoolController()
     return _THREADPOOLS.limit(limits=1, user_api="blas")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerInspection:
+    """What each run of a tracker holds now, and how its current models score given boxes of a frame.
+
+    Returned by :meth:`Tracker.inspect`, for diagnosis: for ``R`` runs (``TrackerParams.independent_runs``) and
+    ``N`` boxes, each ``(R, ...)`` array holds one row per run, in run order.
+
+    Attributes
+    ----------
+    estimate_xywh : (R, 4) float64 ndarray
+        Each run's current estimate, 0-based ``x, y, w, h``: the box of its state, around which it searches the
+        next frame (before any scale or translation filter that sizes or centres the box a frame reports).
+    subspace : (R,) bool ndarray
+        Whether the run scores with its subspace models (both exist), as ``FrameResult.scoring == "subspace"``;
+        else with the bootstrap intersection.
+    positive_updates : (R,) int64 ndarray
+        How many times the run has fitted or updated its positive model: once per ``update_every`` accepted frames
+        (the first-frame tensor counts toward the first batch).
+    positive_ranks, negative_ranks : (R, 3) int64 ndarray
+        Codeword, superpixel and sample-mode ranks of the models the run scores with (under
+        ``negative_rank_matched``, the negative model truncated to the positive's ranks); 0 where the model does not
+        exist yet.
+    positive_error_modes, negative_error_modes : (R, N) float64 ndarray
+        Squared reconstruction error of each box's code tensor in modes 1-2 under the positive and the negative
+        model (:meth:`sptpt.subspace.TensorSubspace.errors`); NaN where the model does not exist yet.
+    positive_error_sample, negative_error_sample : (R, N) float64 ndarray
+        The same in the sample mode.
+    positive_error, negative_error : (R, N) float64 ndarray
+        ``RE+`` and ``RE-``: the two combined as ``TrackerParams.re_mode`` says
+        (:func:`sptpt.subspace.reconstruction_error`, paper eqs. 1-3); NaN where the model does not exist yet.
+    log_likelihood : (R, N) float64 ndarray
+        The score the run would give each box now, as ``FrameResult.particle_scores``: ``RE- - RE+`` (paper eq. 8)
+        where ``subspace``, else the bootstrap intersection with the first frame's code tensor. Equal to the
+        tracker's own score of the same box up to rounding (the tracker scores a box among the other candidates).
+    """
+
+    estimate_xywh: np.ndarray
+    subspace: np.ndarray
+    positive_updates: np.ndarray
+    positive_ranks: np.ndarray
+    negative_ranks: np.ndarray
+    positive_error_modes: np.ndarray
+    positive_error_sample: np.ndarray
+    negative_error_modes: np.ndarray
+    negative_error_sample: np.ndarray
+    positive_error: np.ndarray
+    negative_error: np.ndarray
+    log_likelihood: np.ndarray
+
+    def __post_init__(self) -> None:
+        runs, n_boxes = len(self.estimate_xywh), np.shape(self.log_likelihood)[-1]
+        per_run = {"estimate_xywh": (runs, 4), "subspace": (runs,), "positive_updates": (runs,),
+                   "positive_ranks": (runs, 3), "negative_ranks": (runs, 3)}
+        for field in dataclasses.fields(self):
+            value = np.asarray(getattr(self, field.name))
+            expected = per_run.get(field.name, (runs, n_boxes))  # the rest: one value per run and box
+            if value.shape != expected:
+                raise ValueError(f"{field.name} must have shape {expected} for {runs} runs and {n_boxes} boxes, "
+                                 f"got {value.shape}")
+            object.__setattr__(self, field.name, value)
 
 
 class Tracker:
@@ -190,6 +252,39 @@ class Tracker:
             return dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         return _reported(results, chosen)
 
+    def inspect(self, frame: np.ndarray, boxes_xywh=None) -> TrackerInspection:
+        """How each run's current models score ``boxes_xywh`` in ``frame``, with its estimate, ranks and updates.
+
+        For diagnosis (``benchmarks/diagnose_sptpt.py``): call it after :meth:`init` or :meth:`update`, typically
+        with the frame just tracked, to see how the models as they are now score the estimate, the true box or any
+        other box. It only reads: it draws no random numbers and changes no run, so the boxes of later frames are
+        the same as without it; nor does it enter the ``stage_timer``.
+
+        Parameters
+        ----------
+        frame : (H, W, 3) or (H, W) uint8 ndarray
+            RGB or grayscale frame of the sequence's size.
+        boxes_xywh : (N, 4) or (4,) array_like of float, optional
+            0-based ``x, y, w, h`` with positive width and height, each scored as the axis-aligned candidate of
+            that box (:func:`sptpt.affine.state_from_box_xywh`). None (the default): no box, N = 0; the estimates,
+            ranks and update counts are still there, and cost no warping or coding.
+
+        Returns
+        -------
+        TrackerInspection
+
+        Raises
+        ------
+        RuntimeError
+            Before :meth:`init`.
+        ValueError, TypeError
+            On a frame of another size or type, or boxes that are not ``(N, 4)`` finite numbers with positive size.
+        """
+        boxes = np.empty((0, 4)) if boxes_xywh is None else _validate_boxes(boxes_xywh)
+        with _single_threaded_blas():
+            rows = [run.inspect(frame, boxes) for run in self._runs]
+        return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
+
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
         """Every run's update; runs side by side, one kernel thread each: all of them when there are no more runs
         than threads, else the largest multiple of the thread count, and the rest after them on every thread.
@@ -252,6 +347,7 @@ class _Run:
         self._negative: TensorSubspace | None = None
         self._frame_number = 1
         self._accepted_count = 0
+        self._positive_updates = 0  # fits and updates of the positive model (Tracker.inspect reports it)
         # Running level and re-detection (off in the paper preset): winning log-likelihoods of accepted
         # subspace-scored frames, consecutive misses, and the last accepted state to search around.
         self._levels: list[float] = []
@@ -280,14 +376,7 @@ class _Run:
         )
 
     def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
-        if self._frame_shape is None:
-            raise RuntimeError("Tracker.update() called before init(): call init(first_frame, box_xywh) first")
-        rgb = _as_rgb(frame)
-        if rgb.shape[:2] != self._frame_shape:
-            raise ValueError(
-                f"frame has size {rgb.shape[1]}x{rgb.shape[0]} but the first frame was "
-                f"{self._frame_shape[1]}x{self._frame_shape[0]}: every frame of a sequence must have the same size"
-            )
+        rgb = self._sequence_rgb(frame, "update")
         p = self.params
         self._frame_number += 1
         sigma = self._motion_sigma(self._state)
@@ -384,6 +473,38 @@ class _Run:
             **extra,
         )
 
+    def inspect(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> dict[str, np.ndarray]:
+        """One run's row of :class:`TrackerInspection` for ``(N, 4)`` checked boxes; reads, never writes."""
+        rgb = self._sequence_rgb(frame, "inspect")
+        p = self.params
+        states = np.array([state_from_box_xywh(box, p.template_size) for box in boxes_xywh]).reshape(-1, 6)
+        codes = self._codes(rgb, states, time=_no_timer)[0] if len(states) else None
+        positive, negative = self._scoring_models()
+        row = {"estimate_xywh": box_xywh_from_states(self._state, p.template_size),
+               "subspace": np.bool_(positive is not None and negative is not None),
+               "positive_updates": np.int64(self._positive_updates)}
+        for name, model in (("positive", positive), ("negative", negative)):
+            row[f"{name}_ranks"] = np.array((0, 0, 0) if model is None else model.ranks, dtype=np.int64)
+            modes = sample = error = np.full(len(states), np.nan)
+            if model is not None and codes is not None:
+                modes, sample = model.errors(codes)
+                error = reconstruction_error(model, codes, gamma=p.gamma, mode=p.re_mode)
+            row.update({f"{name}_error_modes": modes, f"{name}_error_sample": sample, f"{name}_error": error})
+        row["log_likelihood"] = np.empty(0) if codes is None else self._scores(codes)[0]
+        return row
+
+    def _sequence_rgb(self, frame: np.ndarray, method: str) -> np.ndarray:
+        """``frame`` as RGB, checked to come after init and to have the first frame's size."""
+        if self._frame_shape is None:
+            raise RuntimeError(f"Tracker.{method}() called before init(): call init(first_frame, box_xywh) first")
+        rgb = _as_rgb(frame)
+        if rgb.shape[:2] != self._frame_shape:
+            raise ValueError(
+                f"frame has size {rgb.shape[1]}x{rgb.shape[0]} but the first frame was "
+                f"{self._frame_shape[1]}x{self._frame_shape[0]}: every frame of a sequence must have the same size"
+            )
+        return rgb
+
     # ------------------------------------------------------------------ stages
     def _draw(self, state: np.ndarray, n: int, sigma: np.ndarray) -> np.ndarray:
         p = self.params
@@ -441,43 +562,47 @@ class _Run:
         already warped)."""
         codes, labels = self._codes(rgb, states, templates)
         with self._time("scoring"):
-            if self._positive is not None and self._negative is not None:
-                return codes, labels, self._log_likelihood(codes), "subspace"
-            # Bootstrap: histogram intersection with the first-frame code tensor (TPT).
-            return codes, labels, np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2)), "bootstrap"
+            return (codes, labels, *self._scores(codes))
 
-    def _codes(self, rgb: np.ndarray, states: np.ndarray,
-               templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _scores(self, codes: np.ndarray) -> tuple[np.ndarray, str]:
+        """The score of each ``(N, z, s)`` code tensor under the run's models as they are, and how it was scored."""
+        if self._positive is not None and self._negative is not None:
+            return self._log_likelihood(codes), "subspace"
+        # Bootstrap: histogram intersection with the first-frame code tensor (TPT).
+        return np.minimum(codes, self._first_codes[None]).sum(axis=(1, 2)), "bootstrap"
+
+    def _codes(self, rgb: np.ndarray, states: np.ndarray, templates: np.ndarray | None = None, *,
+               time: StageTimer | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Code tensors and superpixel labels of ``states``, each distinct state computed once.
 
         Equal states warp to equal templates, and every later stage treats
         templates independently, so the copies are exact. About one negative
         in twenty repeats another (both of its centre coordinates are pushed
-        out to the same margin).
+        out to the same margin). ``time``: the stage timer, the run's own by default.
         """
         unique, first, inverse = np.unique(states, axis=0, return_index=True, return_inverse=True)
         if len(unique) == len(states):
-            features, labels = self._features(rgb, states, templates)
-            return self._code(features), labels
-        features, labels = self._features(rgb, unique, None if templates is None else templates[first])
+            features, labels = self._features(rgb, states, templates, time=time)
+            return self._code(features, time=time), labels
+        features, labels = self._features(rgb, unique, None if templates is None else templates[first], time=time)
         inverse = inverse.reshape(-1)
-        return self._code(features)[inverse], labels[inverse]
+        return self._code(features, time=time)[inverse], labels[inverse]
 
-    def _features(self, rgb: np.ndarray, states: np.ndarray,
-                  templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        p = self.params
+    def _features(self, rgb: np.ndarray, states: np.ndarray, templates: np.ndarray | None = None, *,
+                  time: StageTimer | None = None) -> tuple[np.ndarray, np.ndarray]:
+        p, time = self.params, time or self._time
         if templates is None:
-            with self._time("warp"):
+            with time("warp"):
                 templates = warp_candidates(rgb, states, p.template_size)
-        with self._time("snic"):
+        with time("snic"):
             labels = snic(templates, n_segments=p.n_superpixels, compactness=p.compactness, seeding=p.seeding)
-        with self._time("features"):
+        with time("features"):
             features = superpixel_features(templates, labels, self.n_superpixels, n_bins=p.n_bins)
         return features, labels
 
-    def _code(self, features: np.ndarray) -> np.ndarray:
+    def _code(self, features: np.ndarray, *, time: StageTimer | None = None) -> np.ndarray:
         """(N, s, B) features -> (N, z, s) code tensors (tensor pooling is arrangement)."""
-        with self._time("coding"):
+        with (time or self._time)("coding"):
             return encode_tensors(features, self._dictionary, lam=self.params.lasso_lambda)
 
     def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
@@ -489,13 +614,18 @@ class _Run:
         last bits of the scores.
         """
         p = self.params
-        negative_model = self._negative
-        if p.negative_rank_matched:
-            negative_model = negative_model.truncated(self._positive.ranks)
         positive, negative = map_on_threads(
             lambda model: reconstruction_error(model, codes, gamma=p.gamma, mode=p.re_mode),
-            (self._positive, negative_model), numba.get_num_threads())
+            self._scoring_models(), numba.get_num_threads())
         return negative - positive
+
+    def _scoring_models(self) -> tuple[TensorSubspace | None, TensorSubspace | None]:
+        """The positive and negative models as the run scores with them (None: not fitted yet); under
+        ``negative_rank_matched`` the negative one truncated to the positive's ranks."""
+        negative = self._negative
+        if self.params.negative_rank_matched and negative is not None and self._positive is not None:
+            negative = negative.truncated(self._positive.ranks)
+        return self._positive, negative
 
     def _learn(self, rgb: np.ndarray, best_codes: np.ndarray) -> None:
         """Step 9 then step 10 of the per-frame schedule (TPT order)."""
@@ -509,6 +639,7 @@ class _Run:
                     self._positive = TensorSubspace.fit(batch, p.ranks)
                 else:
                     self._positive = self._positive.update(batch, p.ranks, p.forgetting)
+            self._positive_updates += 1
             self._buffer = []
         refresh = self._negative is None or self._accepted_count % p.negative_every == 0
         if self._frame_number >= p.update_every and refresh:
@@ -642,3 +773,21 @@ def _validate_box(box_xywh, frame_shape: tuple[int, int]) -> np.ndarray:
             "give 0-based pixel coordinates of a box that overlaps the frame"
         )
     return box
+
+
+def _validate_boxes(boxes_xywh) -> np.ndarray:
+    """``boxes_xywh`` as an ``(N, 4)`` float64 array of finite boxes with positive size, or an error naming it."""
+    try:
+        boxes = np.asarray(boxes_xywh, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"boxes_xywh must be an (N, 4) array of x, y, w, h, got {boxes_xywh!r}") from None
+    if boxes.ndim == 1 and boxes.shape == (4,):
+        boxes = boxes[None]
+    if boxes.ndim != 2 or boxes.shape[1] != 4:
+        raise ValueError(f"boxes_xywh must be an (N, 4) array of x, y, w, h, got shape {boxes.shape}")
+    if not np.isfinite(boxes).all():
+        raise ValueError("boxes_xywh must be finite, got NaN or infinite values")
+    if (boxes[:, 2:] <= 0).any():
+        bad = int(np.flatnonzero((boxes[:, 2:] <= 0).any(axis=1))[0])
+        raise ValueError(f"boxes_xywh must have positive width and height, got box {bad} = {boxes[bad].tolist()}")
+    return boxes

@@ -17,7 +17,8 @@ follow its own answers: a tracker apart from SPTPT, whose box only votes.)
 Danelljan et al., "Accurate Scale Estimation for Robust Visual Tracking"
 (BMVC 2014; the translation part): a multichannel correlation filter over a
 patch of twice the box's width and height, learned in the Fourier domain
-with a Gaussian label and updated with a running average. The constants are
+with a Gaussian label and updated with a running average
+(:class:`sptpt.correlation.CorrelationFilter`). The constants are
 the paper's (padding 1, so a patch of 2x the box; label std of 1/16 of the
 object's size; learning rate 0.025; regularisation 0.01). The patch is
 warped to :data:`PATCH` x :data:`PATCH` pixels whatever the box's aspect,
@@ -33,6 +34,7 @@ import cv2
 import numpy as np
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, warp_candidates
+from sptpt.correlation import CorrelationFilter
 from sptpt.gradients import GREY, orientation_split
 
 __all__ = ["TranslationFilter", "translation_features", "PATCH", "PADDING", "BINS"]
@@ -70,32 +72,27 @@ def translation_features(patch: np.ndarray) -> np.ndarray:
 class TranslationFilter:
     """DSST's translation filter on affine states: ``init`` at the first box, then ``shift`` and ``update``.
 
-    Deterministic: no randomness, so the tracker's seed alone fixes its output.
+    Deterministic: no randomness, so the tracker's seed alone fixes its output. ``correlation`` is the filter over
+    the patch (its ``A`` and ``B`` can be read there).
     """
 
     def __init__(self, template_size: int) -> None:
         self.template_size = template_size  # the states' scale is the box's width over this
         offset = (np.arange(PATCH) + PATCH // 2) % PATCH - PATCH // 2  # 0 at index 0: the label peaks at no shift
         label = np.exp(-0.5 * (offset[:, None] ** 2 + offset[None, :] ** 2) / LABEL_SIGMA ** 2)
-        self._label = np.fft.fft2(label)
-        self._window = np.outer(np.hanning(PATCH), np.hanning(PATCH))
-        self._numerator: np.ndarray | None = None
-        self._denominator: np.ndarray | None = None
+        self.correlation = CorrelationFilter(label, np.outer(np.hanning(PATCH), np.hanning(PATCH)),
+                                         learning_rate=LEARNING_RATE, regularisation=REGULARISATION)
 
     def _spectrum(self, rgb: np.ndarray, state: np.ndarray) -> np.ndarray:
         """``(1 + BINS, PATCH, PATCH)`` Fourier transform of the windowed features of the patch around ``state``."""
         x, y, w, h = box_xywh_from_states(np.asarray(state, dtype=np.float64), self.template_size)
         padded = np.array([x - (PADDING - 1) * w / 2, y - (PADDING - 1) * h / 2, PADDING * w, PADDING * h])
         patch = warp_candidates(rgb, state_from_box_xywh(padded, PATCH)[None], PATCH)[0]
-        return np.fft.fft2(translation_features(patch) * self._window[None])
-
-    def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The filter learned from one patch's spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
-        return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
+        return self.correlation.spectrum(translation_features(patch))
 
     def init(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Learn the filter from the patch around the first state."""
-        self._numerator, self._denominator = self._terms(self._spectrum(rgb, state))
+        self.correlation.learn(self._spectrum(rgb, state))
 
     def shift(self, rgb: np.ndarray, state: np.ndarray, *, learn: bool = False) -> tuple[float, float]:
         """How far, in frame pixels (dx, dy), the object is from ``state``'s centre by the filter's answer.
@@ -105,13 +102,12 @@ class TranslationFilter:
         from patch pixels to the box's. With ``learn``, the filter then learns from the same patch, as
         :meth:`update` at ``state`` would, sampling it once instead of twice.
         """
-        if self._numerator is None:
+        if not self.correlation.learned:
             raise RuntimeError("TranslationFilter.shift() before init()")
         spectrum = self._spectrum(rgb, state)
-        response = np.fft.ifft2((np.conj(self._numerator) * spectrum).sum(axis=0)
-                                / (self._denominator + REGULARISATION)).real
+        response = self.correlation.response(spectrum)
         if learn:
-            self._blend(spectrum)
+            self.correlation.blend(spectrum)
         row, col = np.unravel_index(int(np.argmax(response)), response.shape)
         dy = row + _vertex(response[(row - 1) % PATCH, col], response[row, col], response[(row + 1) % PATCH, col])
         dx = col + _vertex(response[row, (col - 1) % PATCH], response[row, col], response[row, (col + 1) % PATCH])
@@ -122,14 +118,9 @@ class TranslationFilter:
 
     def update(self, rgb: np.ndarray, state: np.ndarray) -> None:
         """Blend the patch around ``state`` into ``A`` and ``B`` by :data:`LEARNING_RATE`, as in DSST."""
-        if self._numerator is None:
+        if not self.correlation.learned:
             raise RuntimeError("TranslationFilter.update() before init()")
-        self._blend(self._spectrum(rgb, state))
-
-    def _blend(self, spectrum: np.ndarray) -> None:
-        numerator, denominator = self._terms(spectrum)
-        self._numerator = (1 - LEARNING_RATE) * self._numerator + LEARNING_RATE * numerator
-        self._denominator = (1 - LEARNING_RATE) * self._denominator + LEARNING_RATE * denominator
+        self.correlation.blend(self._spectrum(rgb, state))
 
 
 def _vertex(before: float, peak: float, after: float) -> float:

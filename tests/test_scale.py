@@ -144,8 +144,8 @@ def test_step_equals_factor_then_update_at_the_new_scale(learn):
             new_state = state.copy()
             new_state[2] = expected
             called.update(frame, new_state)
-        np.testing.assert_array_equal(stepped._numerator, called._numerator)
-        np.testing.assert_array_equal(stepped._denominator, called._denominator)
+        np.testing.assert_array_equal(stepped.correlation.numerator, called.correlation.numerator)
+        np.testing.assert_array_equal(stepped.correlation.denominator, called.correlation.denominator)
         stayed, moved = stayed + (scale == state[2]), moved + (scale != state[2])
         state = state.copy()
         state[2] = scale

@@ -87,12 +87,12 @@ def test_shift_that_learns_equals_shift_then_update():
         frame, _ = _scene(dx, dy)
         assert learning.shift(frame, state, learn=True) == called.shift(frame, state)
         called.update(frame, state)
-        np.testing.assert_array_equal(learning._numerator, called._numerator)
-        np.testing.assert_array_equal(learning._denominator, called._denominator)
+        np.testing.assert_array_equal(learning.correlation.numerator, called.correlation.numerator)
+        np.testing.assert_array_equal(learning.correlation.denominator, called.correlation.denominator)
     frame, _ = _scene(9.0, 1.0)
-    before = learning._numerator.copy()
+    before = learning.correlation.numerator.copy()
     learning.shift(frame, state)  # learn defaults to False: the filter is left as it was
-    np.testing.assert_array_equal(learning._numerator, before)
+    np.testing.assert_array_equal(learning.correlation.numerator, before)
 
 
 def moving_clip(n_frames: int = 40):

@@ -56,15 +56,19 @@ def _u(i):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _less(heap_d, heap_c, i, j):  # pragma: no cover - compiled
-    """Heap order of slots i and j: distance first, then insertion counter.
+def _before(d1, c1, d2, c2):  # pragma: no cover - compiled
+    """Heap order of two keys: distance first, then insertion counter.
 
     Non-short-circuit ``&`` / ``|`` so LLVM emits selects, not branches: the
     outcome of a heap comparison is unpredictable.
     """
-    di = heap_d[_u(i)]
-    dj = heap_d[_u(j)]
-    return (di < dj) | ((di == dj) & (heap_c[_u(i)] < heap_c[_u(j)]))
+    return (d1 < d2) | ((d1 == d2) & (c1 < c2))
+
+
+@numba.njit(cache=True, inline="always")
+def _less(heap_d, heap_c, i, j):  # pragma: no cover - compiled
+    """Heap order of slots i and j."""
+    return _before(heap_d[_u(i)], heap_c[_u(i)], heap_d[_u(j)], heap_c[_u(j)])
 
 
 @numba.njit(cache=True, inline="always")
@@ -91,20 +95,43 @@ def _place(heap_d, heap_c, pos, slot, d, c):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _sift_up(heap_d, heap_c, pos, hole, d, c):  # pragma: no cover - compiled
-    """Put (d, c) at ``hole`` or above; c must be newer than every key above.
+def _sift_up(heap_d, heap_c, pos, hole, d, c, newest):  # pragma: no cover - compiled
+    """Put (d, c) at ``hole`` or above.
 
-    With the newest counter, the entry only rises above strictly larger
-    distances, so one comparison per level suffices.
+    ``newest`` (a constant at each call site, so the compiler keeps one
+    branch): c is newer than every key above, so the entry only rises above
+    strictly larger distances and one comparison per level suffices.
     """
     while hole > 0:
         parent = (hole - 1) >> 2
-        if d < heap_d[_u(parent)]:
-            _move(heap_d, heap_c, pos, hole, parent)
-            hole = parent
-        else:
+        pd = heap_d[_u(parent)]
+        rises = (d < pd) if newest else _before(d, c, pd, heap_c[_u(parent)])
+        if not rises:
             break
+        _move(heap_d, heap_c, pos, hole, parent)
+        hole = parent
     _place(heap_d, heap_c, pos, hole, d, c)
+
+
+@numba.njit(cache=True, inline="always")
+def _sift_down(heap_d, heap_c, pos, size, d, c, to_leaf):  # pragma: no cover - compiled
+    """Move the root's hole down along the smallest children; return where it stops.
+
+    It stops above the first child that (d, c) comes before or, with
+    ``to_leaf`` (a constant at each call site), only at a leaf. The caller
+    then fills the hole.
+    """
+    hole = 0
+    while True:
+        first = 4 * hole + 1
+        if first >= size:
+            break
+        m = _min_child(heap_d, heap_c, first)
+        if not (to_leaf or _before(heap_d[_u(m)], heap_c[_u(m)], d, c)):
+            break
+        _move(heap_d, heap_c, pos, hole, m)
+        hole = m
+    return hole
 
 
 @numba.njit(cache=True, inline="always")
@@ -114,19 +141,7 @@ def _replace_root_top_down(heap_d, heap_c, pos, size, d, c):  # pragma: no cover
     Used with the smallest new neighbour, which is often the next pixel to
     pop, so the loop usually stops after a level or two.
     """
-    hole = 0
-    while True:
-        first = 4 * hole + 1
-        if first >= size:
-            break
-        m = _min_child(heap_d, heap_c, first)
-        md = heap_d[_u(m)]
-        if (md < d) | ((md == d) & (heap_c[_u(m)] < c)):
-            _move(heap_d, heap_c, pos, hole, m)
-            hole = m
-        else:
-            break
-    _place(heap_d, heap_c, pos, hole, d, c)
+    _place(heap_d, heap_c, pos, _sift_down(heap_d, heap_c, pos, size, d, c, to_leaf=False), d, c)
 
 
 @numba.njit(cache=True, inline="always")
@@ -137,23 +152,7 @@ def _replace_root_bottom_up(heap_d, heap_c, pos, size, d, c):  # pragma: no cove
     bottom: walk the smallest children up to a leaf without comparing
     against it, then sift it up from there.
     """
-    hole = 0
-    while True:
-        first = 4 * hole + 1
-        if first >= size:
-            break
-        m = _min_child(heap_d, heap_c, first)
-        _move(heap_d, heap_c, pos, hole, m)
-        hole = m
-    while hole > 0:
-        parent = (hole - 1) >> 2
-        pd = heap_d[_u(parent)]
-        if (d < pd) | ((d == pd) & (c < heap_c[_u(parent)])):
-            _move(heap_d, heap_c, pos, hole, parent)
-            hole = parent
-        else:
-            break
-    _place(heap_d, heap_c, pos, hole, d, c)
+    _sift_up(heap_d, heap_c, pos, _sift_down(heap_d, heap_c, pos, size, d, c, to_leaf=True), d, c, newest=False)
 
 
 @numba.njit(cache=True)
@@ -273,7 +272,7 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
                 # the official queue, which matters only if strictly closer.
                 if d < heap_d[_u(slot)]:
                     owner[q] = k
-                    _sift_up(heap_d, heap_c, pos, slot, d, c)
+                    _sift_up(heap_d, heap_c, pos, slot, d, c, newest=True)
             else:
                 owner[q] = k
                 new_d[n_new] = d
@@ -293,7 +292,7 @@ def snic_grow(flat_lab, seeds, spatial_weight, flat_labels, neighbours, xs, ys, 
                 size += 1
                 heap_d[_u(size + 2)] = np.inf
                 heap_c[_u(size + 2)] = _PAD_COUNTER
-                _sift_up(heap_d, heap_c, pos, size - 1, new_d[j], new_c[j])
+                _sift_up(heap_d, heap_c, pos, size - 1, new_d[j], new_c[j], newest=True)
         else:
             size -= 1
             if size > 0:

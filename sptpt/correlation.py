@@ -1,0 +1,105 @@
+"""The multichannel correlation filter both DSST filters are made of: learn, blend, respond.
+
+Danelljan et al., "Accurate Scale Estimation for Robust Visual Tracking"
+(BMVC 2014), learn one filter over the scale axis (:mod:`sptpt.scale`) and
+one over a patch (:mod:`sptpt.translation`) by the same rule. For the
+``(d, *axes)`` Fourier transform ``F`` of a windowed sample with ``d``
+feature channels and the transform ``G`` of the desired (Gaussian) response,
+the filter is the numerator ``A = conj(G) F`` and the denominator
+``B = sum_l conj(F_l) F_l``; each later sample is blended in by a running
+average with learning rate ``eta``, ``A <- (1 - eta) A + eta conj(G) F``
+(likewise ``B``); and the response to a sample ``Z`` is
+``y = IFFT(sum_l conj(A_l) Z_l / (B + lambda))``. What differs between the
+two filters -- the axes, the label, the window, the features -- is given to
+:class:`CorrelationFilter` by its user.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["CorrelationFilter"]
+
+
+class CorrelationFilter:
+    """DSST's filter over the trailing axes of feature arrays: :meth:`learn`, then :meth:`blend` and :meth:`response`.
+
+    Parameters
+    ----------
+    label : (*axes) ndarray of float
+        The desired response, peaking at no shift (index 0 along every axis); its shape is the shape of the
+        filter's axes, one or two of them.
+    window : (*axes) ndarray of float
+        Multiplied into every channel of a sample before its Fourier transform (DSST: a Hann window).
+    learning_rate : float
+        ``eta`` in (0, 1], the new sample's weight in :meth:`blend` (DSST: 0.025).
+    regularisation : float
+        ``lambda`` > 0 added to the denominator in :meth:`response` (DSST: 0.01).
+
+    Deterministic and stateful: :meth:`learn` and :meth:`blend` change the filter, :meth:`spectrum` and
+    :meth:`response` only read it.
+    """
+
+    def __init__(self, label: np.ndarray, window: np.ndarray, *, learning_rate: float, regularisation: float) -> None:
+        label = np.asarray(label, dtype=np.float64)
+        window = np.asarray(window, dtype=np.float64)
+        if label.ndim not in (1, 2) or window.shape != label.shape:
+            raise ValueError(f"label and window must have the same 1-D or 2-D shape, got {label.shape} and "
+                             f"{window.shape}")
+        if not 0.0 < learning_rate <= 1.0:
+            raise ValueError(f"learning_rate must lie in (0, 1], got {learning_rate}")
+        if not regularisation > 0.0:
+            raise ValueError(f"regularisation must be > 0, got {regularisation}")
+        self._axes = tuple(range(-label.ndim, 0))
+        self._label = np.fft.fftn(label, axes=self._axes)
+        self._window = window
+        self.learning_rate = learning_rate
+        self.regularisation = regularisation
+        self._numerator: np.ndarray | None = None
+        self._denominator: np.ndarray | None = None
+
+    @property
+    def learned(self) -> bool:
+        """Whether :meth:`learn` has been called: :meth:`blend` and :meth:`response` need it."""
+        return self._numerator is not None
+
+    @property
+    def numerator(self) -> np.ndarray | None:
+        """``A``, complex ``(d, *axes)``; None before :meth:`learn`. Replaced, never changed in place, by
+        :meth:`learn` and :meth:`blend`."""
+        return self._numerator
+
+    @property
+    def denominator(self) -> np.ndarray | None:
+        """``B``, real ``(*axes)``; None before :meth:`learn`. Replaced, never changed in place, by :meth:`learn`
+        and :meth:`blend`."""
+        return self._denominator
+
+    def spectrum(self, features: np.ndarray) -> np.ndarray:
+        """``(d, *axes)`` features -> complex ``(d, *axes)``: their windowed Fourier transform over the axes."""
+        return np.fft.fftn(features * self._window[None], axes=self._axes)
+
+    def learn(self, spectrum: np.ndarray) -> None:
+        """Set the filter to the one learned from one sample's :meth:`spectrum` alone, forgetting any before."""
+        self._numerator, self._denominator = self._terms(spectrum)
+
+    def blend(self, spectrum: np.ndarray) -> None:
+        """Blend one sample's :meth:`spectrum` into ``A`` and ``B`` by the running average of rate ``eta``."""
+        self._check_learned("blend")
+        numerator, denominator = self._terms(spectrum)
+        self._numerator = (1 - self.learning_rate) * self._numerator + self.learning_rate * numerator
+        self._denominator = (1 - self.learning_rate) * self._denominator + self.learning_rate * denominator
+
+    def response(self, spectrum: np.ndarray) -> np.ndarray:
+        """The real ``(*axes)`` response ``IFFT(sum_l conj(A_l) Z_l / (B + lambda))`` to a sample's :meth:`spectrum`."""
+        self._check_learned("response")
+        return np.fft.ifftn((np.conj(self._numerator) * spectrum).sum(axis=0)
+                            / (self._denominator + self.regularisation), axes=self._axes).real
+
+    def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
+        return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
+
+    def _check_learned(self, method: str) -> None:
+        if self._numerator is None:
+            raise RuntimeError(f"CorrelationFilter.{method}() before learn()")
