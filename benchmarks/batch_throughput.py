@@ -14,7 +14,7 @@ held to one numba thread (``NUMBA_NUM_THREADS=1``), i.e. one core, the
 baseline for how the batch runner itself scales; ``2`` two workers of one
 numba thread each, the default on two cores.
 
-Usage (the recorded run)::
+Usage (the recorded run, with the tool's default preset)::
 
     python3 -m benchmarks.batch_throughput --sequences Bolt2,Coke,Crossing,Skiing --stop 60 --repeat 3 --write
 
@@ -35,6 +35,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from annotator.config import DEFAULT_PRESET
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = REPO.parent / "shared" / "otb"
@@ -153,7 +155,7 @@ def main() -> None:
     parser.add_argument("--otb-root", type=Path, default=DEFAULT_ROOT)
     parser.add_argument("--sequences", default="Bolt2,Coke,Crossing,Skiing", help="comma-separated names, or 'all'")
     parser.add_argument("--stop", type=int, default=60, help="frames per sequence (0 for all)")
-    parser.add_argument("--preset", default="paper")
+    parser.add_argument("--preset", default=DEFAULT_PRESET, help=f"tracker preset (default: the tool's, {DEFAULT_PRESET})")
     parser.add_argument("--workers", default="1x1,1,2",
                         help="worker counts, comma-separated; WxT also caps numba at T threads (NUMBA_NUM_THREADS)")
     parser.add_argument("--no-render", action="store_true")
