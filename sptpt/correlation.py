@@ -27,8 +27,9 @@ class CorrelationFilter:
     Parameters
     ----------
     label : (*axes) ndarray of float
-        The desired response, peaking at no shift (index 0 along every axis); its shape is the shape of the
-        filter's axes, one or two of them.
+        The desired response to a sample at the learned position (DSST: a Gaussian); :meth:`response` to such a
+        sample peaks where it peaks, and a shifted sample's response is shifted circularly. Its shape is the
+        shape of the filter's axes, one or two of them.
     window : (*axes) ndarray of float
         Multiplied into every channel of a sample before its Fourier transform (DSST: a Hann window).
     learning_rate : float
@@ -48,11 +49,11 @@ class CorrelationFilter:
                              f"{window.shape}")
         if not 0.0 < learning_rate <= 1.0:
             raise ValueError(f"learning_rate must lie in (0, 1], got {learning_rate}")
-        if not regularisation > 0.0:
-            raise ValueError(f"regularisation must be > 0, got {regularisation}")
+        if not 0.0 < regularisation < np.inf:
+            raise ValueError(f"regularisation must be finite and > 0, got {regularisation}")
         self._axes = tuple(range(-label.ndim, 0))
         self._label = np.fft.fftn(label, axes=self._axes)
-        self._window = window
+        self._window = window.copy()  # ours: a caller's later change to its array must not change the filter
         self.learning_rate = learning_rate
         self.regularisation = regularisation
         self._numerator: np.ndarray | None = None
@@ -77,6 +78,10 @@ class CorrelationFilter:
 
     def spectrum(self, features: np.ndarray) -> np.ndarray:
         """``(d, *axes)`` features -> complex ``(d, *axes)``: their windowed Fourier transform over the axes."""
+        features = np.asarray(features)
+        if features.ndim != self._window.ndim + 1 or features.shape[1:] != self._window.shape:
+            raise ValueError(f"features must have shape (d, {', '.join(map(str, self._window.shape))}), got "
+                             f"{features.shape}")
         return np.fft.fftn(features * self._window[None], axes=self._axes)
 
     def learn(self, spectrum: np.ndarray) -> None:
@@ -93,13 +98,23 @@ class CorrelationFilter:
     def response(self, spectrum: np.ndarray) -> np.ndarray:
         """The real ``(*axes)`` response ``IFFT(sum_l conj(A_l) Z_l / (B + lambda))`` to a sample's :meth:`spectrum`."""
         self._check_learned("response")
+        self._check_spectrum(spectrum)
         return np.fft.ifftn((np.conj(self._numerator) * spectrum).sum(axis=0)
                             / (self._denominator + self.regularisation), axes=self._axes).real
 
     def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
+        self._check_spectrum(spectrum)
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def _check_learned(self, method: str) -> None:
         if self._numerator is None:
             raise RuntimeError(f"CorrelationFilter.{method}() before learn()")
+
+    def _check_spectrum(self, spectrum: np.ndarray) -> None:
+        # Broadcasting would silently accept a sample of other axes or, once learned, another channel count.
+        channels = None if self._numerator is None else self._numerator.shape[0]
+        if (spectrum.ndim != self._window.ndim + 1 or spectrum.shape[1:] != self._window.shape
+                or (channels is not None and spectrum.shape[0] != channels)):
+            expected = ", ".join(map(str, (channels if channels is not None else "d", *self._window.shape)))
+            raise ValueError(f"spectrum must have shape ({expected}), got {spectrum.shape}")

@@ -87,7 +87,9 @@ class TrackerInspection:
     ----------
     estimate_xywh : (R, 4) float64 ndarray
         Each run's current estimate, 0-based ``x, y, w, h``: the box of its state, around which it searches the
-        next frame (before any scale or translation filter that sizes or centres the box a frame reports).
+        next frame (after ``redetect_after`` missed frames also around its last accepted state). With
+        ``scale_filter`` its size is the filter's; ``reported_scale_filter`` and the translation filter move only
+        the box a frame reports, not this one.
     subspace : (R,) bool ndarray
         Whether the run scores with its subspace models (both exist), as ``FrameResult.scoring == "subspace"``;
         else with the bootstrap intersection.

@@ -94,8 +94,30 @@ def test_responding_or_blending_before_learning_is_an_error():
     (np.ones((2, 2, 2)), np.ones((2, 2, 2)), 0.1, 0.01, "same 1-D or 2-D shape"),
     (np.ones(5), np.ones(5), 0.0, 0.01, r"learning_rate must lie in \(0, 1\], got 0.0"),
     (np.ones(5), np.ones(5), 1.5, 0.01, "learning_rate"),
-    (np.ones(5), np.ones(5), 0.1, 0.0, "regularisation must be > 0, got 0.0"),
+    (np.ones(5), np.ones(5), 0.1, 0.0, "regularisation must be finite and > 0, got 0.0"),
+    (np.ones(5), np.ones(5), 0.1, np.inf, "regularisation must be finite and > 0, got inf"),
 ])
 def test_bad_arguments_are_named(label, window, rate, regularisation, match):
     with pytest.raises(ValueError, match=match):
         CorrelationFilter(label, window, learning_rate=rate, regularisation=regularisation)
+
+
+def test_samples_of_other_axes_or_channels_are_refused_not_broadcast():
+    filt = flat_filter((5,))
+    with pytest.raises(ValueError, match=r"features must have shape \(d, 5\), got \(3, 1\)"):
+        filt.spectrum(np.ones((3, 1)))
+    with pytest.raises(ValueError, match=r"spectrum must have shape \(d, 5\), got \(5,\)"):
+        filt.learn(np.ones(5, dtype=complex))
+    filt.learn(filt.spectrum(np.ones((3, 5))))
+    with pytest.raises(ValueError, match=r"spectrum must have shape \(3, 5\), got \(1, 5\)"):
+        filt.response(filt.spectrum(np.ones((1, 5))))
+    with pytest.raises(ValueError, match=r"spectrum must have shape \(3, 5\), got \(2, 5\)"):
+        filt.blend(filt.spectrum(np.ones((2, 5))))
+
+
+def test_the_window_is_the_filters_own_copy():
+    window = np.hanning(7)
+    filt = CorrelationFilter(gaussian_label((7,)), window, learning_rate=0.1, regularisation=0.01)
+    before = filt.spectrum(np.ones((1, 7)))
+    window[:] = 0.0
+    assert np.array_equal(filt.spectrum(np.ones((1, 7))), before)
