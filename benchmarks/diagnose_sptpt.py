@@ -56,10 +56,11 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
         rows["log_likelihood"].append(result.log_likelihood)
         rows["accepted"].append(result.accepted)
         rows["scoring"].append(result.scoring)
-        # The run's estimate (row 0) and the ground truth (row 1) scored by the models as they are *after* this
-        # frame's update: the winner's own score would mix two models; re-scoring it with the current ones is
-        # close enough for a diagnosis and the same whenever the frame was rejected. (Run 0: main() refuses
-        # several.)
+        # The run's estimate as a box (row 0: inspect() takes boxes, so any rotation or skew of its state is left
+        # out) and the ground truth (row 1), scored by the models as they are *after* this frame's update: the
+        # winner's own score would mix two models; re-scoring with the current ones is close enough for a
+        # diagnosis. (Run 0: main() refuses several. With negative_rank_matched, neg_* are of the negative model
+        # truncated to the positive's rank, as it scores.)
         estimate = tracker.inspect(frame).estimate_xywh[0]
         inspection = tracker.inspect(frame, [estimate, gt[k]])
         for key, field in (("pos_modes", "positive_error_modes"), ("pos_sample", "positive_error_sample"),

@@ -132,11 +132,18 @@ def test_inspecting_enters_no_stage_timer(clip):
         entered.append(stage)
         return contextlib.nullcontext()
 
-    tracker = Tracker(SMALL, seed=6, stage_timer=timer)
+    tracker = Tracker(TWO_RUNS, seed=6, stage_timer=timer)
     tracker.init(clip.frames[0], clip.boxes_xywh[0])
     entered.clear()
     tracker.inspect(clip.frames[0], clip.boxes_xywh[:3])
     assert entered == []
+    # And once both runs score with their subspace models: the stages inspect() shares with update().
+    for frame in clip.frames[1:6]:
+        tracker.update(frame)
+    assert entered  # the timer does see update()
+    entered.clear()
+    inspection = tracker.inspect(clip.frames[5], clip.boxes_xywh[3:6])
+    assert inspection.subspace.all() and entered == []
 
 
 def test_the_inspection_is_frozen_and_checks_its_shapes(clip):
