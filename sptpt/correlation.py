@@ -27,9 +27,10 @@ class CorrelationFilter:
     Parameters
     ----------
     label : (*axes) ndarray of float
-        The desired response to a sample at the learned position (DSST: a Gaussian); :meth:`response` to such a
-        sample peaks where it peaks, and a shifted sample's response is shifted circularly. Its shape is the
-        shape of the filter's axes, one or two of them.
+        The desired response to a sample at the learned position (DSST: a Gaussian). :meth:`response` to the
+        learned sample approaches it where the sample's energy is far above ``lambda``, and to a circular shift
+        of that sample it is shifted alike (exactly so under a window of ones; approximately under DSST's).
+        Its shape is the shape of the filter's axes, one or two of them.
     window : (*axes) ndarray of float
         Multiplied into every channel of a sample before its Fourier transform (DSST: a Hann window).
     learning_rate : float
@@ -85,36 +86,38 @@ class CorrelationFilter:
         return np.fft.fftn(features * self._window[None], axes=self._axes)
 
     def learn(self, spectrum: np.ndarray) -> None:
-        """Set the filter to the one learned from one sample's :meth:`spectrum` alone, forgetting any before."""
-        self._numerator, self._denominator = self._terms(spectrum)
+        """Set the filter to the one learned from one sample's :meth:`spectrum` alone, forgetting any before (of
+        any channel count)."""
+        self._numerator, self._denominator = self._terms(self._checked(spectrum, channels=None))
 
     def blend(self, spectrum: np.ndarray) -> None:
         """Blend one sample's :meth:`spectrum` into ``A`` and ``B`` by the running average of rate ``eta``."""
         self._check_learned("blend")
-        numerator, denominator = self._terms(spectrum)
+        numerator, denominator = self._terms(self._checked(spectrum, channels=self._numerator.shape[0]))
         self._numerator = (1 - self.learning_rate) * self._numerator + self.learning_rate * numerator
         self._denominator = (1 - self.learning_rate) * self._denominator + self.learning_rate * denominator
 
     def response(self, spectrum: np.ndarray) -> np.ndarray:
         """The real ``(*axes)`` response ``IFFT(sum_l conj(A_l) Z_l / (B + lambda))`` to a sample's :meth:`spectrum`."""
         self._check_learned("response")
-        self._check_spectrum(spectrum)
+        spectrum = self._checked(spectrum, channels=self._numerator.shape[0])
         return np.fft.ifftn((np.conj(self._numerator) * spectrum).sum(axis=0)
                             / (self._denominator + self.regularisation), axes=self._axes).real
 
     def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
-        self._check_spectrum(spectrum)
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
     def _check_learned(self, method: str) -> None:
         if self._numerator is None:
             raise RuntimeError(f"CorrelationFilter.{method}() before learn()")
 
-    def _check_spectrum(self, spectrum: np.ndarray) -> None:
+    def _checked(self, spectrum: np.ndarray, *, channels: int | None) -> np.ndarray:
+        """``spectrum`` as an array of shape ``(channels, *axes)`` (any channel count if None), or a ValueError."""
         # Broadcasting would silently accept a sample of other axes or, once learned, another channel count.
-        channels = None if self._numerator is None else self._numerator.shape[0]
+        spectrum = np.asarray(spectrum)
         if (spectrum.ndim != self._window.ndim + 1 or spectrum.shape[1:] != self._window.shape
                 or (channels is not None and spectrum.shape[0] != channels)):
-            expected = ", ".join(map(str, (channels if channels is not None else "d", *self._window.shape)))
+            expected = ", ".join(map(str, ("d" if channels is None else channels, *self._window.shape)))
             raise ValueError(f"spectrum must have shape ({expected}), got {spectrum.shape}")
+        return spectrum

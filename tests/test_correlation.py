@@ -113,6 +113,21 @@ def test_samples_of_other_axes_or_channels_are_refused_not_broadcast():
         filt.response(filt.spectrum(np.ones((1, 5))))
     with pytest.raises(ValueError, match=r"spectrum must have shape \(3, 5\), got \(2, 5\)"):
         filt.blend(filt.spectrum(np.ones((2, 5))))
+    with pytest.raises(ValueError, match=r"spectrum must have shape \(3, 5\), got \(3, 4\)"):
+        filt.response([[1, 2, 3, 4]] * 3)  # a list is read as an array, then refused by its shape
+    square = flat_filter((8, 8))
+    with pytest.raises(ValueError, match=r"features must have shape \(d, 8, 8\), got \(2, 8, 4\)"):
+        square.spectrum(np.ones((2, 8, 4)))
+    with pytest.raises(ValueError, match=r"spectrum must have shape \(d, 8, 8\), got \(8, 8\)"):
+        square.learn(np.ones((8, 8), dtype=complex))
+
+
+def test_learning_again_forgets_the_channel_count_too():
+    filt = flat_filter((5,))
+    filt.learn(filt.spectrum(np.ones((3, 5))))
+    filt.learn(filt.spectrum(np.arange(10.0).reshape(2, 5)))  # learn() forgets the earlier filter, whatever its d
+    assert filt.numerator.shape == (2, 5)
+    assert filt.response(filt.spectrum(np.ones((2, 5)))).shape == (5,)
 
 
 def test_the_window_is_the_filters_own_copy():
