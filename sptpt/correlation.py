@@ -79,10 +79,7 @@ class CorrelationFilter:
 
     def spectrum(self, features: np.ndarray) -> np.ndarray:
         """``(d, *axes)`` features -> complex ``(d, *axes)``: their windowed Fourier transform over the axes."""
-        features = np.asarray(features)
-        if features.ndim != self._window.ndim + 1 or features.shape[1:] != self._window.shape:
-            raise ValueError(f"features must have shape (d, {', '.join(map(str, self._window.shape))}), got "
-                             f"{features.shape}")
+        features = self._checked(features, channels=None, name="features")
         return np.fft.fftn(features * self._window[None], axes=self._axes)
 
     def learn(self, spectrum: np.ndarray) -> None:
@@ -112,12 +109,13 @@ class CorrelationFilter:
         if self._numerator is None:
             raise RuntimeError(f"CorrelationFilter.{method}() before learn()")
 
-    def _checked(self, spectrum: np.ndarray, *, channels: int | None) -> np.ndarray:
-        """``spectrum`` as an array of shape ``(channels, *axes)`` (any channel count if None), or a ValueError."""
+    def _checked(self, array: np.ndarray, *, channels: int | None, name: str = "spectrum") -> np.ndarray:
+        """``array`` (a sample's features or spectrum, called ``name``) as an array of shape ``(channels, *axes)``
+        (any channel count if None), or a ValueError."""
         # Broadcasting would silently accept a sample of other axes or, once learned, another channel count.
-        spectrum = np.asarray(spectrum)
-        if (spectrum.ndim != self._window.ndim + 1 or spectrum.shape[1:] != self._window.shape
-                or (channels is not None and spectrum.shape[0] != channels)):
+        array = np.asarray(array)
+        if (array.ndim != self._window.ndim + 1 or array.shape[1:] != self._window.shape
+                or (channels is not None and array.shape[0] != channels)):
             expected = ", ".join(map(str, ("d" if channels is None else channels, *self._window.shape)))
-            raise ValueError(f"spectrum must have shape ({expected}), got {spectrum.shape}")
-        return spectrum
+            raise ValueError(f"{name} must have shape ({expected}), got {array.shape}")
+        return array
