@@ -1,4 +1,5 @@
-"""The OTB sequences a benchmark runs on: every one under a root, or the ones named by ``--sequences``.
+"""The OTB sequences a benchmark runs on (every one under a root, or the ones named by ``--sequences``), and their
+ground truth.
 
 One rule for every benchmark: a name that is not a sequence of the root is
 refused (a typo must not shrink a benchmark silently to the sequences that
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["SequenceError", "select_sequences"]
+__all__ = ["SequenceError", "ground_truth_file", "select_sequences"]
 
 
 class SequenceError(ValueError):
@@ -40,3 +41,11 @@ def select_sequences(root: str | Path, names: str | None) -> list[Path]:
         raise SequenceError(f"--sequences: {', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not in "
                             f"{root}; choose from {', '.join(found)}")
     return [found[n] for n in wanted]
+
+
+def ground_truth_file(roots: list[Path], sequence: str) -> Path:
+    """The sequence's ``groundtruth_rect.txt`` in the first of ``roots`` that holds it."""
+    for root in roots:
+        if (root / sequence / "groundtruth_rect.txt").is_file():
+            return root / sequence / "groundtruth_rect.txt"
+    raise SystemExit(f"no ground truth for {sequence} under {', '.join(map(str, roots))}: give its OTB root with --otb")

@@ -24,7 +24,7 @@ import numpy as np
 from annotator.evaluation import evaluate_sequence
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
-from benchmarks.failure_model import ground_truth_file
+from benchmarks._sequences import ground_truth_file
 
 
 def load_runs(pattern: str, roots: list[Path]) -> tuple[dict[tuple[str, int], float], dict[int, float]]:
