@@ -13,6 +13,10 @@ Runs tracked before the motion signals existed (``flow_drift``, ``flow_scale_dri
 tracking again: ``python -m benchmarks.motion_signals 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb
 ../shared/otb_extra``.
 
+Step 1b, right tracks (``benchmarks/_right_tracks.py``): the restarted segments of each set and seed
+(``python -m benchmarks.segments``, commands in its docstring), given with ``--segments``, and ``--truth``, the
+true boxes' look replayed; both are reported per sequence beside the held-out figures.
+
 Step 2, the protocol of issue #43, in this order:
 
 a. Design on ``../shared/otb`` alone: compare variants (``--drop``) by their held-out figures there::
@@ -85,6 +89,9 @@ from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
 from benchmarks._results import machine_line, update_section
+from benchmarks._sequences import ground_truth_file
+from benchmarks._right_tracks import (RIGHT_CAP, load_segments, right_medians, right_tracks_summary, right_tracks_table,
+                                      segments_flagged, sequence_of, truth_flagged, truth_look)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,14 +104,6 @@ PLOTS = ROOT / "benchmarks" / "failure_plots"
 FOLDS = ROOT / "benchmarks" / "_runs" / "failure" / "folds"
 
 
-def ground_truth_file(roots: list[Path], sequence: str) -> Path:
-    """The sequence's ``groundtruth_rect.txt`` in the first of ``roots`` that holds it."""
-    for root in roots:
-        if (root / sequence / "groundtruth_rect.txt").is_file():
-            return root / sequence / "groundtruth_rect.txt"
-    raise SystemExit(f"no ground truth for {sequence} under {', '.join(map(str, roots))}: give its OTB root with --otb")
-
-
 def load_samples(run_globs: list[str], otb: list[Path]) -> tuple[list[Sample], dict, dict]:
     """Samples, per-(sequence, seed) success AUC, and the tracker's own confidence per sample."""
     samples, aucs, confidence = [], {}, {}
@@ -114,6 +113,9 @@ def load_samples(run_globs: list[str], otb: list[Path]) -> tuple[list[Sample], d
         for folder in sorted(p for p in Path(run).iterdir() if (p / STORE_NAME).is_file()):
             store = read_store(folder / STORE_NAME)
             track = store.tracks[0]
+            if sequence_of(folder.name) != folder.name:
+                raise SystemExit(f"{folder}: a restarted segment (benchmarks/segments.py); give its runs with "
+                                 "--segments, not --runs")
             gt = read_otb_boxes(ground_truth_file(otb, folder.name))[track.frame_indices]
             iou = iou_xywh(track.boxes_xywh, gt)
             failed = ~(iou >= 0.5)
@@ -327,6 +329,21 @@ def fmt(pair: tuple[float, float], digits: int = 3) -> str:
     return f"{pair[0]:.{digits}f} ± {pair[1]:.{digits}f}"
 
 
+def right_tracks(args, train: list[Sample], models: dict[str, FailureModel], sequences: list[str]
+                 ) -> tuple[dict[str, float], dict[str, dict[str, float]]] | None:
+    """How ``models`` (by held-out video) flag right tracks of ``sequences``: their true boxes' look
+    (``--truth``) and their restarted segments (``--segments``), printed; None when neither was asked for."""
+    if not args.truth and not args.segments:
+        return None
+    truth = truth_flagged(models, truth_look(args.otb, sequences, args.workers), right_medians(train)) \
+        if args.truth else {}
+    segments = segments_flagged(models, [s for s in load_segments(args.segments, args.otb)
+                                         if s.sequence in set(sequences)]) if args.segments else {}
+    print("right tracks: " + right_tracks_summary(truth, segments))
+    print("\n".join(right_tracks_table(truth, segments)))
+    return truth, segments
+
+
 def checked_C_and_workers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[float]:
     """The values of ``--C`` (one or a comma-separated grid); a one-line error for a bad ``--C`` or ``--workers``."""
     try:
@@ -348,6 +365,47 @@ def dropped_features(parser: argparse.ArgumentParser, text: str) -> list[str]:
         parser.error(f"--drop {text!r}: {', '.join(unknown)} is neither a feature nor a signal group; choose from "
                      f"{', '.join(FEATURES)} or {', '.join(sorted(set(FEATURE_GROUPS.values())))}")
     return [f for f in FEATURES if f in names or FEATURE_GROUPS[f] in names]
+
+
+def right_tracks_markdown(right) -> list[str]:
+    """The RESULTS.md lines of :func:`right_tracks`' figures (none when it measured nothing)."""
+    if right is None:
+        return []
+    truth, segments = right
+    return ["", "Right tracks (`benchmarks/_right_tracks.py`): per sequence, the share of the frames of its true boxes "
+            "flagged for how they look (the pixel signals replayed along the ground truth, the rest at right-frame "
+            "medians), and over its restarted segments (tracked anew from the true box every 80 frames for 40, "
+            "seeds pooled) the share of frames wrong and the shares of right and of wrong frames flagged; over "
+            f"{RIGHT_CAP:.0%} in bold. " + right_tracks_summary(truth, segments) + ".", "",
+            *right_tracks_table(truth, segments)]
+
+
+def record_right_tracks(args, parser, prob, flags, sequence_rows, right, seeds, started) -> None:
+    """``--quick --record``: the held-out figures of ``--runs`` and how their fold models flag right tracks, in the
+    RESULTS.md section "failure-model-right-tracks" (the model file is not touched)."""
+    if right is None:
+        parser.error("--quick --record records the right tracks: give --segments, --truth or both")
+    command = ("python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs)
+               + " --otb " + " ".join(str(o) for o in args.otb) + f" --C {args.C}"
+               + (f" --drop {args.drop}" if args.drop else "")
+               + (" --segments " + " ".join(f"'{g}'" for g in args.segments) if args.segments else "")
+               + (" --truth" if args.truth else "") + " --quick --record")
+    markdown = "\n".join([
+        "## Failure probability and flags on right tracks (held out by video)",
+        "",
+        f"Command: `{command}`  ",
+        f"Machine: {machine_line()}; wall time {time.time() - started:.0f} s.  ",
+        f"Data: the runs of seeds {seeds} of {len(sequence_rows)} sequences; every figure from the model of the fold "
+        "that held the sequence's video out" + (f", features {args.drop} left out" if args.drop else "") + ".",
+        "",
+        "```",
+        *summary_lines(prob, flags, sequence_rows, auroc_target=0.90),
+        "```",
+        *right_tracks_markdown(right),
+    ])
+    update_section("failure-model-right-tracks" + (f"-without-{args.drop.replace(',', '-')}" if args.drop else ""),
+                   markdown)
+    print("recorded the RESULTS.md section")
 
 
 def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float) -> int:
@@ -378,6 +436,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
     print(f"scored on {len({s.sequence for s in test})} unseen sequences ({len(test)} runs):")
     print("\n".join(summary_lines(prob, flags, rows, auroc_target=0.92)))
     print("\n".join(per_sequence_table(rows)))
+    test_names = sorted({s.sequence for s in test})
+    right = right_tracks(args, samples, collections.defaultdict(lambda: model), test_names)
     if not args.record:
         return 0
     seeds = sorted({s.seed for s in test})
@@ -385,7 +445,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
                + " --test-runs " + " ".join(f"'{g}'" for g in args.test_runs)
                + " --otb " + " ".join(str(o) for o in args.otb) + (f" --drop {args.drop}" if args.drop else "")
                + (" --shipped" if args.shipped else "")
-               + " --record")
+               + (" --segments " + " ".join(f"'{g}'" for g in args.segments) if args.segments else "")
+               + (" --truth" if args.truth else "") + " --record")
     over = [r["sequence"] for r in rows if r["over_flagged"]]
     markdown = "\n".join([
         "## Failure probability and flags on unseen videos" + (": the shipped model" if args.shipped else ""),
@@ -421,6 +482,7 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
         "Per sequence (mean over seeds):",
         "",
         *per_sequence_table(rows),
+        *right_tracks_markdown(right),
     ])
     update_section("failure-model-unseen" + ("-shipped" if args.shipped else "")
                    + (f"-without-{args.drop.replace(',', '-')}" if args.drop else ""), markdown)
@@ -440,7 +502,9 @@ def main() -> int:
     parser.add_argument("--test-runs", nargs="+", default=None,
                         help="batch runs of sequences no choice has seen (globs): fit the procedure on --runs, score "
                              "it once on these, print and (--record) record the figures; nothing else is measured")
-    parser.add_argument("--record", action="store_true", help="with --test-runs: record the RESULTS.md section")
+    parser.add_argument("--record", action="store_true",
+                        help="with --test-runs: record the RESULTS.md section; with --quick: record the right "
+                             "tracks' section (needs --segments or --truth)")
     parser.add_argument("--shipped", action="store_true",
                         help="with --test-runs: score the package's model file instead of refitting on --runs")
     parser.add_argument("--no-worth", action="store_true",
@@ -457,6 +521,12 @@ def main() -> int:
                              "elimination by leave-one-video-out AUROC picks on their training videos "
                              "(the shipped model's command used it with L2 regularisation; with L1 it does not: "
                              "HISTORY.md, \"Failure model: sparse\")")
+    parser.add_argument("--segments", nargs="+", default=[],
+                        help="batch runs of restarted segments (globs; benchmarks/segments.py): how the held-out "
+                             "models flag their right frames, per sequence")
+    parser.add_argument("--truth", action="store_true",
+                        help="also replay the pixel signals along the true boxes: how the held-out models flag a "
+                             "right track for how its object looks, per sequence")
     parser.add_argument("--workers", type=int, default=2, help="processes for the held-out folds (default 2)")
     parser.add_argument("--write", action="store_true", help="write the model file, plot and RESULTS.md section")
     args = parser.parse_args()
@@ -499,9 +569,12 @@ def main() -> int:
     sequence_rows = per_sequence(results, params)
     print("\n".join(summary_lines(prob, flags, sequence_rows, auroc_target=0.90)))
     print("\n".join(per_sequence_table(sequence_rows)))
+    right = right_tracks(args, samples, fold_models, sequences)
     if args.quick:
         print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}; fold thresholds "
               f"{ {n: i['flag_threshold'] for n, i in fold_info.items()} }")
+        if args.record:
+            record_right_tracks(args, parser, prob, flags, sequence_rows, right, seeds, started)
         return 0
 
     # Baseline: the tracker's own confidence, where it is on the subspace scale.
@@ -672,6 +745,7 @@ def main() -> int:
         "marked.",
         "",
         *per_sequence_table(sequence_rows),
+        *right_tracks_markdown(right),
     ])
     update_section("failure-model", markdown)
     print(f"wrote {MODEL_FILE}, {PLOTS / 'calibration.png'} and the RESULTS.md section")
