@@ -14,7 +14,8 @@ athletes and animals tracked right, on videos nobody tuned on). Two measurements
   ``contrast`` groups) measured along the ground-truth boxes of every frame, a track that is right by definition;
   every other feature at its median over the right frames of the training runs (the tracker's scores do not exist
   along a box the tracker did not find, and the box's motion against the optical flow follows how a tracker's box
-  moves, not an annotator's). Per video, the share of the frames flagged: what a right track of that video is
+  moves, not an annotator's), and so are the runs' agreement signals where an appearance feature reads them
+  (``ncc_memory_parted``). Per video, the share of the frames flagged: what a right track of that video is
   flagged for how its object looks.
 
 Both are scored with the model of the fold that held the video out, at that model's threshold, flagged as the tool
@@ -93,9 +94,14 @@ def load_segments(run_globs: list[str], roots: list[Path]) -> list[Sample]:
     return samples
 
 
-def _truth_look(args: tuple[Path, str]) -> tuple[str, np.ndarray]:
-    """``(sequence, features)`` along the true boxes of one sequence, the tracker's inputs fixed."""
-    truth_file, name = args
+#: The runs' signals a replay of the true boxes sets to their right-frame level (there are no runs to compare).
+RUN_SIGNALS = ("run_iou", "run_support")
+
+
+def _truth_look(args: tuple[Path, str, dict[str, float]]) -> tuple[str, np.ndarray]:
+    """``(sequence, features)`` along the true boxes of one sequence, the tracker's inputs fixed and the runs'
+    signals at ``levels``."""
+    truth_file, name, levels = args
     boxes = read_otb_boxes(truth_file)
     meter, rows = SignalMeter(), []
     for index, frame in open_frames(truth_file.parent):
@@ -105,12 +111,18 @@ def _truth_look(args: tuple[Path, str]) -> tuple[str, np.ndarray]:
             rows.append(meter.next(frame, boxes[index], log_likelihood=0.0, scoring="subspace", accepted=True))
     keyframe = np.zeros(len(rows), bool)
     keyframe[0] = True
-    return name, feature_matrix({s: np.array([r[s] for r in rows]) for s in SIGNALS}, keyframe)
+    signals = {s: np.array([r[s] for r in rows]) for s in SIGNALS}
+    for s in RUN_SIGNALS:
+        signals[s][1:] = levels[s]
+    return name, feature_matrix(signals, keyframe)
 
 
-def truth_look(roots: list[Path], sequences: list[str], workers: int = 2) -> dict[str, np.ndarray]:
-    """Per sequence, the features of its true boxes (all of them; only :data:`LOOK` is read)."""
-    jobs = [(ground_truth_file(roots, name), name) for name in sequences]
+def truth_look(roots: list[Path], sequences: list[str], medians: np.ndarray, workers: int = 2
+               ) -> dict[str, np.ndarray]:
+    """Per sequence, the features of its true boxes (all of them; only :data:`LOOK` is read), the runs' signals at
+    their ``medians`` (:func:`right_medians`)."""
+    levels = {s: float(medians[FEATURES.index(s)]) for s in RUN_SIGNALS}
+    jobs = [(ground_truth_file(roots, name), name, levels) for name in sequences]
     with ProcessPoolExecutor(workers) as pool:
         return dict(pool.map(_truth_look, jobs))
 

@@ -63,7 +63,7 @@ from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FEATURES, feature_matrix, load_model
-from sptpt_dev.failure_fit import fit_model, fit_pass_agreement
+from sptpt_dev.failure_fit import APPEARANCE_LEVELS, fit_model, fit_pass_agreement
 from annotator.flagging import FlagParams
 from annotator.otb import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
@@ -130,7 +130,7 @@ def held_out(data: dict[str, np.ndarray], samples, C: float) -> tuple[np.ndarray
     fold_of = np.array([video(name) for name in data["sequence"]])
     for fold in sorted(set(fold_of)):
         train, test = fold_of != fold, fold_of == fold
-        main = fit_model([s for s in samples if video(s.sequence) != fold], C=C,
+        main = fit_model([s for s in samples if video(s.sequence) != fold], C=C, drop=APPEARANCE_LEVELS,
                          info={"held_out": fold, "note": "fold model of benchmarks/anchored_failure.py"})
         p_fold = main.p_fail(data["features"])
         section = fit_pass_agreement(p_fold[train], data["pass_iou"][train], data["failed"][train],

@@ -19,23 +19,31 @@ true boxes' look replayed; both are reported per sequence beside the held-out fi
 
 Step 2, the protocol of issue #43, in this order:
 
-a. Design on ``../shared/otb`` alone: compare variants (``--drop``) by their held-out figures there::
+a. Design on ``../shared/otb`` alone: compare variants (``--drop``) by their held-out figures there, and by how
+   they flag right tracks (section "failure-model-right-tracks")::
 
-       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --quick [--drop ...]
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --quick [--drop ...] \\
+           --C 0.003 --segments 'benchmarks/_runs/segments/otb/robust-s*' --truth [--record]
+
+   The shipped design (2026-12-01) leaves the appearance levels out (``--drop``'s default,
+   ``sptpt_dev.failure_fit.APPEARANCE_LEVELS``) and is fitted at C = 0.003; ``--drop none`` offers every feature.
 
 b. The frozen procedure, fitted on all of ``../shared/otb``, scored once on ``../shared/otb_extra``, which no
    choice has seen (section "failure-model-unseen")::
 
        python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' \\
-           --test-runs 'benchmarks/_runs/failure/otb_extra/robust-s*' --otb ../shared/otb ../shared/otb_extra --record
+           --test-runs 'benchmarks/_runs/failure/otb_extra/robust-s*' --otb ../shared/otb ../shared/otb_extra \\
+           --C 0.003 --segments 'benchmarks/_runs/segments/otb_extra/robust-s*' --truth --record
 
 c. Only then the shipped model (section "failure-model", held out by video)::
 
-       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --otb ../shared/otb --write
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/robust-s*' --otb ../shared/otb \\
+           --C 0.003 --segments 'benchmarks/_runs/segments/otb/robust-s*' --truth --write
 
    It is fitted on ``../shared/otb`` alone, not refitted on both sets: refitted on both, held out by video over
    both, it flagged the otb videos it tracked right far more (otb_extra's 48% wrong frames, against otb's 17%,
-   raise every probability; HISTORY.md, 7th and 8th sessions). The refit on both is measured by
+   raise every probability; HISTORY.md, 7th and 8th sessions; on 2026-12-01, 8 videos over 15% on the restarted
+   segments' right frames against 3). The refit on both is measured by
    ``--runs 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb ../shared/otb_extra --quick``.
 
 Step c reads every item's track store and ground truth (every frame of every sequence; before 2026-11-27 (5th
@@ -82,7 +90,7 @@ from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
 from sptpt_dev.failure_fit import (
-    MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups, fit_fold,
+    APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups, fit_fold,
     fit_model, group_features, l1_fit, video)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model
 from annotator.flagging import FlagParams, flag_p_fail
@@ -335,8 +343,8 @@ def right_tracks(args, train: list[Sample], models: dict[str, FailureModel], seq
     (``--truth``) and their restarted segments (``--segments``), printed; None when neither was asked for."""
     if not args.truth and not args.segments:
         return None
-    truth = truth_flagged(models, truth_look(args.otb, sequences, args.workers), right_medians(train)) \
-        if args.truth else {}
+    medians = right_medians(train)
+    truth = truth_flagged(models, truth_look(args.otb, sequences, medians, args.workers), medians) if args.truth else {}
     segments = segments_flagged(models, [s for s in load_segments(args.segments, args.otb)
                                          if s.sequence in set(sequences)]) if args.segments else {}
     print("right tracks: " + right_tracks_summary(truth, segments))
@@ -357,9 +365,13 @@ def checked_C_and_workers(parser: argparse.ArgumentParser, args: argparse.Namesp
     return C
 
 
+#: ``--drop``'s default: the shipped design leaves the appearance levels out (``sptpt_dev.failure_fit``).
+DEFAULT_DROP = ",".join(APPEARANCE_LEVELS)
+
+
 def dropped_features(parser: argparse.ArgumentParser, text: str) -> list[str]:
-    """The features ``--drop`` names, directly or by their signal group."""
-    names = [n.strip() for n in text.split(",") if n.strip()]
+    """The features ``--drop`` names, directly or by their signal group; none for ``none``."""
+    names = [n.strip() for n in text.split(",") if n.strip() and n.strip() != "none"]
     unknown = [n for n in names if n not in FEATURES and n not in set(FEATURE_GROUPS.values())]
     if unknown:
         parser.error(f"--drop {text!r}: {', '.join(unknown)} is neither a feature nor a signal group; choose from "
@@ -380,16 +392,31 @@ def right_tracks_markdown(right) -> list[str]:
             *right_tracks_table(truth, segments)]
 
 
+def rerun_command(args, last: str) -> str:
+    """The command that repeats this run, for a RESULTS.md section or the model file: the options given, each
+    left out where it is its default, then ``last``."""
+    options = [" ".join(f"'{g}'" for g in args.runs)]
+    options += ["--test-runs " + " ".join(f"'{g}'" for g in args.test_runs)] if args.test_runs else []
+    options += ["--otb " + " ".join(str(o) for o in args.otb)]
+    options += [f"--C {args.C}"] if args.C != C_GRID else []
+    options += [f"--drop {args.drop}"] if args.drop != DEFAULT_DROP else []
+    options += ["--select-groups"] * args.select_groups + ["--no-worth"] * args.no_worth + ["--shipped"] * args.shipped
+    options += ["--segments " + " ".join(f"'{g}'" for g in args.segments)] if args.segments else []
+    options += ["--truth"] * args.truth
+    return "python -m benchmarks.failure_model --runs " + " ".join([*options, last])
+
+
+def variant_suffix(args) -> str:
+    """The RESULTS.md section name's suffix of a ``--drop`` variant; none for the shipped design."""
+    return "" if args.drop == DEFAULT_DROP else f"-without-{args.drop.replace(',', '-')}"
+
+
 def record_right_tracks(args, parser, prob, flags, sequence_rows, right, seeds, started) -> None:
     """``--quick --record``: the held-out figures of ``--runs`` and how their fold models flag right tracks, in the
     RESULTS.md section "failure-model-right-tracks" (the model file is not touched)."""
     if right is None:
         parser.error("--quick --record records the right tracks: give --segments, --truth or both")
-    command = ("python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs)
-               + " --otb " + " ".join(str(o) for o in args.otb) + f" --C {args.C}"
-               + (f" --drop {args.drop}" if args.drop else "")
-               + (" --segments " + " ".join(f"'{g}'" for g in args.segments) if args.segments else "")
-               + (" --truth" if args.truth else "") + " --quick --record")
+    command = rerun_command(args, "--quick --record")
     markdown = "\n".join([
         "## Failure probability and flags on right tracks (held out by video)",
         "",
@@ -403,8 +430,7 @@ def record_right_tracks(args, parser, prob, flags, sequence_rows, right, seeds, 
         "```",
         *right_tracks_markdown(right),
     ])
-    update_section("failure-model-right-tracks" + (f"-without-{args.drop.replace(',', '-')}" if args.drop else ""),
-                   markdown)
+    update_section("failure-model-right-tracks" + variant_suffix(args), markdown)
     print("recorded the RESULTS.md section")
 
 
@@ -441,12 +467,7 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
     if not args.record:
         return 0
     seeds = sorted({s.seed for s in test})
-    command = ("python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs)
-               + " --test-runs " + " ".join(f"'{g}'" for g in args.test_runs)
-               + " --otb " + " ".join(str(o) for o in args.otb) + (f" --drop {args.drop}" if args.drop else "")
-               + (" --shipped" if args.shipped else "")
-               + (" --segments " + " ".join(f"'{g}'" for g in args.segments) if args.segments else "")
-               + (" --truth" if args.truth else "") + " --record")
+    command = rerun_command(args, "--record")
     over = [r["sequence"] for r in rows if r["over_flagged"]]
     markdown = "\n".join([
         "## Failure probability and flags on unseen videos" + (": the shipped model" if args.shipped else ""),
@@ -484,8 +505,7 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
         *per_sequence_table(rows),
         *right_tracks_markdown(right),
     ])
-    update_section("failure-model-unseen" + ("-shipped" if args.shipped else "")
-                   + (f"-without-{args.drop.replace(',', '-')}" if args.drop else ""), markdown)
+    update_section("failure-model-unseen" + ("-shipped" if args.shipped else "") + variant_suffix(args), markdown)
     print("recorded the RESULTS.md section")
     return 0
 
@@ -496,9 +516,10 @@ def main() -> int:
                         help="batch output folders (globs), one per seed")
     parser.add_argument("--otb", type=Path, nargs="+", default=[ROOT.parent / "shared" / "otb"],
                         help="OTB roots holding the ground truth of the runs' sequences (default ../shared/otb)")
-    parser.add_argument("--drop", default="",
-                        help="comma-separated features or signal groups the model leaves out (weight 0): a variant "
-                             "of the design, compared on the same folds")
+    parser.add_argument("--drop", default=DEFAULT_DROP,
+                        help="comma-separated features or signal groups the model leaves out (weight 0), or 'none': "
+                             "a variant of the design, compared on the same folds (default: the shipped design's, "
+                             f"{DEFAULT_DROP})")
     parser.add_argument("--test-runs", nargs="+", default=None,
                         help="batch runs of sequences no choice has seen (globs): fit the procedure on --runs, score "
                              "it once on these, print and (--record) record the figures; nothing else is measured")
@@ -613,11 +634,7 @@ def main() -> int:
 
     if not args.write:
         return 0
-    roots = " ".join(str(o) for o in args.otb)
-    command = "python -m benchmarks.failure_model --runs " + " ".join(f"'{g}'" for g in args.runs) + \
-              (f" --otb {roots}" if args.otb != parser.get_default("otb") else "") + \
-              (f" --C {args.C}" if args.C != C_GRID else "") + (" --select-groups" if select else "") + \
-              (f" --drop {args.drop}" if args.drop else "") + (" --no-worth" if args.no_worth else "") + " --write"
+    command = rerun_command(args, "--write")
     info = {
         "fitted_by": command,
         "data": {"runs": args.runs, "sequences": sequences, "seeds": seeds, "frames": frames,
@@ -705,7 +722,10 @@ def main() -> int:
            f"training videos, with that fold's C (nested): "
            f"{dict(sorted(collections.Counter('+'.join(g) or 'none' for g in fold_groups.values()).items()))} "
            f"(groups: folds); the shipped model leaves out {'+'.join(dropped) or 'none'} (weight 0)."
-           if select else "Every signal group is offered to the regression, whose L1 penalty gives a signal that "
+           if select else f"Left out by design (weight 0): {', '.join(drop) or 'nothing'}"
+                          + (" (the appearance levels: `sptpt_dev.failure_fit.APPEARANCE_LEVELS` says why)"
+                             if args.drop == DEFAULT_DROP else "") + ". "
+                          "Every other signal is offered to the regression, whose L1 penalty gives a signal that "
                           "does not pay weight 0 (--select-groups also leaves groups out by nested selection). "
                           f"The shipped model's weights of exactly 0: "
                           f"{', '.join(n for n, c in zip(FEATURES, model.coef) if c == 0) or 'none'}."),

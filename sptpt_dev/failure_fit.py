@@ -16,9 +16,16 @@ from annotator.failure.model import (FEATURE_GROUPS, FEATURES, PASS_CHOICE_FEATU
                                      PassAgreement, PassChoice, logit, model_from_fit, sigmoid)
 from annotator.flagging import FlagParams, span_flags
 
-__all__ = ["Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold", "fit_fold", "fit_model",
-           "fit_pass_choice", "fit_pass_agreement", "group_features", "leave_one_video_out", "platt",
-           "video"]
+__all__ = ["APPEARANCE_LEVELS", "Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold",
+           "fit_fold", "fit_model", "fit_pass_choice", "fit_pass_agreement", "group_features", "leave_one_video_out",
+           "platt", "video"]
+
+#: The appearance features the shipped design leaves out (issue #43, HISTORY.md 2026-12-01): how much a right box
+#: resembles the object's first frame or its past depends on the object, and on ../shared/otb the objects that change
+#: their look all the time are the ones the tracker loses, so a fit that reads these levels flags a right track of
+#: such an object on most of its frames (Diving's true boxes on 0.82 of them). Appearance enters the model as
+#: ``ncc_memory_parted`` instead: a box unlike the object's past where a run of the tracker parts from it.
+APPEARANCE_LEVELS: tuple[str, ...] = ("ncc_first", "ncc_first_w5", "ncc_prev", "ncc_memory", "ncc_memory_w5")
 
 #: A group of signals is left out only when that raises the leave-one-video-out AUROC by at least this much.
 MIN_GROUP_GAIN = 0.002

@@ -896,3 +896,66 @@ def test_signal_meter_measures_the_motion_signals_of_the_motion_meter():
     assert tuple(motion) == MOTION_SIGNALS  # what benchmarks/motion_signals.py replays is all the meter measures
     for name, values in motion.items():
         np.testing.assert_array_equal(np.array([row[name] for row in rows]), values, err_msg=name)
+
+
+def _changing_object(frames: int = 60, deformation: float = 0.7, seed: int = 5) -> tuple[list[np.ndarray], np.ndarray]:
+    """A textured object on a textured background that re-draws most of its texture every frame (an athlete, an
+    animal), moving 1 px a frame: frames and true boxes."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(32, 32))
+    background = cv2.GaussianBlur(rng.normal(size=(120, 200)), (0, 0), 3) * 60 + 128
+    video, boxes = [], []
+    for k in range(frames):
+        look = (1 - deformation) * base + deformation * rng.normal(size=(32, 32))
+        image = background.copy()
+        image[40:72, 40 + k:72 + k] = 128 + 40 * look / look.std()
+        video.append(np.repeat(np.clip(image, 0, 255).astype(np.uint8)[..., None], 3, axis=2))
+        boxes.append([40.0 + k, 40.0, 32.0, 32.0])
+    return video, np.array(boxes)
+
+
+def _parted_features(video, boxes, runs) -> np.ndarray:
+    """The ncc_memory_parted features of a pass reporting ``boxes``, its runs at ``runs`` (None: one run)."""
+    from annotator.failure.model import FEATURES
+
+    meter = SignalMeter()
+    rows = [meter.first(video[0], boxes[0])]
+    for k in range(1, len(video)):
+        rows.append(meter.next(video[k], boxes[k], log_likelihood=5.0, scoring="subspace", accepted=True,
+                               run_boxes_xywh=None if runs is None else runs[k]))
+    keyframe = np.zeros(len(rows), bool)
+    keyframe[0] = True
+    features = feature_matrix({name: np.array([r[name] for r in rows]) for name in SIGNALS}, keyframe)
+    return features[:, [FEATURES.index("ncc_memory"), FEATURES.index("ncc_memory_parted"),
+                        FEATURES.index("ncc_memory_parted_w5")]]
+
+
+def test_appearance_counts_where_a_run_parts_from_the_box():
+    """An object that changes its look, followed right by three runs: unlike its past (low ncc_memory), but no run
+    parts, so ncc_memory_parted stays low. The box carried off it while one run stays on it: high. One run: not
+    measured (NaN)."""
+    video, boxes = _changing_object()
+    agree = [np.stack([b, b + [1, 0, 0, 0], b - [0, 1, 0, 0]]) for b in boxes]
+    right = _parted_features(video, boxes, agree)
+    assert np.median(right[30:, 0]) < 0.4  # the raw level: a right box that looks unlike the object's past
+    assert right[30:, 1:].max() < 0.1
+    lost = boxes.copy()
+    lost[30:] = [100.0, 80.0, 32.0, 32.0]  # onto background from frame 30; one run stays on the object
+    parted = [np.stack([lost[k], lost[k], boxes[k]]) for k in range(len(boxes))]
+    wrong = _parted_features(video, lost, parted)
+    assert wrong[32:, 1:].min() > 0.6
+    # before the loss, as on the right track (the 5-frame means of frames 28 and 29 already see frames 30 and 31)
+    assert np.isfinite(wrong[1:28, 1:]).all() and wrong[1:28, 1:].max() < 0.1
+    alone = _parted_features(video, boxes, None)
+    assert np.isnan(alone[1:, 1:]).all()
+
+
+def test_the_shipped_model_reads_appearance_only_where_a_run_parts():
+    """The shipped design (issue #43): no weight on an appearance level, whose normal value depends on the object;
+    appearance enters through ncc_memory_parted."""
+    from sptpt_dev.failure_fit import APPEARANCE_LEVELS
+
+    model = load_model()
+    weights = dict(zip(model.features, model.coef))
+    assert all(weights[name] == 0.0 for name in APPEARANCE_LEVELS)
+    assert weights["ncc_memory_parted"] > 0 or weights["ncc_memory_parted_w5"] > 0

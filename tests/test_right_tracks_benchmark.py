@@ -87,8 +87,13 @@ def test_the_true_boxes_of_an_object_that_changes_its_look_are_flagged_by_a_mode
     changing, changing_boxes = _object_video(0.8, seed=6)
     root = _otb_root(tmp_path, "Rigid", rigid, rigid_boxes)
     _otb_root(tmp_path, "Changing", changing, changing_boxes)
-    look = truth_look([root], ["Rigid", "Changing"], workers=1)
     medians = np.zeros(len(FEATURES))
+    medians[FEATURES.index("run_iou")] = 0.9
+    look = truth_look([root], ["Rigid", "Changing"], medians, workers=1)
+    # The runs' signals sit at their right-frame level, and appearance features that read them see it.
+    k = FEATURES.index("ncc_memory")
+    parted = (1 - np.clip(look["Changing"][1:, k], 0, 1)) * (1 - 0.9)
+    np.testing.assert_allclose(look["Changing"][1:, FEATURES.index("ncc_memory_parted")], parted)
     shares = truth_flagged({"Rigid": _look_model(), "Changing": _look_model()}, look, medians)
     assert shares["Rigid"] == 0.0
     assert shares["Changing"] > 0.8 > RIGHT_CAP  # right boxes, flagged for how the object looks

@@ -12,6 +12,14 @@ into one row of :data:`FEATURES` per frame. Besides the signals themselves:
   :data:`TRUSTED_MARGIN`), as a share of that level;
 * ``since_anchor``: ``log(1 + frames since the last human box)``: drift grows
   with distance from the last box a person gave;
+* ``ncc_memory_parted``: ``(1 - ncc_memory) * (1 - run_iou)`` (``ncc_memory``
+  clipped to [0, 1]), and ``ncc_memory_parted_w5`` the same of their 5-frame
+  means: a box unlike the object's past, where a run of the tracker parts from
+  it. How much a right box resembles the object's past depends on the object
+  (an athlete or an animal changes its look all the time, and the tracker's
+  runs all follow it); a box that slid off the object, or that two runs carry
+  onto a look-alike, parts from the run that stayed. NaN (not measured) with
+  one run;
 * ``*_w5``: the mean of a signal over the five frames centred on this one.
   The tool has the whole video, so a frame may be judged by the two after it;
   a frame's probability is final :data:`LOOKAHEAD` frames later, which is the
@@ -104,7 +112,11 @@ LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
 TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
 _SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "run_support", "contrast", "ncc_memory")
 
-FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED))
+#: Appearance where a run parts, per frame and from the 5-frame means (module docstring).
+_PARTED = ("ncc_memory_parted", "ncc_memory_parted_w5")
+
+FEATURES: tuple[str, ...] = (*SIGNALS, "ll_subspace", "ll_drop", "since_anchor", *(f"{s}_w5" for s in _SMOOTHED),
+                             *_PARTED)
 
 #: Feature -> the group named in a flag's reason (the group of the feature that raised p_fail most).
 FEATURE_GROUPS: Mapping[str, str] = {
@@ -115,7 +127,7 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "scale_drift": "drift", "aspect_drift": "drift", "since_anchor": "drift",
     "flow_iou": "flow", "flow_fb": "flow", "flow_kept": "flow", "flow_iou_w5": "flow",
     "ncc_first": "appearance", "ncc_prev": "appearance", "ncc_first_w5": "appearance", "ncc_memory": "appearance",
-    "ncc_memory_w5": "appearance",
+    "ncc_memory_w5": "appearance", "ncc_memory_parted": "appearance", "ncc_memory_parted_w5": "appearance",
     "run_iou": "runs", "run_iou_w5": "runs", "run_support": "runs", "run_support_w5": "runs",
     "contrast": "contrast", "contrast_w5": "contrast",
     "flow_drift": "flow", "flow_scale_drift": "extent", "ring_with_box": "extent", "box_with_background": "extent",
@@ -276,10 +288,21 @@ class _Causal:
 
 
 def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -> np.ndarray:
-    """One feature row: raw signals, causal features, and the centred means over ``window`` (<= 5 rows)."""
+    """One feature row: raw signals, causal features, the centred means over ``window`` (<= 5 rows), and
+    :data:`_PARTED`."""
     # NaN (a signal not measured) is left out of a mean, and stays NaN where nothing in the window was measured.
     smoothed = [measured_mean(window[:, k]) for k in range(window.shape[1])]
-    return np.concatenate([raw, causal, smoothed])
+    return np.concatenate([raw, causal, smoothed, _parted(raw, smoothed)])
+
+
+_MEMORY, _RUNS = list(SIGNALS).index("ncc_memory"), list(SIGNALS).index("run_iou")
+
+
+def _parted(raw: np.ndarray, smoothed: list[float]) -> list[float]:
+    """:data:`_PARTED` of one row: from the frame's ``ncc_memory`` and ``run_iou``, and from their 5-frame means."""
+    memory5, runs5 = smoothed[_SMOOTHED.index("ncc_memory")], smoothed[_SMOOTHED.index("run_iou")]
+    return [float((1.0 - np.clip(raw[_MEMORY], 0.0, 1.0)) * (1.0 - raw[_RUNS])),
+            float((1.0 - np.clip(memory5, 0.0, 1.0)) * (1.0 - runs5))]
 
 
 def _smoothing_columns(raw: np.ndarray, causal: np.ndarray) -> np.ndarray:
