@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SyntheticClip", "make_clip"]
+__all__ = ["SyntheticClip", "changing_object", "make_clip"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,23 @@ _LOOKALIKE_SPEED = 0.8
 #: The angle from the object's direction of motion to the look-alike's, counter-clockwise in image coordinates
 #: (x right, y down): the two cross at right angles.
 _LOOKALIKE_ANGLE_DEG = 90.0
+
+
+def changing_object(deformation: float, frames: int = 60, seed: int = 5) -> tuple[list[np.ndarray], np.ndarray]:
+    """A textured grey object on a textured background, moving right 1 px a frame, that re-draws ``deformation`` of
+    its texture every frame (0: rigid; 0.8: an athlete or an animal, whose look changes all the time): RGB uint8
+    frames and their true boxes ``(frames, 4)`` xywh."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(32, 32))
+    background = _gaussian_blur(rng.normal(size=(120, 200, 1)), 3.0)[..., 0] * 60 + 128
+    video, boxes = [], []
+    for k in range(frames):
+        look = (1 - deformation) * base + deformation * rng.normal(size=(32, 32))
+        image = background.copy()
+        image[40:72, 40 + k:72 + k] = 128 + 40 * look / look.std()
+        video.append(np.repeat(np.clip(image, 0, 255).astype(np.uint8)[..., None], 3, axis=2))
+        boxes.append([40.0 + k, 40.0, 32.0, 32.0])
+    return video, np.array(boxes)
 
 
 def _paste(image: np.ndarray, pattern: np.ndarray, box_xywh: tuple[float, float, float, float]) -> np.ndarray:

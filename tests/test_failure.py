@@ -32,7 +32,7 @@ from sptpt_dev.failure_fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FL
                                    leave_one_video_out, platt, video)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from sptpt_dev.synthetic import make_clip
+from sptpt_dev.synthetic import changing_object, make_clip
 from annotator.failure.signals import MOTION_SIGNALS
 from sptpt.contrast import colour_contrast
 
@@ -898,22 +898,6 @@ def test_signal_meter_measures_the_motion_signals_of_the_motion_meter():
         np.testing.assert_array_equal(np.array([row[name] for row in rows]), values, err_msg=name)
 
 
-def _changing_object(frames: int = 60, deformation: float = 0.7, seed: int = 5) -> tuple[list[np.ndarray], np.ndarray]:
-    """A textured object on a textured background that re-draws most of its texture every frame (an athlete, an
-    animal), moving 1 px a frame: frames and true boxes."""
-    rng = np.random.default_rng(seed)
-    base = rng.normal(size=(32, 32))
-    background = cv2.GaussianBlur(rng.normal(size=(120, 200)), (0, 0), 3) * 60 + 128
-    video, boxes = [], []
-    for k in range(frames):
-        look = (1 - deformation) * base + deformation * rng.normal(size=(32, 32))
-        image = background.copy()
-        image[40:72, 40 + k:72 + k] = 128 + 40 * look / look.std()
-        video.append(np.repeat(np.clip(image, 0, 255).astype(np.uint8)[..., None], 3, axis=2))
-        boxes.append([40.0 + k, 40.0, 32.0, 32.0])
-    return video, np.array(boxes)
-
-
 def _parted_features(video, boxes, runs) -> np.ndarray:
     """The ncc_memory_parted features of a pass reporting ``boxes``, its runs at ``runs`` (None: one run)."""
     from annotator.failure.model import FEATURES
@@ -934,7 +918,7 @@ def test_appearance_counts_where_a_run_parts_from_the_box():
     """An object that changes its look, followed right by three runs: unlike its past (low ncc_memory), but no run
     parts, so ncc_memory_parted stays low. The box carried off it while one run stays on it: high. One run: not
     measured (NaN)."""
-    video, boxes = _changing_object()
+    video, boxes = changing_object(0.7)
     agree = [np.stack([b, b + [1, 0, 0, 0], b - [0, 1, 0, 0]]) for b in boxes]
     right = _parted_features(video, boxes, agree)
     assert np.median(right[30:, 0]) < 0.4  # the raw level: a right box that looks unlike the object's past

@@ -13,6 +13,7 @@ from annotator.failure.model import FEATURES, model_from_fit
 from benchmarks._right_tracks import (LOOK, RIGHT_CAP, segment_id, segment_rows, segments_flagged, sequence_of,
                                       truth_flagged, truth_look)
 from sptpt_dev.failure_fit import Sample
+from sptpt_dev.synthetic import changing_object
 
 
 def _otb_root(tmp_path, name: str, frames: list[np.ndarray], boxes: np.ndarray):
@@ -25,21 +26,6 @@ def _otb_root(tmp_path, name: str, frames: list[np.ndarray], boxes: np.ndarray):
     return tmp_path
 
 
-def _object_video(deformation: float, frames: int = 60, seed: int = 5):
-    """A textured object on a textured background whose texture is re-drawn by ``deformation`` every frame."""
-    rng = np.random.default_rng(seed)
-    base = rng.normal(size=(32, 32))
-    background = cv2.GaussianBlur(rng.normal(size=(120, 200)), (0, 0), 3) * 60 + 128
-    video, boxes = [], []
-    for k in range(frames):
-        look = (1 - deformation) * base + deformation * rng.normal(size=(32, 32))
-        image = background.copy()
-        image[40:72, 40 + k:72 + k] = 128 + 40 * look / look.std()
-        video.append(np.repeat(np.clip(image, 0, 255).astype(np.uint8)[..., None], 3, axis=2))
-        boxes.append([40.0 + k, 40.0, 32.0, 32.0])
-    return video, np.array(boxes)
-
-
 def test_segment_ids_name_their_sequence_and_are_safe_batch_ids():
     from annotator.manifest import safe_item_id
 
@@ -50,7 +36,7 @@ def test_segment_ids_name_their_sequence_and_are_safe_batch_ids():
 
 
 def test_segments_start_every_so_many_frames_from_the_true_box_and_skip_short_tails(tmp_path):
-    video, boxes = _object_video(0.1, frames=105)
+    video, boxes = changing_object(0.1, frames=105)
     root = _otb_root(tmp_path, "Alpha", video, boxes)
     rows = segment_rows(root, length=40, every=40)
     # Starts 0, 40, 80; the last one runs 25 frames (the sequence ends), a start at 100 would leave 5: none.
@@ -63,7 +49,7 @@ def test_segments_start_every_so_many_frames_from_the_true_box_and_skip_short_ta
 def test_the_segments_script_writes_a_manifest_the_batch_reads(tmp_path):
     from _benchmark_scripts import run_benchmark
 
-    video, boxes = _object_video(0.1, frames=30)
+    video, boxes = changing_object(0.1, frames=30)
     root = _otb_root(tmp_path / "otb", "Alpha", video, boxes)
     out = tmp_path / "runs" / "robust-s0"
     done = run_benchmark("segments", "--otb", str(root), "--out", str(out), "--length", "20", "--every", "20",
@@ -83,8 +69,8 @@ def _look_model() -> object:
 
 def test_the_true_boxes_of_an_object_that_changes_its_look_are_flagged_by_a_model_of_raw_appearance(tmp_path):
     assert "ncc_memory" in LOOK and "run_iou" not in LOOK and "box_with_background" not in LOOK
-    rigid, rigid_boxes = _object_video(0.1)
-    changing, changing_boxes = _object_video(0.8, seed=6)
+    rigid, rigid_boxes = changing_object(0.1)
+    changing, changing_boxes = changing_object(0.8, seed=6)
     root = _otb_root(tmp_path, "Rigid", rigid, rigid_boxes)
     _otb_root(tmp_path, "Changing", changing, changing_boxes)
     medians = np.zeros(len(FEATURES))
