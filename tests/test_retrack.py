@@ -597,7 +597,13 @@ def test_rerendered_report_shows_each_span_by_expected_errors_with_its_worst_fra
     from annotator.report import by_expected_errors, flagged_spans
 
     info = json.loads((out / "run.json").read_text())
-    # Flag every frame the model doubts at all, one frame is a span: several spans whose p_fail varies.
+    # A model whose doubt grows with the distance from the last human box, so that a span's worst frame is not its
+    # first whatever the shipped model's weights; and every frame it doubts at all flagged, one frame a span.
+    model = load_model().to_json()
+    model.update(coef=[float(name == "since_anchor") for name in model["features"]], intercept=-4.0,
+                 mean=[0.0] * len(model["features"]), scale=[1.0] * len(model["features"]))
+    (out.parent / "drift_model.json").write_text(json.dumps(model))
+    info["config"]["failure_model"] = str(out.parent / "drift_model.json")
     info["config"]["flags"] = {**info["config"]["flags"], "threshold": 1e-9, "merge_gap": 0, "min_span": 1}
     (out / "run.json").write_text(json.dumps(info))
     (out.parent / "fix.csv").write_text("frame,x,y,w,h\n" + csv_row(12, GT[12]))
