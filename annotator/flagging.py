@@ -41,8 +41,8 @@ REASONS: Mapping[str, str] = {
                     "object reaches past the box), points inside it move with the background (the box holds "
                     "background), or its size changed unlike the object's",
     "doubt:appearance": "the image under the box no longer looks like the object in the first frame, or like the "
-                        "object earlier in the track (the shipped model counts this only where one of the tracker's runs "
-                        "parts from the box)",
+                        "object earlier in the track (the shipped model counts this only where one of the tracker's "
+                        "runs parts from the box)",
     "doubt:contrast": "the box's colours hardly differ from those around it: it may sit on background",
     "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
     "doubt:passes": "between two human boxes, the re-tracks forward from the earlier and backward from the later "

@@ -90,8 +90,8 @@ from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
 from sptpt_dev.failure_fit import (
-    APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups, fit_fold,
-    fit_model, group_features, l1_fit, video)
+    APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
+    fit_fold, fit_model, group_features, l1_fit, video)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes

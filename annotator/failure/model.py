@@ -295,12 +295,14 @@ def _row(raw: np.ndarray, causal: np.ndarray, window: np.ndarray, centre: int) -
     return np.concatenate([raw, causal, smoothed, _parted(raw, smoothed)])
 
 
+# Where _parted reads its inputs: in the raw signals, and in the 5-frame means (ordered as _SMOOTHED).
 _MEMORY, _RUNS = list(SIGNALS).index("ncc_memory"), list(SIGNALS).index("run_iou")
+_MEMORY5, _RUNS5 = _SMOOTHED.index("ncc_memory"), _SMOOTHED.index("run_iou")
 
 
 def _parted(raw: np.ndarray, smoothed: list[float]) -> list[float]:
     """:data:`_PARTED` of one row: from the frame's ``ncc_memory`` and ``run_iou``, and from their 5-frame means."""
-    memory5, runs5 = smoothed[_SMOOTHED.index("ncc_memory")], smoothed[_SMOOTHED.index("run_iou")]
+    memory5, runs5 = smoothed[_MEMORY5], smoothed[_RUNS5]
     return [float((1.0 - np.clip(raw[_MEMORY], 0.0, 1.0)) * (1.0 - raw[_RUNS])),
             float((1.0 - np.clip(memory5, 0.0, 1.0)) * (1.0 - runs5))]
 
