@@ -25,7 +25,7 @@ import numba
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from sptpt._kernels import map_on_threads
+from sptpt._kernels import map_on_threads, on_own_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh, lies_outside, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
@@ -288,17 +288,15 @@ class Tracker:
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update; runs side by side, one kernel thread each: all of them when there are no more runs
-        than threads, else the largest multiple of the thread count, and the rest after them on every thread.
+        """Every run's update; with more than one kernel thread, all runs at the same time, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
-        side, one run's serial work overlaps the other's kernels. Runs beyond a multiple of the threads (the
-        third of three on two threads) run after the others, each with every thread, rather than two on one
-        thread while the other waits. Runs share nothing, so their results are the same as one after the other.
+        side, one run's serial work overlaps another's kernels. With more runs than cores (three on two) the
+        operating system shares the cores among them: measured, that keeps the cores busier than tracking the
+        third run after the other two with every thread (its serial work then left a core idle; RESULTS.md,
+        "The default's speed"). Runs share nothing, so their results are the same as one after the other.
         """
-        threads, runs = numba.get_num_threads(), len(self._runs)
-        side_by_side = runs if runs <= threads else runs - runs % threads
-        if threads == 1 or side_by_side < 2:
+        if numba.get_num_threads() == 1 or len(self._runs) < 2:
             return [run.update(frame, details=details) for run in self._runs]
 
         def update_alone(run: _Run) -> FrameResult:
@@ -309,8 +307,7 @@ class Tracker:
             finally:
                 numba.set_num_threads(own)
 
-        together = map_on_threads(update_alone, self._runs[:side_by_side], threads)
-        return together + [run.update(frame, details=details) for run in self._runs[side_by_side:]]
+        return on_own_threads(update_alone, self._runs)
 
 
 class _Run:

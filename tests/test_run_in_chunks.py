@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from sptpt._kernels import map_on_threads, run_in_chunks
+from sptpt._kernels import map_on_threads, on_own_threads, run_in_chunks
 
 
 def test_every_item_is_done_once_whatever_the_chunk_count() -> None:
@@ -82,3 +82,39 @@ def test_map_on_threads_returns_the_results_in_item_order_from_both_threads() ->
     assert [item for item, _ in names] == list(range(6))
     assert map_on_threads(lambda item: item * item, [3, 1, 2], 1) == [9, 1, 4]
     assert map_on_threads(lambda item: item, [], 2) == []
+
+
+def test_on_own_threads_runs_every_call_at_once_and_keeps_the_item_order() -> None:
+    # More calls than this machine may have cores: each waits for all the others, so the test fails (the
+    # barrier breaks) unless every call has a thread of its own at the same time.
+    items = list(range(5))
+    barrier = threading.Barrier(len(items), timeout=10)
+
+    def call(item: int) -> tuple[int, str]:
+        barrier.wait()
+        return item * item, threading.current_thread().name
+
+    results = on_own_threads(call, items)
+    assert [value for value, _ in results] == [item * item for item in items]
+    assert len({name for _, name in results}) == len(items)
+    assert results[0][1] == threading.current_thread().name  # the first call on the caller's thread
+    assert on_own_threads(lambda item: item + 1, [4]) == [5]
+    assert on_own_threads(lambda item: item, []) == []
+
+
+def test_on_own_threads_raises_once_every_call_has_stopped() -> None:
+    finished = []
+
+    def call(item: int) -> int:
+        if item == 0:
+            raise RuntimeError("first call failed")
+        time.sleep(0.05)
+        finished.append(item)
+        return item
+
+    with pytest.raises(RuntimeError, match="first call failed"):
+        on_own_threads(call, [0, 1, 2])
+    assert sorted(finished) == [1, 2]  # no call still running when the error reached the caller
+    with pytest.raises(ValueError, match="a later call failed"):
+        on_own_threads(lambda item: (_ for _ in ()).throw(ValueError("a later call failed")) if item else item,
+                       [0, 1])

@@ -18,17 +18,22 @@ from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba
 
-__all__ = ["map_on_threads", "run_in_chunks"]
+__all__ = ["map_on_threads", "on_own_threads", "run_in_chunks"]
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
+# Threads of :func:`on_own_threads`, apart from the kernel pool: a call there may itself run kernels in chunks.
+# The executor starts a thread only when none of its own is idle, so the bound only caps pathological callers.
+_OWN: ThreadPoolExecutor | None = None
+_OWN_MAX = 64
 
 
 def _forget_pool() -> None:
-    # A forked child inherits the pool object but not its threads; it would wait forever on them (nor the
+    # A forked child inherits the pool objects but not their threads; it would wait forever on them (nor the
     # lock's state, if another thread held it at the fork).
-    global _POOL, _POOL_LOCK
+    global _POOL, _POOL_LOCK, _OWN
     _POOL = None
+    _OWN = None
     _POOL_LOCK = threading.Lock()
 
 
@@ -109,3 +114,27 @@ def map_on_threads(function, items, n_threads: int) -> list:
 
     run_in_chunks(call_range, len(items), n_threads)
     return results
+
+
+def on_own_threads(function, items) -> list:
+    """``[function(item) for item in items]``, every call on a thread of its own at the same time (the first on the
+    calling thread), however many cores there are.
+
+    For a few independent calls that alternate kernels (GIL released) with serial Python work: with more calls
+    than cores the operating system shares the cores among them, so one call's serial work overlaps the others'
+    kernels instead of leaving a core idle. Each result is computed exactly as it would be alone.
+    """
+    global _OWN
+    items = list(items)
+    if len(items) <= 1:
+        return [function(item) for item in items]
+    with _POOL_LOCK:
+        if _OWN is None:
+            _OWN = ThreadPoolExecutor(max_workers=_OWN_MAX, thread_name_prefix="sptpt-own")
+        pool = _OWN
+    futures = [pool.submit(function, item) for item in items[1:]]
+    try:
+        first = function(items[0])
+    finally:
+        wait(futures)  # also when the first call raised: none may still be running once the caller goes on
+    return [first] + [future.result() for future in futures]
