@@ -85,6 +85,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from sklearn.linear_model import LogisticRegression
 
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
@@ -92,7 +93,7 @@ from annotator.failure import SIGNALS, feature_matrix
 from sptpt_dev.failure_fit import (
     APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
     fit_fold, fit_model, group_features, l1_fit, video)
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model
+from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, sigmoid
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
@@ -328,6 +329,55 @@ def per_seed_probability(results) -> dict[int, dict[str, float]]:
     return out
 
 
+#: Log-odds shifts :func:`calibration_bounds` tries for the best single shift of a test set.
+_SHIFTS = np.linspace(-4.0, 4.0, 161)
+
+
+def _shift_to_rate(z: np.ndarray, rate: float) -> float:
+    """The log-odds shift d with mean(sigmoid(z + d)) = rate (bisection; +-40 for a rate of 1 or 0)."""
+    low, high = -40.0, 40.0
+    for _ in range(60):
+        middle = (low + high) / 2
+        low, high = (middle, high) if sigmoid(z + middle).mean() < rate else (low, middle)
+    return (low + high) / 2
+
+
+def calibration_bounds(results) -> dict[int, dict[str, float]]:
+    """Per seed, how far recalibration alone could lower the ECE of held-out or unseen ``results``.
+
+    Each map is fitted on the very frames it is scored on, so these are bounds, not a procedure: ``shift``,
+    the best single shift of every frame's log-odds (a new base rate); ``platt``, slope and offset of the
+    log-odds (Platt scaling); ``per_video``, each video's log-odds shifted until its mean probability equals its
+    own failure rate, as if each video's failure rate were known exactly. If even these stay above a target,
+    no recalibration of these scores meets it; only scores that rank frames better within and across videos do.
+    """
+    by_seed: dict[int, list] = {}
+    for s, p, _, _ in results:
+        by_seed.setdefault(s.seed, []).append((s.sequence, logit(p[s.use]), s.failed[s.use].astype(float)))
+    out = {}
+    for seed, rows in by_seed.items():
+        z = np.concatenate([r[1] for r in rows])
+        y = np.concatenate([r[2] for r in rows])
+        platt = LogisticRegression(C=1e6).fit(z[:, None], y) if 0 < y.mean() < 1 else None
+        per_video = np.concatenate([sigmoid(zv + _shift_to_rate(zv, yv.mean())) for _, zv, yv in rows])
+        out[seed] = {
+            "ece": expected_calibration_error(sigmoid(z), y),
+            "shift": min(expected_calibration_error(sigmoid(z + d), y) for d in _SHIFTS),
+            "platt": (expected_calibration_error(platt.predict_proba(z[:, None])[:, 1], y) if platt is not None
+                      else float("nan")),
+            "per_video": expected_calibration_error(per_video, y),
+        }
+    return out
+
+
+def calibration_bounds_lines(bounds: dict[int, dict[str, float]]) -> list[str]:
+    """:func:`calibration_bounds` as lines of text (mean ± std over seeds)."""
+    return ["ECE after recalibration fitted on these very frames (bounds, not a procedure; mean ± std over seeds):",
+            f"  as scored {fmt(mean_std(bounds, 'ece'))}; best single log-odds shift {fmt(mean_std(bounds, 'shift'))}; "
+            f"Platt slope and offset {fmt(mean_std(bounds, 'platt'))}; each video shifted to its own failure rate "
+            f"{fmt(mean_std(bounds, 'per_video'))}"]
+
+
 def mean_std(per_seed: dict[int, dict[str, float]], key: str) -> tuple[float, float]:
     values = np.array([v[key] for v in per_seed.values()], dtype=float)
     return float(np.nanmean(values)), float(np.nanstd(values))
@@ -461,6 +511,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
           f"{model.threshold:g}, dropped {','.join(drop) or 'nothing'}; weighs {', '.join(weighed)}")
     print(f"scored on {len({s.sequence for s in test})} unseen sequences ({len(test)} runs):")
     print("\n".join(summary_lines(prob, flags, rows, auroc_target=0.92)))
+    bounds = calibration_bounds(results)
+    print("\n".join(calibration_bounds_lines(bounds)))
     print("\n".join(per_sequence_table(rows)))
     test_names = sorted({s.sequence for s in test})
     right = right_tracks(args, samples, collections.defaultdict(lambda: model), test_names)
@@ -499,6 +551,11 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
         f"| Failure rate (IoU < 0.5) | {fmt(mean_std(prob, 'failure_rate'))} | |",
         "",
         f"Sequences under {RARELY_WRONG:.0%} wrong frames flagged over {FLAGGED_CAP:.0%}: {', '.join(over) or 'none'}.",
+        "",
+        "How far recalibration alone could go: the ECE after a map of the log-odds fitted on these very frames "
+        f"(bounds, not a procedure; `calibration_bounds`): best single shift {fmt(mean_std(bounds, 'shift'))}, "
+        f"Platt slope and offset {fmt(mean_std(bounds, 'platt'))}, each video shifted to its own failure rate "
+        f"{fmt(mean_std(bounds, 'per_video'))}.",
         "",
         "Per sequence (mean over seeds):",
         "",

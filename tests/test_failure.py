@@ -696,6 +696,31 @@ def test_failure_model_script_describes_a_model_without_recalibration_too():
     assert fm.calibration_text({}) == "not recalibrated (one sequence)" and fm.calibration_slope({}) == "one sequence"
 
 
+def test_calibration_bounds_undo_one_shifted_base_rate_and_a_level_of_each_video_only_per_video():
+    from _benchmark_scripts import load_script
+    from sptpt_dev.failure_fit import Sample
+
+    fm = load_script("failure_model")
+    rng = np.random.default_rng(3)
+
+    def results(shift_of_video):
+        rows = []
+        for seed in (0, 1):
+            for name, shift in shift_of_video.items():
+                truth = rng.normal(0.0, 2.0, 4000)  # the true log-odds of each frame
+                failed = rng.random(4000) < 1 / (1 + np.exp(-truth))
+                p = 1 / (1 + np.exp(-(truth - shift)))  # the model's probability: the truth, too low by `shift`
+                rows.append((Sample(name, seed, np.zeros((4000, 1)), failed, np.ones(4000, bool)), p, [], 0.25))
+        return rows
+
+    one_level = fm.calibration_bounds(results({"A": 1.5, "B": 1.5}))
+    assert all(b["ece"] > 0.1 and b["shift"] < 0.02 and b["platt"] < 0.02 for b in one_level.values())
+    two_levels = fm.calibration_bounds(results({"A": 3.0, "B": -1.0}))
+    assert all(b["shift"] > 0.03 and b["per_video"] < 0.02 for b in two_levels.values())
+    text = "\n".join(fm.calibration_bounds_lines(one_level))
+    assert "best single log-odds shift" in text and "each video shifted to its own failure rate" in text
+
+
 # ---------------------------------------------------------------- between two anchors: the passes' agreement
 SECTION = PassAgreement(log_odds=0.8, pass_iou=-5.0, intercept=1.5, info={"data": "hand-made"})
 
