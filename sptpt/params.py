@@ -106,7 +106,8 @@ class TrackerParams:
     Costs one run's time per run; on Human9 and Singer2 the run that has lost the target scores higher (hence
     ``run_choice``). Three runs let the runs outvote one that has lost the target (``run_choice="consensus"``):
     0.602 ± 0.018 against two runs' 0.583 ± 0.022 over the same six seeds. With more than one kernel thread,
-    the runs are tracked at the same time, one kernel thread each (three on two cores too). 3 in ``robust``.
+    up to one run more than the threads are tracked at the same time, one kernel thread each (three on two
+    cores). 3 in ``robust``.
     [ours, benchmarks/RESULTS.md "OTB, 6 seeds" and "robust development"; benchmarks/HISTORY.md "Three runs and
     the box they agree on"]"""
 

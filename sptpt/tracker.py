@@ -288,15 +288,19 @@ class Tracker:
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update; with more than one kernel thread, all runs at the same time, one kernel thread each.
+        """Every run's update; with more than one kernel thread, runs side by side, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
-        side, one run's serial work overlaps another's kernels. With more runs than cores (three on two) the
-        operating system shares the cores among them: measured, that keeps the cores busier than tracking the
-        third run after the other two with every thread (its serial work then left a core idle; RESULTS.md,
-        "The default's speed"). Runs share nothing, so their results are the same as one after the other.
+        side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
+        cores) all run at once and the operating system shares the cores among them: measured, that keeps the
+        cores busier than tracking the third run after the other two with every thread, whose serial work left a
+        core idle (RESULTS.md, "The default's speed"). With still more runs, the largest multiple of the thread
+        count runs side by side and the rest after them on every thread, so the threads never exceed the kernel
+        threads (a batch worker's share of the cores) by more than one. Runs share nothing, so their results are
+        the same as one after the other.
         """
-        if numba.get_num_threads() == 1 or len(self._runs) < 2:
+        threads, runs = numba.get_num_threads(), len(self._runs)
+        if threads == 1 or runs < 2:
             return [run.update(frame, details=details) for run in self._runs]
 
         def update_alone(run: _Run) -> FrameResult:
@@ -307,7 +311,11 @@ class Tracker:
             finally:
                 numba.set_num_threads(own)
 
-        return on_own_threads(update_alone, self._runs)
+        if runs <= threads + 1:
+            return on_own_threads(update_alone, self._runs)
+        side_by_side = runs - runs % threads
+        together = map_on_threads(update_alone, self._runs[:side_by_side], threads)
+        return together + [run.update(frame, details=details) for run in self._runs[side_by_side:]]
 
 
 class _Run:

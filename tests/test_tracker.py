@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from sptpt_dev.synthetic import make_clip
+from sptpt._kernels import on_own_threads
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
@@ -79,6 +82,40 @@ def test_one_thread_or_two_give_the_same_boxes_to_the_bit(clip, preset):
         if a.particle_scores is not None:
             np.testing.assert_array_equal(a.particle_scores, b.particle_scores)
             np.testing.assert_array_equal(a.superpixel_labels, b.superpixel_labels)
+
+
+@pytest.mark.parametrize("runs, all_at_once", [(3, True), (4, False)])
+def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkeypatch, runs, all_at_once):
+    """Three runs on two kernel threads share the cores at once; more would oversubscribe a batch worker's share."""
+    import numba
+
+    import sptpt.tracker as tracker_module
+
+    previous = numba.get_num_threads()
+    if previous == 1:
+        pytest.skip("numba has one thread here: the runs go one after the other")
+    calls = []
+
+    def spy(function, items):
+        calls.append(len(items))
+        return on_own_threads(function, items)
+
+    monkeypatch.setattr(tracker_module, "on_own_threads", spy)
+    params = dataclasses.replace(get_preset("fast"), independent_runs=runs)
+    numba.set_num_threads(2)
+    try:
+        together = run(clip, 5, params, n=3)
+    finally:
+        numba.set_num_threads(previous)
+    assert calls == ([runs, runs] if all_at_once else [])
+    numba.set_num_threads(1)
+    try:
+        alone = run(clip, 5, params, n=3)
+    finally:
+        numba.set_num_threads(previous)
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
+        np.testing.assert_array_equal(a.run_boxes_xywh, b.run_boxes_xywh)
 
 
 def test_details_carry_particles_and_superpixels(clip, paper_run):

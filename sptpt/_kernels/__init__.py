@@ -3,7 +3,8 @@
 The batch kernels are serial ``nogil`` loops over an item range ``start:stop``
 writing into a preallocated output; :func:`run_in_chunks` runs contiguous
 blocks of a batch on threads (:func:`map_on_threads` runs a few independent
-Python calls there). numba's ``parallel=True`` (``prange``) would do
+Python calls there; :func:`on_own_threads` runs each on a thread of its own,
+for the tracker's runs). numba's ``parallel=True`` (``prange``) would do
 the same, but its parallel lowering added about 2 s of compilation per kernel
 on a fresh install (``cue_features``: 3.9 s parallel, 1.6 s serial), most of
 the quick start's first run, for no speed gain on these embarrassingly
@@ -23,7 +24,9 @@ __all__ = ["map_on_threads", "on_own_threads", "run_in_chunks"]
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 # Threads of :func:`on_own_threads`, apart from the kernel pool: a call there may itself run kernels in chunks.
-# The executor starts a thread only when none of its own is idle, so the bound only caps pathological callers.
+# The executor starts a thread only when none of its own is idle. Calls that themselves call on_own_threads until
+# all of its threads are busy would wait on each other for ever; the tracker's runs never nest (inside a run
+# numba has one thread, so its stages run on the caller's thread).
 _OWN: ThreadPoolExecutor | None = None
 _OWN_MAX = 64
 
