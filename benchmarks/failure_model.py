@@ -85,14 +85,13 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from sklearn.linear_model import LogisticRegression
 
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
 from sptpt_dev.failure_fit import (
     APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
-    fit_fold, fit_model, group_features, l1_fit, video)
+    fit_fold, fit_model, group_features, l1_fit, platt, video)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, sigmoid
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
@@ -343,13 +342,15 @@ def _shift_to_rate(z: np.ndarray, rate: float) -> float:
 
 
 def calibration_bounds(results) -> dict[int, dict[str, float]]:
-    """Per seed, how far recalibration alone could lower the ECE of held-out or unseen ``results``.
+    """Per seed, the ECE of held-out or unseen ``results`` after a few maps of their log-odds.
 
-    Each map is fitted on the very frames it is scored on, so these are bounds, not a procedure: ``shift``,
-    the best single shift of every frame's log-odds (a new base rate); ``platt``, slope and offset of the
-    log-odds (Platt scaling); ``per_video``, each video's log-odds shifted until its mean probability equals its
-    own failure rate, as if each video's failure rate were known exactly. If even these stay above a target,
-    no recalibration of these scores meets it; only scores that rank frames better within and across videos do.
+    Each map is fitted on the very frames it is scored on, so each figure is a bound for its own kind of map,
+    not a procedure: ``shift``, the best single shift of every frame's log-odds (a new base rate; grid
+    :data:`_SHIFTS`); ``platt``, slope and offset of the log-odds fitted for log loss (Platt scaling, as the
+    models are recalibrated; not the lowest ECE of such maps); ``per_video``, each video's log-odds shifted until
+    its mean probability equals its own failure rate, as if each video's failure rate were known exactly. Any
+    map can reach ECE 0 on the frames it was fitted on (one probability per ECE bin), so these say what a new
+    base rate, a new slope or a level per video could do, not what every recalibration could.
     """
     by_seed: dict[int, list] = {}
     for s, p, _, _ in results:
@@ -358,13 +359,16 @@ def calibration_bounds(results) -> dict[int, dict[str, float]]:
     for seed, rows in by_seed.items():
         z = np.concatenate([r[1] for r in rows])
         y = np.concatenate([r[2] for r in rows])
-        platt = LogisticRegression(C=1e6).fit(z[:, None], y) if 0 < y.mean() < 1 else None
+        if 0 < y.mean() < 1:
+            slope, offset = platt(sigmoid(z), y.astype(bool))
+            platt_ece = expected_calibration_error(sigmoid(slope * z + offset), y)
+        else:
+            platt_ece = float("nan")
         per_video = np.concatenate([sigmoid(zv + _shift_to_rate(zv, yv.mean())) for _, zv, yv in rows])
         out[seed] = {
             "ece": expected_calibration_error(sigmoid(z), y),
             "shift": min(expected_calibration_error(sigmoid(z + d), y) for d in _SHIFTS),
-            "platt": (expected_calibration_error(platt.predict_proba(z[:, None])[:, 1], y) if platt is not None
-                      else float("nan")),
+            "platt": platt_ece,
             "per_video": expected_calibration_error(per_video, y),
         }
     return out
@@ -372,7 +376,8 @@ def calibration_bounds(results) -> dict[int, dict[str, float]]:
 
 def calibration_bounds_lines(bounds: dict[int, dict[str, float]]) -> list[str]:
     """:func:`calibration_bounds` as lines of text (mean ± std over seeds)."""
-    return ["ECE after recalibration fitted on these very frames (bounds, not a procedure; mean ± std over seeds):",
+    return ["ECE after maps of the log-odds fitted on these very frames (bounds for each kind of map, not a procedure;"
+            " mean ± std over seeds):",
             f"  as scored {fmt(mean_std(bounds, 'ece'))}; best single log-odds shift {fmt(mean_std(bounds, 'shift'))}; "
             f"Platt slope and offset {fmt(mean_std(bounds, 'platt'))}; each video shifted to its own failure rate "
             f"{fmt(mean_std(bounds, 'per_video'))}"]
@@ -552,8 +557,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
         "",
         f"Sequences under {RARELY_WRONG:.0%} wrong frames flagged over {FLAGGED_CAP:.0%}: {', '.join(over) or 'none'}.",
         "",
-        "How far recalibration alone could go: the ECE after a map of the log-odds fitted on these very frames "
-        f"(bounds, not a procedure; `calibration_bounds`): best single shift {fmt(mean_std(bounds, 'shift'))}, "
+        "What a new base rate, slope or level per video could do: the ECE after maps of the log-odds fitted on "
+        f"these very frames (bounds for each kind of map, not a procedure; `calibration_bounds`): best single shift {fmt(mean_std(bounds, 'shift'))}, "
         f"Platt slope and offset {fmt(mean_std(bounds, 'platt'))}, each video shifted to its own failure rate "
         f"{fmt(mean_std(bounds, 'per_video'))}.",
         "",
