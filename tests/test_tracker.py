@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import numpy as np
@@ -61,20 +62,29 @@ def test_same_seed_same_boxes_and_different_seed_different_particles(clip, paper
     assert not np.array_equal(other[1].box_xywh, paper_run[1].box_xywh)
 
 
+@contextlib.contextmanager
+def numba_threads(n: int):
+    """numba's thread count set to ``n`` inside the block, and back to what it was after it."""
+    import numba
+
+    previous = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
+
+
 @pytest.mark.parametrize("preset", ["paper", "robust"])
 def test_one_thread_or_two_give_the_same_boxes_to_the_bit(clip, preset):
     """Scoring, the subspace fits and a preset's runs are split over the kernel threads; nothing may move."""
     import numba
 
     params = get_preset(preset)
-    previous = numba.get_num_threads()
-    if previous == 1:
+    if numba.get_num_threads() == 1:
         pytest.skip("numba has one thread here: nothing to compare")
-    numba.set_num_threads(1)
-    try:
+    with numba_threads(1):
         alone = run(clip, 11, params, n=16)
-    finally:
-        numba.set_num_threads(previous)
     together = run(clip, 11, params, n=16)
     for a, b in zip(alone, together):
         np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
@@ -91,8 +101,7 @@ def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkey
 
     import sptpt.tracker as tracker_module
 
-    previous = numba.get_num_threads()
-    if previous == 1:
+    if numba.get_num_threads() == 1:
         pytest.skip("numba has one thread here: the runs go one after the other")
     calls = []
 
@@ -102,17 +111,11 @@ def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkey
 
     monkeypatch.setattr(tracker_module, "on_own_threads", spy)
     params = dataclasses.replace(get_preset("fast"), independent_runs=runs)
-    numba.set_num_threads(2)
-    try:
+    with numba_threads(2):
         together = run(clip, 5, params, n=3)
-    finally:
-        numba.set_num_threads(previous)
     assert calls == ([runs, runs] if all_at_once else [])
-    numba.set_num_threads(1)
-    try:
+    with numba_threads(1):
         alone = run(clip, 5, params, n=3)
-    finally:
-        numba.set_num_threads(previous)
     for a, b in zip(alone, together):
         np.testing.assert_array_equal(a.box_xywh, b.box_xywh)
         np.testing.assert_array_equal(a.run_boxes_xywh, b.run_boxes_xywh)
