@@ -558,7 +558,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
         f"Sequences under {RARELY_WRONG:.0%} wrong frames flagged over {FLAGGED_CAP:.0%}: {', '.join(over) or 'none'}.",
         "",
         "What a new base rate, slope or level per video could do: the ECE after maps of the log-odds fitted on "
-        f"these very frames (bounds for each kind of map, not a procedure; `calibration_bounds`): best single shift {fmt(mean_std(bounds, 'shift'))}, "
+        "these very frames (bounds for each kind of map, not a procedure; `calibration_bounds`): best single shift "
+        f"{fmt(mean_std(bounds, 'shift'))}, "
         f"Platt slope and offset {fmt(mean_std(bounds, 'platt'))}, each video shifted to its own failure rate "
         f"{fmt(mean_std(bounds, 'per_video'))}.",
         "",
