@@ -35,6 +35,7 @@ from annotator.frames import DecodeError, FrameSource
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
 from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoInfo
+from sptpt import compile_kernels
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
@@ -485,6 +486,9 @@ def track_source(
         ``decode_error``; the overlay then also ends there.
     """
     started = time.perf_counter()
+    # On a fresh machine: the kernels the trackers' first frame compiles last are compiled meanwhile on the other
+    # core (nothing happens once numba's cache holds them).
+    compile_kernels(wait=False)
     trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
     model = load_model(config.failure_model)
     online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,

@@ -143,6 +143,15 @@ def run(scripted, clip, tmp_path_factory):
     return result, list(scripted.log)
 
 
+def test_tracking_starts_the_kernels_warm_up_beside_it_first(scripted, clip, tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(pipeline_module, "compile_kernels", lambda **kw: calls.append((kw, len(scripted.log))))
+    scripted.log = []
+    annotate(clip, TARGETS[:1], CONFIG, out_dir=tmp_path / "out", stop=3, show_progress=False)
+    assert calls == [({"wait": False}, 0)]  # before the first tracker call
+    scripted.log = []
+
+
 def no_temporaries(folder: Path) -> None:
     assert not [p for p in folder.rglob("*") if ".tmp" in p.name], sorted(folder.rglob("*"))
 

@@ -84,7 +84,7 @@ def test_each_package_names_its_public_api():
 
     for package, names in [(annotator, {"annotate", "AnnotateResult", "Target", "resolve_config",
                                         "apply_corrections", "read_store", "ToolError"}),
-                           (sptpt, {"Tracker", "TrackerParams", "FrameResult", "preset"})]:
+                           (sptpt, {"Tracker", "TrackerParams", "FrameResult", "preset", "compile_kernels"})]:
         assert set(package.__all__) == names
         for name in names:
             assert getattr(package, name) is not None

@@ -73,6 +73,7 @@ from annotator.review.segments import (
     same_box,
 )
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from sptpt import compile_kernels
 from sptpt.boxes import iou_xywh
 
 __all__ = ["RetrackResult", "retrack_tracks"]
@@ -257,6 +258,7 @@ def _anchors_in_force(tid: int, given_anchors: Mapping, prev: PreviousTrack | No
 def _run_passes(frames: FrameProvider, runs: list[SegmentRun], max_buffer_frames: int,
                 progress: Callable[[int, int], None] | None) -> None:
     """Every segment's passes, in one ordered sweep over the frames any of them needs, then the deferred ones."""
+    compile_kernels(wait=False)  # as in annotator.pipeline.track_source
     spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
     by_start = sorted(spans, key=lambda item: item[0][0])
     active: list[tuple[tuple[int, int], SegmentRun]] = []

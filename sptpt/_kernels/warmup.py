@@ -1,0 +1,153 @@
+"""The kernels compiled into numba's on-disk cache before the tracker needs them, on a core of their own.
+
+numba compiles a kernel on its first call and keeps the machine code in its cache, so only the first run on a
+machine pays for it: about 18 s on a 2-core VM, most of the README's first run. The tracker's first frame
+compiles its kernels one after another (warp, SNIC, cue features, then the LASSO), on one core: numba's compiler
+lock keeps a second thread of the same process from compiling beside it. A child process has a lock of its own.
+:func:`compile_kernels` with ``wait=False`` starts one that compiles them in the opposite order, the LASSO first,
+while the tracker compiles from the other end; when the tracker reaches a kernel the child has finished, numba
+loads it from the cache (its cache files are written to a temporary name and renamed, so a half-written one is
+never read). Where the two meet, both may compile the same kernel: the result is the same, only that kernel's
+seconds are not saved.
+
+The kernels are called through the public wrappers on tiny inputs of the dtypes and layouts the tracker passes,
+so they compile exactly the signatures its first frame asks for (``tests/test_warmup.py`` runs the tracker after
+a warm-up and checks that it compiles nothing).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numba
+import numpy as np
+
+__all__ = ["compile_kernels", "kernels_cached"]
+
+
+def _dispatchers() -> list:
+    """The tracker's cached kernels, in the order of its first frame."""
+    from sptpt._kernels import color, histograms, lasso, snic, warp
+
+    return [warp._warp_range, color.new_lab_memo, snic._grow_range_rgb, histograms._cue_features_range,
+            lasso._lasso_range]
+
+
+def _cached(dispatcher) -> bool:
+    """Whether numba's cache holds a compiled ``dispatcher`` for this numba version and this source file.
+
+    numba has no public query for it; this reads the cache index as numba's own loader does (an index written
+    by another numba version or for another state of the source file reads as empty). Should a later numba
+    rename these internals, the answer is False: a warm-up then starts when it need not, which costs a child's
+    start-up, not a wrong result.
+    """
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001 - any change of numba's internals reads as "not cached"
+        return False
+
+
+def kernels_cached() -> bool:
+    """Whether every kernel the tracker's first frame calls is already in numba's on-disk cache."""
+    return all(_cached(dispatcher) for dispatcher in _dispatchers())
+
+
+def _compile_all() -> None:
+    """Call each kernel once, the tracker's last one first (see the module docstring)."""
+    from sptpt.affine import warp_candidates
+    from sptpt.coding import encode_tensors
+    from sptpt.features import superpixel_features
+    from sptpt.params import get_preset
+    from sptpt.superpixels import snic
+
+    params = get_preset("robust")
+    size, n_bins = params.template_size, params.n_bins
+    rng = np.random.default_rng(0)
+    templates = rng.integers(0, 256, (2, size, size, 3), dtype=np.uint8)
+    n_features = 8 * n_bins
+    dictionary = np.abs(rng.standard_normal((n_features, params.n_atoms)))
+    encode_tensors(np.abs(rng.standard_normal((2, 4, n_features))), dictionary, lam=params.lasso_lambda)
+    labels = np.repeat(np.arange(4, dtype=np.int32), size * size // 4).reshape(1, size, size).repeat(2, axis=0)
+    superpixel_features(templates, labels, 4, n_bins=n_bins)
+    snic(templates, n_segments=params.n_superpixels, compactness=params.compactness, seeding=params.seeding)
+    frame = rng.integers(0, 256, (2 * size, 2 * size, 3), dtype=np.uint8)
+    states = np.array([[size, size, 1.0, 0.0, 1.0, 0.0]] * 2)
+    warp_candidates(frame, states, size)
+
+
+# The child this process started, kept so that it is not garbage-collected (with a ResourceWarning) while it runs.
+_CHILD: subprocess.Popen | None = None
+
+
+def _lock_path() -> Path:
+    """One lock file per cache: this copy of the package, numba's version and its cache folder setting."""
+    key = f"{Path(__file__).resolve()}|{numba.__version__}|{sys.version}|{numba.config.CACHE_DIR}"
+    digest = hashlib.sha1(key.encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / f"sptpt-warmup-{os.getuid() if hasattr(os, 'getuid') else 0}-{digest}.lock"
+
+
+@contextlib.contextmanager
+def _sole_warmup():
+    """Yield True if no other warm-up of this cache is running (and hold that until the block ends), else False.
+
+    Batch workers each start one on their first video; the second would compile the same kernels on a core
+    the workers need. Where there is no ``fcntl`` (Windows), every warm-up runs.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield True
+        return
+    with open(_lock_path(), "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def compile_kernels(*, wait: bool = True) -> subprocess.Popen | None:
+    """Compile the tracker's kernels into numba's on-disk cache, unless they are there already.
+
+    ``wait=True`` compiles them here and returns None when done. ``wait=False`` starts a child process that
+    compiles them, the ones the tracker needs last first, and returns it at once (None if every kernel was
+    cached; the same child while one this process started still runs): a tracker started next compiles from the
+    other end and loads what the child has finished.
+    """
+    global _CHILD
+    if _CHILD is not None and _CHILD.poll() is None:
+        return _CHILD
+    if kernels_cached():
+        return None
+    if wait:
+        _compile_all()
+        return None
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    # The child must import this copy of the package (numba keys its cache on the source file).
+    env["PYTHONPATH"] = os.pathsep.join([package_root, *filter(None, [env.get("PYTHONPATH")])])
+    _CHILD = subprocess.Popen([sys.executable, "-m", "sptpt._kernels.warmup"], env=env, stdin=subprocess.DEVNULL,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return _CHILD
+
+
+def main() -> int:
+    """The child of ``compile_kernels(wait=False)``."""
+    with _sole_warmup() as sole:
+        if sole and not kernels_cached():
+            _compile_all()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
