@@ -119,3 +119,13 @@ def test_compile_kernels_does_nothing_once_the_cache_holds_every_kernel(monkeypa
     monkeypatch.setattr(warmup, "_CHILD", None)
     assert warmup.compile_kernels(wait=True) is None
     assert calls == ([] if cached else ["compiled"])
+
+
+def test_a_child_that_cannot_start_leaves_the_compiling_to_the_tracker(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise FileNotFoundError("no interpreter")
+
+    monkeypatch.setattr(warmup, "kernels_cached", lambda: False)
+    monkeypatch.setattr(warmup, "_CHILD", None)
+    monkeypatch.setattr(warmup.subprocess, "Popen", refuse)
+    assert warmup.compile_kernels(wait=False) is None

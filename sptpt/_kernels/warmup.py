@@ -136,8 +136,11 @@ def compile_kernels(*, wait: bool = True) -> subprocess.Popen | None:
     env = dict(os.environ)
     # The child must import this copy of the package (numba keys its cache on the source file).
     env["PYTHONPATH"] = os.pathsep.join([package_root, *filter(None, [env.get("PYTHONPATH")])])
-    _CHILD = subprocess.Popen([sys.executable, "-m", "sptpt._kernels.warmup"], env=env, stdin=subprocess.DEVNULL,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _CHILD = subprocess.Popen([sys.executable, "-m", "sptpt._kernels.warmup"], env=env,
+                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:  # no interpreter to start (an embedded Python): the tracker compiles everything, as without
+        return None
     return _CHILD
 
 
