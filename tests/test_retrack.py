@@ -292,6 +292,20 @@ def test_retrack_is_reproducible_and_idempotent(first, corrected):
     assert twice.tracks[0].reasons == corrected.tracks[0].reasons
 
 
+def test_retrack_starts_the_kernels_warm_up_only_when_it_tracks(corrected, monkeypatch):
+    import annotator.review.retrack as retrack_module
+
+    calls = []
+    monkeypatch.setattr(retrack_module, "compile_kernels", lambda **kw: calls.append(kw))
+    previous = {1: PreviousTrack(corrected.tracks[0], corrected.scoring[1])}
+    same = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
+                          previous=previous, width=96, height=72)
+    assert same.frames_tracked == 0 and calls == []
+    later = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {13: tuple(CLIP.boxes_xywh[13])}}, CONFIG,
+                           previous=previous)
+    assert later.frames_tracked > 0 and calls == [{"wait": False}]
+
+
 def test_segments_without_new_anchors_keep_their_rows(corrected):
     track = corrected.tracks[0]
     previous = {1: PreviousTrack(track, corrected.scoring[1])}

@@ -73,8 +73,19 @@ TRACK_AND_LIST_COMPILES = """
 """
 
 
-def test_a_background_warm_up_compiles_exactly_what_the_trackers_first_frames_compile(tmp_path):
+@pytest.fixture
+def own_lock(tmp_path, monkeypatch):
+    """The cache folder of a test's child processes, and its warm-up lock seen from here (removed afterwards)."""
     cache = tmp_path / "numba-cache"
+    cache.mkdir()
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(cache))  # the lock of the child's cache, not the suite's
+    yield cache
+    warmup._lock_path().unlink(missing_ok=True)
+
+
+@pytest.mark.skipif(warmup._cores() < 2, reason="the background warm-up starts only with two cores or more")
+def test_a_background_warm_up_compiles_exactly_what_the_trackers_first_frames_compile(own_lock):
+    cache = own_lock
     out = python("""
         from sptpt import compile_kernels
         from sptpt._kernels.warmup import kernels_cached
@@ -91,10 +102,8 @@ def test_a_background_warm_up_compiles_exactly_what_the_trackers_first_frames_co
     assert [name for name in compiled if name.startswith("sptpt.")] == []
 
 
-def test_a_warm_up_leaves_a_cache_to_the_warm_up_already_compiling_into_it(tmp_path, monkeypatch):
-    cache = tmp_path / "numba-cache"
-    cache.mkdir()
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(cache))  # the lock of the child's cache, not the suite's
+def test_a_warm_up_leaves_a_cache_to_the_warm_up_already_compiling_into_it(own_lock):
+    cache = own_lock
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
     with warmup._sole_warmup() as sole:
         assert sole
@@ -112,7 +121,7 @@ def test_a_numba_without_the_cache_internals_reads_as_not_cached():
 
 
 @pytest.mark.parametrize("cached", [True, False])
-def test_compile_kernels_does_nothing_once_the_cache_holds_every_kernel(monkeypatch, cached):
+def test_compile_kernels_compiles_here_only_what_the_cache_lacks(monkeypatch, cached):
     calls = []
     monkeypatch.setattr(warmup, "kernels_cached", lambda: cached)
     monkeypatch.setattr(warmup, "_compile_all", lambda: calls.append("compiled"))
@@ -121,11 +130,85 @@ def test_compile_kernels_does_nothing_once_the_cache_holds_every_kernel(monkeypa
     assert calls == ([] if cached else ["compiled"])
 
 
+class RunningChild:
+    """A child process that still runs until waited for."""
+
+    def __init__(self):
+        self.waited = False
+
+    def poll(self):
+        return 0 if self.waited else None
+
+    def wait(self):
+        self.waited = True
+        return 0
+
+
+def test_waiting_compile_kernels_waits_for_a_running_child_first(monkeypatch):
+    child, calls = RunningChild(), []
+    monkeypatch.setattr(warmup, "_CHILD", child)
+    monkeypatch.setattr(warmup, "kernels_cached", lambda: child.waited)  # the child fills the cache
+    monkeypatch.setattr(warmup, "_compile_all", lambda: calls.append("compiled"))
+    assert warmup.compile_kernels(wait=False) is child  # no second child
+    assert warmup.compile_kernels(wait=True) is None
+    assert child.waited and calls == []
+
+
+@pytest.mark.parametrize("setting", ["no interpreter", "frozen", "one core", "no jit"])
+def test_no_child_where_it_would_not_help(monkeypatch, setting):
+    monkeypatch.setattr(warmup, "kernels_cached", lambda: False)
+    monkeypatch.setattr(warmup, "_CHILD", None)
+    monkeypatch.setattr(warmup, "_cores", lambda: 1 if setting == "one core" else 2)
+    monkeypatch.setattr(numba.config, "DISABLE_JIT", setting == "no jit")
+    if setting == "no interpreter":
+        monkeypatch.setattr(sys, "executable", None)
+    if setting == "frozen":
+        monkeypatch.setattr(sys, "frozen", True, raising=False)
+    started = []
+    monkeypatch.setattr(warmup.subprocess, "Popen", lambda *a, **k: started.append(a))
+    assert warmup.compile_kernels(wait=False) is None
+    assert started == []
+
+
+def test_the_child_imports_this_processs_copy_of_the_package_wherever_it_starts(tmp_path):
+    decoy = tmp_path / "sptpt"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text("")  # a folder of that name where the child starts (python -c puts it first)
+    command = warmup._child_command()
+    assert command[:2] == [sys.executable, "-c"]
+    run_main = "from sptpt._kernels.warmup import main; sys.exit(main())"
+    code = command[2].replace(run_main, "import sptpt; print(sptpt.__file__)")
+    assert code != command[2]
+    done = subprocess.run([command[0], "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)
+    import sptpt
+
+    assert Path(done.stdout.strip()) == Path(sptpt.__file__)
+
+
+def test_the_warm_up_compiles_the_kernels_in_the_reverse_of_the_trackers_order(monkeypatch):
+    import sptpt.affine
+    import sptpt.coding
+    import sptpt.features
+    import sptpt.superpixels
+
+    calls = []
+    for module, name, kernel in [(sptpt.coding, "encode_tensors", "lasso"),
+                                 (sptpt.features, "superpixel_features", "cue features"),
+                                 (sptpt.superpixels, "snic", "snic"),
+                                 (sptpt.affine, "warp_candidates", "warp")]:
+        monkeypatch.setattr(module, name, lambda *a, _kernel=kernel, **k: calls.append(_kernel))
+    warmup._compile_all()
+    assert calls == ["lasso", "cue features", "snic", "warp"]
+    order = [d.py_func.__name__ for d in warmup._dispatchers()]
+    assert order == ["_warp_range", "new_lab_memo", "_grow_range_rgb", "_cue_features_range", "_lasso_range"]
+
+
 def test_a_child_that_cannot_start_leaves_the_compiling_to_the_tracker(monkeypatch):
     def refuse(*args, **kwargs):
         raise FileNotFoundError("no interpreter")
 
     monkeypatch.setattr(warmup, "kernels_cached", lambda: False)
+    monkeypatch.setattr(warmup, "_cores", lambda: 2)
     monkeypatch.setattr(warmup, "_CHILD", None)
     monkeypatch.setattr(warmup.subprocess, "Popen", refuse)
     assert warmup.compile_kernels(wait=False) is None

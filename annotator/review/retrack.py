@@ -258,8 +258,9 @@ def _anchors_in_force(tid: int, given_anchors: Mapping, prev: PreviousTrack | No
 def _run_passes(frames: FrameProvider, runs: list[SegmentRun], max_buffer_frames: int,
                 progress: Callable[[int, int], None] | None) -> None:
     """Every segment's passes, in one ordered sweep over the frames any of them needs, then the deferred ones."""
-    compile_kernels(wait=False)  # as in annotator.pipeline.track_source
     spans = [(r.needed, r) for r in runs if r.needed is not None]  # fixed before the sweep changes them
+    if spans:
+        compile_kernels(wait=False)  # as in annotator.pipeline.track_source
     by_start = sorted(spans, key=lambda item: item[0][0])
     active: list[tuple[tuple[int, int], SegmentRun]] = []
     nxt = 0

@@ -1,14 +1,14 @@
 """The kernels compiled into numba's on-disk cache before the tracker needs them, on a core of their own.
 
 numba compiles a kernel on its first call and keeps the machine code in its cache, so only the first run on a
-machine pays for it: about 18 s on a 2-core VM, most of the README's first run. The tracker's first frame
+machine pays for it: about 18 s on a 2-core VM, half of the README's first run. The tracker's first frame
 compiles its kernels one after another (warp, SNIC, cue features, then the LASSO), on one core: numba's compiler
 lock keeps a second thread of the same process from compiling beside it. A child process has a lock of its own.
 :func:`compile_kernels` with ``wait=False`` starts one that compiles them in the opposite order, the LASSO first,
 while the tracker compiles from the other end; when the tracker reaches a kernel the child has finished, numba
-loads it from the cache (its cache files are written to a temporary name and renamed, so a half-written one is
-never read). Where the two meet, both may compile the same kernel: the result is the same, only that kernel's
-seconds are not saved.
+loads it from the cache. numba writes each cache file under a temporary name and renames it, and a tracker that
+finds an index entry whose machine code is not written yet compiles the kernel itself. Where the two meet, both
+may compile the same kernel: the result is the same, only that kernel's seconds are not saved.
 
 The kernels are called through the public wrappers on tiny inputs of the dtypes and layouts the tracker passes,
 so they compile exactly the signatures its first frame asks for (``tests/test_warmup.py`` runs the tracker after
@@ -20,9 +20,11 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numba
@@ -40,15 +42,18 @@ def _dispatchers() -> list:
 
 
 def _cached(dispatcher) -> bool:
-    """Whether numba's cache holds a compiled ``dispatcher`` for this numba version and this source file.
+    """Whether numba's cache holds ``dispatcher`` compiled for this numba, this source file and this CPU.
 
     numba has no public query for it; this reads the cache index as numba's own loader does (an index written
-    by another numba version or for another state of the source file reads as empty). Should a later numba
-    rename these internals, the answer is False: a warm-up then starts when it need not, which costs a child's
-    start-up, not a wrong result.
+    by another numba version or for another state of the source file reads as empty) and looks for an entry
+    built for this CPU. It does not match the argument types, so an entry of other types alone reads as cached:
+    the tracker then compiles on its own, as without a warm-up. Should a later numba rename these internals, the
+    answer is False: a warm-up then starts when it need not, which costs a child's start-up, not a wrong result.
     """
     try:
-        return bool(dispatcher._cache._cache_file._load_index())
+        index = dispatcher._cache._cache_file._load_index()
+        machine = dispatcher.targetctx.codegen().magic_tuple()
+        return any(key[1] == machine for key in index)
     except Exception:  # noqa: BLE001 - any change of numba's internals reads as "not cached"
         return False
 
@@ -81,7 +86,7 @@ def _compile_all() -> None:
     warp_candidates(frame, states, size)
 
 
-# The child this process started, kept so that it is not garbage-collected (with a ResourceWarning) while it runs.
+# The child this process started; a daemon thread waits for it, so that it is reaped when it ends.
 _CHILD: subprocess.Popen | None = None
 
 
@@ -104,7 +109,9 @@ def _sole_warmup():
     except ImportError:  # pragma: no cover - Windows
         yield True
         return
-    with open(_lock_path(), "a") as handle:
+    # O_NOFOLLOW: in a shared temporary folder, never open a file another user's symlink points to.
+    descriptor = os.open(_lock_path(), os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    with open(descriptor, "r+") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -116,36 +123,64 @@ def _sole_warmup():
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def _child_command() -> list[str] | None:
+    """The command of a child that imports what this process imports: this ``sys.path``, as multiprocessing's
+    spawn passes it, not the current folder or ``PYTHONPATH`` first. None where no interpreter can be started:
+    ``sys.executable`` unknown, or a frozen program, whose executable is the program itself."""
+    if not sys.executable or getattr(sys, "frozen", False):
+        return None
+    code = f"import sys; sys.path[:] = {sys.path!r}; from sptpt._kernels.warmup import main; sys.exit(main())"
+    return [sys.executable, "-c", code]
+
+
 def compile_kernels(*, wait: bool = True) -> subprocess.Popen | None:
     """Compile the tracker's kernels into numba's on-disk cache, unless they are there already.
 
-    ``wait=True`` compiles them here and returns None when done. ``wait=False`` starts a child process that
-    compiles them, the ones the tracker needs last first, and returns it at once (None if every kernel was
-    cached; the same child while one this process started still runs): a tracker started next compiles from the
-    other end and loads what the child has finished.
+    ``wait=True`` compiles them here (after a child this process started has ended) and returns None when done.
+    ``wait=False`` starts a child process that compiles them, the ones the tracker needs last first, and returns
+    it at once: a tracker started next compiles from the other end and loads what the child has finished. It
+    returns None and starts nothing where the child would not help: every kernel cached, one core, numba's JIT
+    disabled, or no interpreter to start; and the same child while one this process started still runs. The
+    child ends by itself; it may go on compiling after a short run has ended.
     """
     global _CHILD
-    if _CHILD is not None and _CHILD.poll() is None:
-        return _CHILD
-    if kernels_cached():
-        return None
+    running = _CHILD is not None and _CHILD.poll() is None
     if wait:
-        _compile_all()
+        if running:
+            _CHILD.wait()
+        if not kernels_cached():
+            _compile_all()
         return None
-    package_root = str(Path(__file__).resolve().parents[2])
+    if running:
+        return _CHILD
+    if numba.config.DISABLE_JIT or _cores() < 2 or kernels_cached():
+        return None
+    command = _child_command()
+    if command is None:
+        return None
     env = dict(os.environ)
-    # The child must import this copy of the package (numba keys its cache on the source file).
-    env["PYTHONPATH"] = os.pathsep.join([package_root, *filter(None, [env.get("PYTHONPATH")])])
+    if numba.config.CACHE_DIR:  # also when set in code, not in the environment
+        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
     try:
-        _CHILD = subprocess.Popen([sys.executable, "-m", "sptpt._kernels.warmup"], env=env,
-                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    except OSError:  # no interpreter to start (an embedded Python): the tracker compiles everything, as without
+        _CHILD = subprocess.Popen(command, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL)
+    except OSError:  # the interpreter cannot be started: the tracker compiles everything, as without
         return None
+    threading.Thread(target=_CHILD.wait, name="sptpt-warmup-reaper", daemon=True).start()
     return _CHILD
 
 
 def main() -> int:
     """The child of ``compile_kernels(wait=False)``."""
+    # A batch worker ignores SIGINT (its parent handles it); its child should stop on Ctrl-C like a run.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     with _sole_warmup() as sole:
         if sole and not kernels_cached():
             _compile_all()
