@@ -169,15 +169,6 @@ class TrackerParams:
     ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset uses it. [ours,
     benchmarks/RESULTS.md "The default's speed"]"""
 
-    pooled_candidates: bool = False
-    """With several ``independent_runs``: each run draws its ``n_particles`` (and ``refine_particles``) from its own
-    stream as usual, but then codes and scores the candidates of every run's round, not just its own. Superpixels
-    and features depend only on a candidate's template, so each candidate is segmented and measured once, by the
-    run that drew it: with R runs a frame segments 1/R of the templates that R runs with R times the candidates
-    would, for the same number of candidates scored by each run. Each run keeps its own dictionary, models,
-    negatives and re-detection, so runs still err apart where their models differ, but they search the same
-    places. Cannot be combined with ``prescreen_share`` < 1. False in every preset. [ours]"""
-
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
     refine_sigma_scale: float = 0.35
@@ -275,8 +266,6 @@ class TrackerParams:
                " or ".join(repr(c) for c in RUN_CHOICES))
         _check(self.contrast_candidates >= 0, "contrast_candidates", self.contrast_candidates, "an integer >= 0")
         _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
-        _check(not (self.pooled_candidates and self.prescreen_share < 1), "pooled_candidates", self.pooled_candidates,
-               "False when prescreen_share is below 1 (the pooled rounds describe every candidate)")
         _check(self.refine_particles >= 0, "refine_particles", self.refine_particles, "an integer >= 0")
         _check(0 < self.refine_sigma_scale <= 1, "refine_sigma_scale", self.refine_sigma_scale, "a number in (0, 1]")
         _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")

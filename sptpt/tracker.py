@@ -288,24 +288,7 @@ class Tracker:
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
     def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update: each on its own, or the runs' rounds pooled (``pooled_candidates``)."""
-        if not (self.params.pooled_candidates and len(self._runs) > 1):
-            return self._map_runs(lambda run: run.update(frame, details=details))
-        # Each run describes (warps, segments, measures) only its own share of a round's candidates; every run then
-        # codes and scores all of them, so a frame segments a third of the templates it would with three runs apart.
-        wide = self._map_runs(lambda run: run.pool_begin(frame))
-        self._score_pooled(wide)
-        if self.params.refine_particles > 0:
-            self._score_pooled(self._map_runs(lambda run: run.pool_refine()))
-        return self._map_runs(lambda run: run.pool_finish(details))
-
-    def _score_pooled(self, shares: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]]) -> None:
-        states = np.concatenate([share[0] for share in shares])
-        described = tuple(np.concatenate(parts) for parts in zip(*(share[1] for share in shares)))
-        self._map_runs(lambda run: run.pool_score(states, described))
-
-    def _map_runs(self, step: Callable[["_Run"], object]) -> list:
-        """``[step(run) for run in runs]``; with more than one kernel thread, runs side by side, one kernel thread each.
+        """Every run's update; with more than one kernel thread, runs side by side, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
@@ -318,21 +301,21 @@ class Tracker:
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
         if threads == 1 or runs < 2:
-            return [step(run) for run in self._runs]
+            return [run.update(frame, details=details) for run in self._runs]
 
-        def step_alone(run: _Run):
+        def update_alone(run: _Run) -> FrameResult:
             own = numba.get_num_threads()  # thread-local in numba
             numba.set_num_threads(1)
             try:
-                return step(run)
+                return run.update(frame, details=details)
             finally:
                 numba.set_num_threads(own)
 
         if runs <= threads + 1:
-            return on_own_threads(step_alone, self._runs)
+            return on_own_threads(update_alone, self._runs)
         side_by_side = runs - runs % threads
-        together = map_on_threads(step_alone, self._runs[:side_by_side], threads)
-        return together + [step(run) for run in self._runs[side_by_side:]]
+        together = map_on_threads(update_alone, self._runs[:side_by_side], threads)
+        return together + [run.update(frame, details=details) for run in self._runs[side_by_side:]]
 
 
 class _Run:
@@ -350,11 +333,6 @@ class _Run:
             )
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
         self._frame_shape: tuple[int, int] | None = None
-        # A pooled frame's state between its steps (``pool_begin`` to ``pool_finish``).
-        self._rgb: np.ndarray | None = None
-        self._rounds: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self._round_sigma: np.ndarray | None = None
-        self._scoring = ""
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         rgb = _as_rgb(frame)
@@ -405,67 +383,23 @@ class _Run:
         )
 
     def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
-        rgb, sigma = self._begin(frame)
+        rgb = self._sequence_rgb(frame, "update")
         p = self.params
+        self._frame_number += 1
+        sigma = self._motion_sigma(self._state)
         states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma)
         rounds = [(states, codes, labels, scores)]
         if p.refine_particles > 0:
             # Second, narrower round around the first round's winner: most of the
             # accuracy of many particles for a fraction of the templates (fast preset).
-            rounds.append(self._round(rgb, self._refine_centre(states, scores), p.refine_particles,
-                                      sigma * p.refine_sigma_scale)[:4])
-        return self._finish(rgb, rounds, scoring, details)
-
-    # One frame of pooled rounds (``TrackerParams.pooled_candidates``) in four steps, each taken by every run before
-    # any run takes the next (the tracker schedules them). Each step draws what ``update`` draws at the same point,
-    # from the run's own stream; the rounds' candidates are all runs' ones, in run order.
-    def pool_begin(self, frame: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """Check the frame, then draw and describe this run's share of the wide round: states, (features, labels)."""
-        self._rgb, self._round_sigma = self._begin(frame)
-        states = self._draw(self._state, self.params.n_particles, self._round_sigma)
-        return states, self._features(self._rgb, states)
-
-    def pool_score(self, states: np.ndarray, described: tuple[np.ndarray, np.ndarray]) -> None:
-        """Code every run's candidates of a round with this run's dictionary and score them with its models."""
-        features, labels = described
-        codes = self._code(features)
-        with self._time("scoring"):
-            scores, self._scoring = self._scores(codes)
-        self._rounds.append((states, codes, labels, scores))
-
-    def pool_refine(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """Draw and describe this run's share of the narrow round, around its winner of the pooled wide round."""
-        p = self.params
-        states, _, _, scores = self._rounds[0]
-        refined = self._draw(self._refine_centre(states, scores), p.refine_particles,
-                             self._round_sigma * p.refine_sigma_scale)
-        return refined, self._features(self._rgb, refined)
-
-    def pool_finish(self, details: bool) -> FrameResult:
-        """The frame's result from the pooled rounds scored so far."""
-        rgb, rounds, scoring = self._rgb, self._rounds, self._scoring
-        self._rgb, self._rounds = None, []
-        return self._finish(rgb, rounds, scoring, details)
-
-    def _begin(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The checked RGB frame and this frame's motion std; counts the frame."""
-        rgb = self._sequence_rgb(frame, "update")
-        self._frame_number += 1
-        return rgb, self._motion_sigma(self._state)
-
-    @staticmethod
-    def _refine_centre(states: np.ndarray, scores: np.ndarray) -> np.ndarray:
-        return states[int(np.argmax(scores))]
-
-    def _finish(self, rgb: np.ndarray, rounds: list, scoring: str, details: bool) -> FrameResult:
-        """The rest of a frame after its rounds: re-detection, the estimate, acceptance, the filters, learning."""
-        p = self.params
+            seed_state = states[int(np.argmax(scores))]
+            rounds.append(self._round(rgb, seed_state, p.refine_particles, sigma * p.refine_sigma_scale)[:4])
         level = self._level() if scoring == "subspace" and p.level_window > 0 else None
         if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
             # The target has been missing for a while: also search wide around where it was last accepted.
             rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor))[:4])
-        states, codes, labels, scores = rounds[0] if len(rounds) == 1 else (
-            np.concatenate(parts) for parts in zip(*rounds))
+        if len(rounds) > 1:
+            states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
         if p.contrast_candidates > 1:
             with self._time("scoring"):  # choosing among the candidates is part of scoring them
