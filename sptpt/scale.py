@@ -40,7 +40,7 @@ import numpy as np
 
 from sptpt.affine import warp_candidates
 from sptpt.correlation import CorrelationFilter
-from sptpt.gradients import GREY, orientation_split
+from sptpt.gradients import GREY, cell_histograms
 
 __all__ = ["ScaleFilter", "orientation_histograms", "N_SCALES", "STEP"]
 
@@ -65,18 +65,9 @@ def orientation_histograms(templates: np.ndarray, *, cell: int = CELL, bins: int
     cell join it), each cell's histogram L2-normalised and clipped at :data:`CLIP`.
     """
     grey = np.asarray(templates, dtype=np.float64) @ GREY
-    n, size, _ = grey.shape
-    magnitude, lower, upper, upper_weight = orientation_split(grey, bins)
-    cells = size // cell
-    cell_of_pixel = np.minimum(np.arange(size) // cell, cells - 1)  # along either side of the square template
-    cell_index = ((cell_of_pixel[:, None] * cells + cell_of_pixel[None, :])[None]
-                  + (np.arange(n) * cells * cells)[:, None, None])
-    total = n * cells * cells * bins
-    hist = np.bincount((cell_index * bins + lower).ravel(), (magnitude * (1 - upper_weight)).ravel(), total)
-    hist += np.bincount((cell_index * bins + upper).ravel(), (magnitude * upper_weight).ravel(), total)
-    hist = hist.reshape(n, cells * cells, bins)
+    hist = cell_histograms(grey, bins, cell)
     hist /= np.sqrt((hist ** 2).sum(axis=2, keepdims=True)) + 1e-3
-    return np.minimum(hist, CLIP).reshape(n, -1)
+    return np.minimum(hist, CLIP).reshape(len(hist), -1)
 
 
 class ScaleFilter:

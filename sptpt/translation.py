@@ -35,7 +35,7 @@ import numpy as np
 
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, warp_candidates
 from sptpt.correlation import CorrelationFilter
-from sptpt.gradients import GREY, orientation_split
+from sptpt.gradients import GREY, orientation_channels
 
 __all__ = ["TranslationFilter", "translation_features", "PATCH", "PADDING", "BINS"]
 
@@ -60,11 +60,9 @@ def translation_features(patch: np.ndarray) -> np.ndarray:
     along each axis, borders mirrored without repeating the edge) and weighted by :data:`ORIENTATION_WEIGHT`.
     """
     grey = (np.asarray(patch, dtype=np.float64) @ GREY) / 255.0
-    magnitude, lower, upper, upper_weight = orientation_split(grey, BINS)
     channels = np.empty((1 + BINS,) + grey.shape)
     channels[0] = grey - grey.mean()
-    for b in range(BINS):
-        split = magnitude * ((lower == b) * (1.0 - upper_weight) + (upper == b) * upper_weight)
+    for b, split in enumerate(orientation_channels(grey, BINS)):
         channels[1 + b] = ORIENTATION_WEIGHT * cv2.boxFilter(split, -1, (NEIGHBOURHOOD, NEIGHBOURHOOD))
     return channels
 

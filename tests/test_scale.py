@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sptpt_dev.synthetic import _texture
-from sptpt.affine import state_from_box_xywh
+from sptpt.affine import state_from_box_xywh, warp_candidates
+from sptpt.gradients import GREY
 from sptpt.params import get_preset
 from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histograms
 from sptpt.tracker import Tracker
@@ -64,6 +65,62 @@ def test_orientation_histograms_match_the_slow_reference(size, cell, bins):
     np.testing.assert_allclose(fast, slow_orientation_histograms(templates, cell, bins), rtol=1e-12, atol=1e-12)
     assert fast.shape == (3, (size // cell) ** 2 * bins)
     assert not fast[1].any()
+
+
+def numpy_orientation_split(grey: np.ndarray, bins: int):
+    """The NumPy code ``sptpt.gradients`` ran before its kernels, kept to show they give the same bits."""
+    gx = np.zeros_like(grey)
+    gy = np.zeros_like(grey)
+    gx[..., 1:-1] = grey[..., 2:] - grey[..., :-2]
+    gy[..., 1:-1, :] = grey[..., 2:, :] - grey[..., :-2, :]
+    magnitude = np.hypot(gx, gy)
+    position = (np.arctan2(gy, gx) % np.pi) * (bins / np.pi)
+    lower = np.floor(position)
+    upper_weight = position - lower
+    lower = lower.astype(np.int64) % bins
+    return magnitude, lower, (lower + 1) % bins, upper_weight
+
+
+def numpy_orientation_histograms(templates: np.ndarray, cell: int = CELL, bins: int = BINS) -> np.ndarray:
+    """``orientation_histograms`` as NumPy computed it before the kernel (``np.bincount`` per bin side)."""
+    grey = np.asarray(templates, dtype=np.float64) @ GREY
+    n, size, _ = grey.shape
+    magnitude, lower, upper, upper_weight = numpy_orientation_split(grey, bins)
+    cells = size // cell
+    cell_of_pixel = np.minimum(np.arange(size) // cell, cells - 1)
+    cell_index = ((cell_of_pixel[:, None] * cells + cell_of_pixel[None, :])[None]
+                  + (np.arange(n) * cells * cells)[:, None, None])
+    total = n * cells * cells * bins
+    hist = np.bincount((cell_index * bins + lower).ravel(), (magnitude * (1 - upper_weight)).ravel(), total)
+    hist += np.bincount((cell_index * bins + upper).ravel(), (magnitude * upper_weight).ravel(), total)
+    hist = hist.reshape(n, cells * cells, bins)
+    hist /= np.sqrt((hist ** 2).sum(axis=2, keepdims=True)) + 1e-3
+    return np.minimum(hist, CLIP).reshape(n, -1)
+
+
+def edge_templates(size: int = 32) -> np.ndarray:
+    """Templates whose gradients point exactly along the axes, both ways (angles 0, +-pi/2, pi and -pi: the
+    remainder's edge cases), and one that is flat (no gradient, angle 0)."""
+    ramp = np.tile(np.arange(size, dtype=np.uint8) * 7, (size, 1))
+    out = np.stack([ramp, ramp[:, ::-1], ramp.T, ramp.T[::-1], np.full((size, size), 90, np.uint8)])
+    return np.repeat(out[..., None], 3, axis=3)
+
+
+@pytest.mark.parametrize("source", ["random", "frames", "edges"])
+def test_orientation_histograms_are_the_numpy_codes_bits(source):
+    # The kernel replaced NumPy code; the scale filter's answers, and so robust's boxes, depend on every bit.
+    rng = np.random.default_rng(1)
+    if source == "random":
+        templates = rng.integers(0, 256, size=(40, 32, 32, 3), dtype=np.uint8)
+    elif source == "frames":  # smooth images, as the filter's samples are: textures warped at 33 scales
+        background, pattern = _background_and_object(rng, 48, 40, 6)
+        frame = np.clip(_paste(background, pattern, 1.1, 136.3, 100.7), 0, 255).astype(np.uint8)
+        states = np.repeat(state_from_box_xywh(np.array([130.0, 95.0, 60.0, 50.0]), 32)[None], 33, axis=0)
+        states[:, 2] *= STEP ** np.arange(-16, 17)
+        templates = warp_candidates(frame, states, 32)
+    else:
+        templates = edge_templates()
+    assert np.array_equal(orientation_histograms(templates), numpy_orientation_histograms(templates))
 
 
 def _background_and_object(rng: np.random.Generator, width: int, height: int, cell: int):

@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 
 from sptpt.affine import state_from_box_xywh
+from sptpt.gradients import GREY
 from sptpt.params import get_preset
 from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
-from tests.test_scale import _background_and_object, _paste, slow_orientation_split, track_results
+from tests.test_scale import (_background_and_object, _paste, edge_templates, numpy_orientation_split,
+                              slow_orientation_split, track_results)
 
 
 def slow_translation_features(patch: np.ndarray) -> np.ndarray:
@@ -42,6 +45,27 @@ def test_translation_features_match_the_slow_reference(shape):
     np.testing.assert_allclose(translation_features(patch), slow_translation_features(patch), rtol=1e-10, atol=1e-12)
     flat = np.full(shape + (3,), 128, np.uint8)
     assert not translation_features(flat).any()  # no gradient, and grey less its mean is 0
+
+
+def numpy_translation_features(patch: np.ndarray) -> np.ndarray:
+    """``translation_features`` as NumPy computed it before the kernel, kept to show the kernel gives its bits."""
+    grey = (np.asarray(patch, dtype=np.float64) @ GREY) / 255.0
+    magnitude, lower, upper, upper_weight = numpy_orientation_split(grey, BINS)
+    channels = np.empty((1 + BINS,) + grey.shape)
+    channels[0] = grey - grey.mean()
+    for b in range(BINS):
+        split = magnitude * ((lower == b) * (1.0 - upper_weight) + (upper == b) * upper_weight)
+        channels[1 + b] = ORIENTATION_WEIGHT * cv2.boxFilter(split, -1, (NEIGHBOURHOOD, NEIGHBOURHOOD))
+    return channels
+
+
+def test_translation_features_are_the_numpy_codes_bits():
+    rng = np.random.default_rng(2)
+    background, pattern = _background_and_object(rng, 48, 40, 6)
+    frame = np.clip(_paste(background, pattern, 1.1, 136.3, 100.7), 0, 255).astype(np.uint8)
+    patches = [rng.integers(0, 256, size=(64, 64, 3), dtype=np.uint8), frame[90:154, 120:184], *edge_templates(64)]
+    for patch in patches:
+        assert np.array_equal(translation_features(patch), numpy_translation_features(patch))
 
 
 def _scene(dx: float, dy: float, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:

@@ -189,18 +189,22 @@ def test_the_warm_up_compiles_the_kernels_in_the_reverse_of_the_trackers_order(m
     import sptpt.affine
     import sptpt.coding
     import sptpt.features
+    import sptpt.gradients
     import sptpt.superpixels
 
     calls = []
-    for module, name, kernel in [(sptpt.coding, "encode_tensors", "lasso"),
+    for module, name, kernel in [(sptpt.gradients, "orientation_channels", "translation features"),
+                                 (sptpt.gradients, "cell_histograms", "scale features"),
+                                 (sptpt.coding, "encode_tensors", "lasso"),
                                  (sptpt.features, "superpixel_features", "cue features"),
                                  (sptpt.superpixels, "snic", "snic"),
                                  (sptpt.affine, "warp_candidates", "warp")]:
         monkeypatch.setattr(module, name, lambda *a, _kernel=kernel, **k: calls.append(_kernel))
     warmup._compile_all()
-    assert calls == ["lasso", "cue features", "snic", "warp"]
+    assert calls == ["translation features", "scale features", "lasso", "cue features", "snic", "warp"]
     order = [d.py_func.__name__ for d in warmup._dispatchers()]
-    assert order == ["_warp_range", "new_lab_memo", "_grow_range_rgb", "_cue_features_range", "_lasso_range"]
+    assert order == ["_warp_range", "new_lab_memo", "_grow_range_rgb", "_cue_features_range", "_lasso_range",
+                     "cell_histograms", "orientation_channels"]
 
 
 def test_a_child_that_cannot_start_leaves_the_compiling_to_the_tracker(monkeypatch):

@@ -35,10 +35,10 @@ __all__ = ["compile_kernels", "kernels_cached"]
 
 def _dispatchers() -> list:
     """The tracker's cached kernels, in the order of its first frame."""
-    from sptpt._kernels import color, histograms, lasso, snic, warp
+    from sptpt._kernels import color, histograms, lasso, orientations, snic, warp
 
     return [warp._warp_range, color.new_lab_memo, snic._grow_range_rgb, histograms._cue_features_range,
-            lasso._lasso_range]
+            lasso._lasso_range, orientations.cell_histograms, orientations.orientation_channels]
 
 
 def _cached(dispatcher) -> bool:
@@ -68,13 +68,19 @@ def _compile_all() -> None:
     from sptpt.affine import warp_candidates
     from sptpt.coding import encode_tensors
     from sptpt.features import superpixel_features
+    from sptpt.gradients import cell_histograms, orientation_channels
     from sptpt.params import get_preset
+    from sptpt.scale import BINS, CELL
     from sptpt.superpixels import snic
+    from sptpt.translation import BINS as TRANSLATION_BINS
 
     params = get_preset("robust")
     size, n_bins = params.template_size, params.n_bins
     rng = np.random.default_rng(0)
     templates = rng.integers(0, 256, (2, size, size, 3), dtype=np.uint8)
+    grey = rng.random((2, size, size))
+    orientation_channels(grey[0], TRANSLATION_BINS)  # the translation filter's features, after the scale filter's
+    cell_histograms(grey, BINS, CELL)
     n_features = 8 * n_bins
     dictionary = np.abs(rng.standard_normal((n_features, params.n_atoms)))
     encode_tensors(np.abs(rng.standard_normal((2, 4, n_features))), dictionary, lam=params.lasso_lambda)
