@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 from typing import Callable, ContextManager
 
 import numba
@@ -236,15 +237,17 @@ class Tracker:
         FrameResult
         """
         with _single_threaded_blas():
-            # Each run checks the frame (and that init came first) itself.
-            results = self._update_runs(frame, details)
-            if len(results) == 1:
-                return results[0]
-            rgb = _as_rgb(frame)
-            voter_boxes = []
+            if len(self._runs) == 1:
+                return self._runs[0].update(frame, details=details)  # the run checks the frame itself
+            # Checked before any run or the voter moves on: a frame they would refuse leaves them all as they were.
+            rgb = self._runs[0].sequence_rgb(frame, "update")
+            vote = None
             if self._filter_voter is not None:
-                with self._time("filter_vote"):
-                    voter_boxes.append(self._filter_voter.update(rgb))
+                def vote() -> np.ndarray:
+                    with self._time("filter_vote"):
+                        return self._filter_voter.update(rgb)
+            results, voter_box = self._update_runs(rgb, details, vote)
+            voter_boxes = [] if voter_box is None else [voter_box]
         chosen = _more_confident(results)
         if self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
@@ -287,35 +290,44 @@ class Tracker:
             rows = [run.inspect(frame, boxes) for run in self._runs]
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
-    def _update_runs(self, frame: np.ndarray, details: bool) -> list[FrameResult]:
-        """Every run's update; with more than one kernel thread, runs side by side, one kernel thread each.
+    def _update_runs(self, frame: np.ndarray, details: bool,
+                     beside: Callable[[], np.ndarray] | None = None) -> tuple[list[FrameResult], np.ndarray | None]:
+        """Every run's update, and ``beside()`` (the voter's), if given; with more than one kernel thread, side by
+        side, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
-        cores) all run at once and the operating system shares the cores among them: measured, that keeps the
-        cores busier than tracking the third run after the other two with every thread, whose serial work left a
-        core idle (RESULTS.md, "The default's speed"). With still more runs, the largest multiple of the thread
-        count runs side by side and the rest after them on every thread, so the threads never exceed the kernel
-        threads (a batch worker's share of the cores) by more than one. Runs share nothing, so their results are
-        the same as one after the other.
+        cores) all run at once, and the voter beside them, and the operating system shares the cores among them:
+        measured, that keeps the cores busier than tracking the third run after the other two with every thread,
+        whose serial work left a core idle, or the voter after the runs, on one core (RESULTS.md, "The default's
+        speed"). With still more runs, the largest multiple of the thread count runs side by side and the rest
+        after them on every thread, so the threads never exceed the kernel threads (a batch worker's share of the
+        cores) by more than one; the voter then follows them. Runs and the voter share nothing, so their results
+        are the same as one after the other.
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
         if threads == 1 or runs < 2:
-            return [run.update(frame, details=details) for run in self._runs]
+            results = [run.update(frame, details=details) for run in self._runs]
+        elif runs > threads + 1:
+            side_by_side = runs - runs % threads
+            results = map_on_threads(_on_one_kernel_thread, [functools.partial(run.update, frame, details=details)
+                                                             for run in self._runs[:side_by_side]], threads)
+            results += [run.update(frame, details=details) for run in self._runs[side_by_side:]]
+        else:
+            tasks = [functools.partial(run.update, frame, details=details) for run in self._runs]
+            done = on_own_threads(_on_one_kernel_thread, tasks + ([] if beside is None else [beside]))
+            return done[:runs], None if beside is None else done[runs]
+        return results, None if beside is None else beside()
 
-        def update_alone(run: _Run) -> FrameResult:
-            own = numba.get_num_threads()  # thread-local in numba
-            numba.set_num_threads(1)
-            try:
-                return run.update(frame, details=details)
-            finally:
-                numba.set_num_threads(own)
 
-        if runs <= threads + 1:
-            return on_own_threads(update_alone, self._runs)
-        side_by_side = runs - runs % threads
-        together = map_on_threads(update_alone, self._runs[:side_by_side], threads)
-        return together + [run.update(frame, details=details) for run in self._runs[side_by_side:]]
+def _on_one_kernel_thread(call: Callable[[], object]) -> object:
+    """``call()`` with one kernel thread (numba's count is per thread; the caller's is restored after it)."""
+    own = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return call()
+    finally:
+        numba.set_num_threads(own)
 
 
 class _Run:
@@ -383,7 +395,7 @@ class _Run:
         )
 
     def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
-        rgb = self._sequence_rgb(frame, "update")
+        rgb = self.sequence_rgb(frame, "update")
         p = self.params
         self._frame_number += 1
         sigma = self._motion_sigma(self._state)
@@ -482,7 +494,7 @@ class _Run:
 
     def inspect(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> dict[str, np.ndarray]:
         """One run's row of :class:`TrackerInspection` for ``(N, 4)`` checked boxes; reads, never writes."""
-        rgb = self._sequence_rgb(frame, "inspect")
+        rgb = self.sequence_rgb(frame, "inspect")
         p = self.params
         states = np.array([state_from_box_xywh(box, p.template_size) for box in boxes_xywh]).reshape(-1, 6)
         codes = self._codes(rgb, states, time=_no_timer)[0] if len(states) else None
@@ -500,7 +512,7 @@ class _Run:
         row["log_likelihood"] = np.empty(0) if codes is None else self._scores(codes)[0]
         return row
 
-    def _sequence_rgb(self, frame: np.ndarray, method: str) -> np.ndarray:
+    def sequence_rgb(self, frame: np.ndarray, method: str) -> np.ndarray:
         """``frame`` as RGB, checked to come after init and to have the first frame's size."""
         if self._frame_shape is None:
             raise RuntimeError(f"Tracker.{method}() called before init(): call init(first_frame, box_xywh) first")

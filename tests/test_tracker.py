@@ -94,9 +94,11 @@ def test_one_thread_or_two_give_the_same_boxes_to_the_bit(clip, preset):
             np.testing.assert_array_equal(a.superpixel_labels, b.superpixel_labels)
 
 
-@pytest.mark.parametrize("runs, all_at_once", [(3, True), (4, False)])
-def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkeypatch, runs, all_at_once):
-    """Three runs on two kernel threads share the cores at once; more would oversubscribe a batch worker's share."""
+@pytest.mark.parametrize("runs, voter, all_at_once", [(3, False, True), (3, True, True), (4, False, False),
+                                                    (4, True, False)])
+def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkeypatch, runs, voter, all_at_once):
+    """Three runs on two kernel threads share the cores at once, the voter beside them; more runs would oversubscribe
+    a batch worker's share."""
     import numba
 
     import sptpt.tracker as tracker_module
@@ -111,9 +113,11 @@ def test_runs_go_all_at_once_up_to_one_more_than_the_kernel_threads(clip, monkey
 
     monkeypatch.setattr(tracker_module, "on_own_threads", spy)
     params = dataclasses.replace(get_preset("fast"), independent_runs=runs)
+    if voter:
+        params = dataclasses.replace(params, run_choice="consensus", filter_vote=True)
     with numba_threads(2):
         together = run(clip, 5, params, n=3)
-    assert calls == ([runs, runs] if all_at_once else [])
+    assert calls == ([runs + voter] * 2 if all_at_once else [])
     with numba_threads(1):
         alone = run(clip, 5, params, n=3)
     for a, b in zip(alone, together):
