@@ -169,6 +169,15 @@ class TrackerParams:
     ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset uses it. [ours,
     benchmarks/RESULTS.md "The default's speed"]"""
 
+    shortlist: int = 0
+    """Candidates of each round that SPTPT evaluates in full (their own superpixels, features, codes and subspace
+    score): those that score best when cut into the superpixels of the run's estimate, warped with each candidate.
+    Every candidate is warped, described, coded and scored once that way, which is SPTPT's own score without the
+    superpixels, the half of a candidate's work; the shortlist then gets its own. The rest are dropped; the
+    candidates are still drawn, so the random stream is the same. Negatives are not shortlisted. 0 evaluates every
+    candidate in full. A round's first pass uses the superpixels of the run's last estimate, the refine round those
+    of the first round's best. [ours, benchmarks/RESULTS.md "The default's speed"]"""
+
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""
     refine_sigma_scale: float = 0.35
@@ -266,6 +275,9 @@ class TrackerParams:
                " or ".join(repr(c) for c in RUN_CHOICES))
         _check(self.contrast_candidates >= 0, "contrast_candidates", self.contrast_candidates, "an integer >= 0")
         _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
+        _check(self.shortlist >= 0, "shortlist", self.shortlist, "an integer >= 0")
+        _check(self.shortlist == 0 or self.prescreen_share == 1, "shortlist", self.shortlist,
+               "0 when prescreen_share is below 1 (one first look at the candidates, or the other)")
         _check(self.refine_particles >= 0, "refine_particles", self.refine_particles, "an integer >= 0")
         _check(0 < self.refine_sigma_scale <= 1, "refine_sigma_scale", self.refine_sigma_scale, "a number in (0, 1]")
         _check(self.n_negatives >= 2, "n_negatives", self.n_negatives, "an integer >= 2")

@@ -44,11 +44,12 @@ from sptpt.translation import TranslationFilter
 
 __all__ = ["STAGES", "Tracker", "TrackerInspection"]
 
-#: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``scale`` only with
+#: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``shortlist`` only
+#: with ``shortlist`` > 0 (the first pass over every candidate, its warp apart), ``scale`` only with
 #: ``scale_filter`` or ``reported_scale_filter``, ``translation`` only with ``reported_translation_filter``,
 #: ``filter_vote`` only where the correlation-filter tracker votes: ``run_choice="consensus"`` and two runs or more).
-STAGES = ("warp", "prescreen", "snic", "features", "coding", "scoring", "positive_update", "negative_update", "scale",
-          "translation", "filter_vote")
+STAGES = ("warp", "prescreen", "shortlist", "snic", "features", "coding", "scoring", "positive_update",
+          "negative_update", "scale", "translation", "filter_vote")
 
 StageTimer = Callable[[str], ContextManager]
 
@@ -354,12 +355,14 @@ class _Run:
         self._state = state_from_box_xywh(box, p.template_size)
         shifted = np.repeat(self._state[None], len(_INIT_SHIFTS), axis=0)
         shifted[:, :2] += _INIT_SHIFTS
-        features, _ = self._features(rgb, shifted)
+        features, labels = self._features(rgb, shifted)
         self._dictionary = learn_dictionary(
             features.reshape(-1, features.shape[-1]), p.n_atoms, rng=self._rng, n_init=p.kmeans_restarts
         )
         unshifted = int(np.flatnonzero((_INIT_SHIFTS == 0).all(axis=1))[0])
         self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
+        # The superpixels of the estimate's template: a shortlist's first pass cuts every candidate into them.
+        self._labels = labels[unshifted]
         self._first_mass = float(self._first_codes.sum())
         self._buffer: list[np.ndarray] = [self._first_codes]
         self._positive: TensorSubspace | None = None
@@ -399,17 +402,19 @@ class _Run:
         p = self.params
         self._frame_number += 1
         sigma = self._motion_sigma(self._state)
-        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma)
+        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma, self._labels)
         rounds = [(states, codes, labels, scores)]
         if p.refine_particles > 0:
             # Second, narrower round around the first round's winner: most of the
             # accuracy of many particles for a fraction of the templates (fast preset).
-            seed_state = states[int(np.argmax(scores))]
-            rounds.append(self._round(rgb, seed_state, p.refine_particles, sigma * p.refine_sigma_scale)[:4])
+            seed = int(np.argmax(scores))
+            rounds.append(self._round(rgb, states[seed], p.refine_particles, sigma * p.refine_sigma_scale,
+                                      labels[seed])[:4])
         level = self._level() if scoring == "subspace" and p.level_window > 0 else None
         if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
             # The target has been missing for a while: also search wide around where it was last accepted.
-            rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor))[:4])
+            rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor),
+                                      self._labels)[:4])
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
@@ -418,6 +423,7 @@ class _Run:
                 best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
                                                   p.template_size)
         self._state = states[best].copy()
+        self._labels = labels[best]
         if p.scale_filter:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
@@ -560,20 +566,35 @@ class _Run:
         spread = _MAD_TO_STD * float(np.median(np.abs(np.asarray(self._levels) - median)))
         return median, max(spread, p.level_min_spread)
 
-    def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray):
+    def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray, labels: np.ndarray):
         """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring.
 
-        With the prescreen, only the candidates it keeps are scored and returned.
+        With the prescreen or a shortlist, only the candidates they keep are scored and returned; ``labels`` is the
+        ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into.
         """
+        p = self.params
         states = self._draw(centre, n, sigma)
         templates = None
-        if self._reference is not None:
+        if self._reference is not None or 0 < p.shortlist < len(states):
             with self._time("warp"):
-                templates = warp_candidates(rgb, states, self.params.template_size)
-            with self._time("prescreen"):
-                kept = self._reference.most_alike(templates, self.params.prescreen_share)
+                templates = warp_candidates(rgb, states, p.template_size)
+            if self._reference is not None:
+                with self._time("prescreen"):
+                    kept = self._reference.most_alike(templates, p.prescreen_share)
+            else:
+                with self._time("shortlist"):
+                    kept = self._shortlisted(templates, labels)
             states, templates = states[kept], templates[kept]
         return (states, *self._evaluate(rgb, states, templates))
+
+    def _shortlisted(self, templates: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        """Indices, ascending, of the ``shortlist`` templates that score best cut into ``labels`` (exact ties: the
+        earlier)."""
+        p = self.params
+        cut = np.broadcast_to(labels, (len(templates), *labels.shape))
+        features = superpixel_features(templates, cut, self.n_superpixels, n_bins=p.n_bins)
+        scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda))
+        return np.sort(np.argsort(-scores, kind="stable")[: p.shortlist])
 
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray,
                   templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
