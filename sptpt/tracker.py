@@ -361,8 +361,9 @@ class _Run:
         )
         unshifted = int(np.flatnonzero((_INIT_SHIFTS == 0).all(axis=1))[0])
         self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
-        # The superpixels of the estimate's template: a shortlist's first pass cuts every candidate into them.
-        self._labels = labels[unshifted]
+        # The superpixels of the estimate's template and its codes: a shortlist's first pass cuts every candidate
+        # into them, and starts each superpixel's coding from the atoms of the estimate's.
+        self._estimate = (labels[unshifted], self._first_codes)
         self._first_mass = float(self._first_codes.sum())
         self._buffer: list[np.ndarray] = [self._first_codes]
         self._positive: TensorSubspace | None = None
@@ -402,19 +403,19 @@ class _Run:
         p = self.params
         self._frame_number += 1
         sigma = self._motion_sigma(self._state)
-        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma, self._labels)
+        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma, self._estimate)
         rounds = [(states, codes, labels, scores)]
         if p.refine_particles > 0:
             # Second, narrower round around the first round's winner: most of the
             # accuracy of many particles for a fraction of the templates (fast preset).
             seed = int(np.argmax(scores))
             rounds.append(self._round(rgb, states[seed], p.refine_particles, sigma * p.refine_sigma_scale,
-                                      labels[seed])[:4])
+                                      (labels[seed], codes[seed]))[:4])
         level = self._level() if scoring == "subspace" and p.level_window > 0 else None
         if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
             # The target has been missing for a while: also search wide around where it was last accepted.
             rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor),
-                                      self._labels)[:4])
+                                      self._estimate)[:4])
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
@@ -423,7 +424,7 @@ class _Run:
                 best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
                                                   p.template_size)
         self._state = states[best].copy()
-        self._labels = labels[best]
+        self._estimate = (labels[best], codes[best])
         if p.scale_filter:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
@@ -566,11 +567,12 @@ class _Run:
         spread = _MAD_TO_STD * float(np.median(np.abs(np.asarray(self._levels) - median)))
         return median, max(spread, p.level_min_spread)
 
-    def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray, labels: np.ndarray):
+    def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray,
+               estimate: tuple[np.ndarray, np.ndarray]):
         """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring.
 
-        With the prescreen or a shortlist, only the candidates they keep are scored and returned; ``labels`` is the
-        ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into.
+        With the prescreen or a shortlist, only the candidates they keep are scored and returned; ``estimate`` is
+        the ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into, and its ``(z, s)`` codes.
         """
         p = self.params
         states = self._draw(centre, n, sigma)
@@ -583,17 +585,18 @@ class _Run:
                     kept = self._reference.most_alike(templates, p.prescreen_share)
             else:
                 with self._time("shortlist"):
-                    kept = self._shortlisted(templates, labels)
+                    kept = self._shortlisted(templates, *estimate)
             states, templates = states[kept], templates[kept]
         return (states, *self._evaluate(rgb, states, templates))
 
-    def _shortlisted(self, templates: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    def _shortlisted(self, templates: np.ndarray, labels: np.ndarray, codes: np.ndarray) -> np.ndarray:
         """Indices, ascending, of the ``shortlist`` templates that score best cut into ``labels`` (exact ties: the
-        earlier)."""
+        earlier), each superpixel's coding started from the atoms of ``codes``' (a first look: the shortlist's
+        own codes are computed from nothing, as every other code)."""
         p = self.params
         cut = np.broadcast_to(labels, (len(templates), *labels.shape))
         features = superpixel_features(templates, cut, self.n_superpixels, n_bins=p.n_bins)
-        scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda))
+        scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda, start=codes))
         return np.sort(np.argsort(-scores, kind="stable")[: p.shortlist])
 
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray,

@@ -143,6 +143,34 @@ def test_code_tensors_are_the_codes_of_each_template_as_columns(problem, threads
     assert np.array_equal(tensors, want)
 
 
+@pytest.mark.parametrize("start", ["own", "neighbour", "wrong", "empty", "all"])
+def test_a_warm_start_reaches_the_same_optimum(problem, start: str) -> None:
+    """Started from any support, the active set ends at the optimum the cold start finds (the problem is strictly
+    convex), to the tolerance and KKT-certified; from the optimum's own support it often ends in one solve."""
+    signals, dictionary = problem
+    n, s = 12, 25
+    features = signals[: n * s].reshape(n, s, -1)
+    cold = encode_tensors(features, dictionary)
+    rng = np.random.default_rng(3)
+    starts = {"own": cold[0], "neighbour": encode_tensors(signals[n * s : n * s + s][None], dictionary)[0],
+              "wrong": (cold[1] == 0) * rng.random(cold[1].shape),  # every atom the optimum leaves out, none it uses
+              "empty": np.zeros_like(cold[0]), "all": np.ones_like(cold[0])}
+    warm = encode_tensors(features, dictionary, start=starts[start])
+    np.testing.assert_allclose(warm, cold, rtol=0, atol=1e-10)
+    assert (warm >= 0).all()
+    codes = warm.transpose(0, 2, 1).reshape(n * s, -1)
+    assert kkt_residual(signals[: n * s], dictionary, codes, lam=LAM).max() <= 1e-8
+    if start == "empty":  # no support: the cold start itself, to the bit
+        assert np.array_equal(warm, cold)
+
+
+def test_a_warm_start_must_be_one_code_tensor(problem) -> None:
+    signals, dictionary = problem
+    features = signals[:50].reshape(2, 25, -1)
+    with pytest.raises(ValueError, match=r"start must be a \(z, s\) = \(50, 25\) code tensor"):
+        encode_tensors(features, dictionary, start=np.ones((25, 50)))
+
+
 def test_code_tensors_need_three_axes(problem) -> None:
     signals, dictionary = problem
     with pytest.raises(ValueError, match=r"features must be an \(n, s, B\) array"):
