@@ -8,9 +8,9 @@ cd "$(dirname "$0")/.."
 python3 - <<'PY'
 import cv2
 capture = cv2.VideoCapture("samples/clip_sptpt/overlay.mp4")
-capture.set(cv2.CAP_PROP_POS_FRAMES, 70)
+capture.set(cv2.CAP_PROP_POS_FRAMES, 55)
 ok, frame = capture.read()
-assert ok, "cannot read frame 70 of samples/clip_sptpt/overlay.mp4"
+assert ok, "cannot read frame 55 of samples/clip_sptpt/overlay.mp4"
 cv2.imwrite("docs/overlay.png", cv2.resize(frame, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
 PY
 chromium --headless --no-sandbox --disable-gpu --hide-scrollbars --window-size=1100,1400 \

@@ -72,7 +72,7 @@ def test_the_reference_is_a_running_mean_of_accepted_templates():
 
 def _robust(share: float):
     return dataclasses.replace(get_preset("robust"), independent_runs=1, run_choice="confidence", filter_vote=False,
-                               prescreen_share=share)
+                               shortlist=0, prescreen_share=share)
 
 
 def test_the_tracker_scores_only_the_kept_candidates_drawn_from_the_same_stream():
