@@ -30,6 +30,8 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="the batch output folder")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="robust")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="a YAML config for the batch (preset, tracker values), e.g. a variant of robust")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--length", type=int, default=LENGTH, help=f"frames per segment (default {LENGTH})")
     parser.add_argument("--every", type=int, default=EVERY, help=f"frames between segment starts (default {EVERY})")
@@ -50,6 +52,8 @@ def main() -> int:
     write_text_atomic(manifest, text.getvalue())
     command = ["sptpt-annotate", "batch", str(manifest), "--out", str(args.out), "--seed", str(args.seed),
                "--no-render", "--formats", "flags", "--workers", str(args.workers), "--preset", args.preset, "--quiet"]
+    if args.config is not None:
+        command += ["--config", str(args.config)]
     print(f"{len(rows)} segments of {args.otb}: {' '.join(command)}", flush=True)
     return subprocess.call(command, stdout=sys.stdout, stderr=sys.stderr)
 
