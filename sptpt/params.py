@@ -163,8 +163,8 @@ class TrackerParams:
     """Share of each round's candidates that SPTPT evaluates in full (superpixels, features, codes, subspace
     score): those whose grey template correlates best with the run's recent look (:mod:`sptpt.prescreen`). The
     rest are dropped unscored; the candidates are still drawn, so the random stream is the same. Negatives are
-    not prescreened. 1 evaluates every candidate, as every preset does. A third, with ``robust``'s other values,
-    tracked 1.5x faster (whole process 0.37x CSRT's speed against 0.24x) and scored 0.618 ± 0.013 on
+    not prescreened. 1 evaluates every candidate, as every preset does. A third, with ``robust``'s other values
+    before its shortlist, tracked 1.5x faster (whole process 0.37x CSRT's speed against 0.24x, on another VM) and scored 0.618 ± 0.013 on
     ``../shared/otb`` (3 seeds) against 0.607 ± 0.015, but 0.321 ± 0.018 against 0.381 ± 0.015 on the unseen
     ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset uses it. [ours,
     benchmarks/RESULTS.md "The default's speed"]"""
@@ -176,8 +176,9 @@ class TrackerParams:
     superpixels, the half of a candidate's work; the shortlist then gets its own. The rest are dropped; the
     candidates are still drawn, so the random stream is the same. Negatives are not shortlisted. 0 evaluates every
     candidate in full. A round's first pass uses the superpixels of the run's last estimate, the refine round those
-    of the first round's best. robust: 25 of each round's 150, then 75 (the full search's winner among them in 92%
-    of rounds; the same accuracy on ../shared/otb and otb_extra over 3 seeds, about 1.3x the frames/s).
+    of the first round's best. robust: 25 of the first round's 150 and 25 of the refine round's 75 (the full
+    search's winner among them in 92% of rounds; the same accuracy on ../shared/otb and otb_extra over 3 seeds,
+    1.23x the whole process's frames/s).
     [ours, benchmarks/RESULTS.md "The default's speed"]"""
 
     refine_particles: int = 0

@@ -70,7 +70,8 @@ class FrameResult:
         ``"init"`` for the first frame, ``"bootstrap"`` before both subspace
         models exist, ``"subspace"`` afterwards.
     particles_xywh : (N, 4) float64 ndarray or None
-        Boxes of all candidates, 0-based ``xywh``; only when asked for.
+        Boxes of all candidates scored in full (with a shortlist, only its candidates), 0-based ``xywh``; only
+        when asked for.
     particle_scores : (N,) float64 ndarray or None
         Log-likelihood of each candidate; only when asked for.
     superpixel_labels : (h, w) int32 ndarray or None

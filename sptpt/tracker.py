@@ -299,9 +299,9 @@ class Tracker:
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
         cores) all run at once, and the voter beside them, and the operating system shares the cores among them:
-        measured, that keeps the cores busier than tracking the third run after the other two with every thread,
-        whose serial work left a core idle, or the voter after the runs, on one core (RESULTS.md, "The default's
-        speed"). With still more runs, the largest multiple of the thread count runs side by side and the rest
+        measured, the runs at once were 6.6% faster than the third run after the other two with every thread,
+        whose serial work left a core idle (RESULTS.md, "The default's speed"); the voter beside them rather
+        than after them gained 0-3%, within noise (HISTORY.md). With still more runs, the largest multiple of the thread count runs side by side and the rest
         after them on every thread, so the threads never exceed the kernel threads (a batch worker's share of the
         cores) by more than one; the voter then follows them. Runs and the voter share nothing, so their results
         are the same as one after the other.
@@ -363,7 +363,7 @@ class _Run:
         self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
         # The superpixels of the estimate's template and its codes: a shortlist's first pass cuts every candidate
         # into them, and starts each superpixel's coding from the atoms of the estimate's.
-        self._estimate = (labels[unshifted], self._first_codes)
+        self._estimate = (labels[unshifted].copy(), self._first_codes)
         self._first_mass = float(self._first_codes.sum())
         self._buffer: list[np.ndarray] = [self._first_codes]
         self._positive: TensorSubspace | None = None
@@ -424,7 +424,7 @@ class _Run:
                 best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
                                                   p.template_size)
         self._state = states[best].copy()
-        self._estimate = (labels[best], codes[best])
+        self._estimate = (labels[best].copy(), codes[best].copy())  # not views that keep the round's arrays
         if p.scale_filter:
             # The candidates chose the centre; the scale filter sets the size there. The winner's codes (which the
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of

@@ -19,7 +19,7 @@ from sptpt.tracker import Tracker
 def slow_orientation_split(grey: np.ndarray, bins: int) -> np.ndarray:
     """``(rows, cols)`` grey -> ``(bins, rows, cols)``: each pixel's central-difference gradient magnitude (0 on the
     border), split linearly between its two nearest unsigned orientations; pixel by pixel, as
-    ``sptpt.gradients.orientation_split`` says."""
+    the NumPy code of ``sptpt.gradients`` did before its numba kernels."""
     rows, cols = grey.shape
     split = np.zeros((bins, rows, cols))
     for r in range(rows):

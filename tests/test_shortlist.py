@@ -66,8 +66,7 @@ def test_the_tracker_evaluates_only_the_shortlist_drawn_from_the_same_stream():
     p = _robust(25)
     assert len(every.particles_xywh) == p.n_particles + p.refine_particles
     assert len(kept.particles_xywh) == 2 * 25  # the wide round's and the refine round's shortlists
-    # The first round draws the same candidates with and without the shortlist: the kept are among them, and the
-    # winner of the whole search, where the first pass keeps it, is the shortlist's winner too.
+    # The first round draws the same candidates with and without the shortlist: the kept are among them.
     first_round = every.particles_xywh[: p.n_particles]
     for box in kept.particles_xywh[:25]:
         assert np.any(np.all(first_round == box, axis=1))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sptpt.affine import state_from_box_xywh
-from sptpt.gradients import GREY
+from sptpt.gradients import GREY, orientation_channels
 from sptpt.params import get_preset
 from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
 from tests.test_scale import (_background_and_object, _paste, edge_templates, numpy_orientation_split,
@@ -45,6 +45,16 @@ def test_translation_features_match_the_slow_reference(shape):
     np.testing.assert_allclose(translation_features(patch), slow_translation_features(patch), rtol=1e-10, atol=1e-12)
     flat = np.full(shape + (3,), 128, np.uint8)
     assert not translation_features(flat).any()  # no gradient, and grey less its mean is 0
+
+
+@pytest.mark.parametrize("bins", [1, 2, 5, BINS])
+def test_orientation_channels_match_the_slow_split_for_any_bin_count(bins):
+    # With one bin a pixel's lower and upper bins are the same channel, which then holds the whole magnitude.
+    grey = np.random.default_rng(bins).random((9, 13))
+    channels = orientation_channels(grey, bins)
+    np.testing.assert_allclose(channels, slow_orientation_split(grey, bins), rtol=1e-12, atol=1e-15)
+    if bins == 1:
+        np.testing.assert_allclose(channels[0], slow_orientation_split(grey, 2).sum(axis=0), rtol=1e-12)
 
 
 def numpy_translation_features(patch: np.ndarray) -> np.ndarray:

@@ -65,6 +65,8 @@ def orientation_channels(gx, gy, angle, bins):  # pragma: no cover - compiled
     for r in range(rows):
         for c in range(cols):
             magnitude, low, up, upper_weight = _split(gx[r, c], gy[r, c], angle[r, c], bins)
-            channels[low, r, c] = magnitude * (1.0 - upper_weight)
-            channels[up, r, c] = magnitude * upper_weight
+            # += onto zeros: the same values where the two bins differ, and the whole magnitude where one bin
+            # is both (bins == 1).
+            channels[low, r, c] += magnitude * (1.0 - upper_weight)
+            channels[up, r, c] += magnitude * upper_weight
     return channels

@@ -1,8 +1,9 @@
 """The kernels compiled into numba's on-disk cache before the tracker needs them, on a core of their own.
 
 numba compiles a kernel on its first call and keeps the machine code in its cache, so only the first run on a
-machine pays for it: about 18 s on a 2-core VM, half of the README's first run. The tracker's first frame
-compiles its kernels one after another (warp, SNIC, cue features, then the LASSO), on one core: numba's compiler
+machine pays for it: about 18 s on a 2-core VM, measured when it was half of the README's first run. The
+tracker's first frame compiles its kernels one after another (warp, SNIC, cue features, the LASSO, then the
+filters' orientation kernels), on one core: numba's compiler
 lock keeps a second thread of the same process from compiling beside it. A child process has a lock of its own.
 :func:`compile_kernels` with ``wait=False`` starts one that compiles them in the opposite order, the LASSO first,
 while the tracker compiles from the other end; when the tracker reaches a kernel the child has finished, numba
