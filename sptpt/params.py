@@ -164,10 +164,10 @@ class TrackerParams:
     score): those whose grey template correlates best with the run's recent look (:mod:`sptpt.prescreen`). The
     rest are dropped unscored; the candidates are still drawn, so the random stream is the same. Negatives are
     not prescreened. 1 evaluates every candidate, as every preset does. A third, with ``robust``'s other values
-    before its shortlist, tracked 1.5x faster (whole process 0.37x CSRT's speed against 0.24x, on another VM) and scored 0.618 ± 0.013 on
-    ``../shared/otb`` (3 seeds) against 0.607 ± 0.015, but 0.321 ± 0.018 against 0.381 ± 0.015 on the unseen
-    ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset uses it. [ours,
-    benchmarks/RESULTS.md "The default's speed"]"""
+    before its shortlist, tracked 1.5x faster (whole process 0.37x CSRT's speed against 0.24x, on another VM)
+    and scored 0.618 ± 0.013 on ``../shared/otb`` (3 seeds) against 0.607 ± 0.015, but 0.321 ± 0.018 against
+    0.381 ± 0.015 on the unseen ``../shared/otb_extra`` (Suv -0.35, Freeman1 -0.20, Gym -0.11), so no preset
+    uses it. [ours, benchmarks/RESULTS.md "The default's speed"]"""
 
     shortlist: int = 0
     """Candidates of each round that SPTPT evaluates in full (their own superpixels, features, codes and subspace

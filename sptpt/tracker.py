@@ -301,10 +301,10 @@ class Tracker:
         cores) all run at once, and the voter beside them, and the operating system shares the cores among them:
         measured, the runs at once were 6.6% faster than the third run after the other two with every thread,
         whose serial work left a core idle (RESULTS.md, "The default's speed"); the voter beside them rather
-        than after them gained 0-3%, within noise (HISTORY.md). With still more runs, the largest multiple of the thread count runs side by side and the rest
-        after them on every thread, so the threads never exceed the kernel threads (a batch worker's share of the
-        cores) by more than one; the voter then follows them. Runs and the voter share nothing, so their results
-        are the same as one after the other.
+        than after them gained 0-3%, within noise (HISTORY.md). With still more runs, the largest multiple of the
+        thread count runs side by side and the rest after them on every thread, so the threads never exceed the
+        kernel threads (a batch worker's share of the cores) by more than one; the voter then follows them. Runs
+        and the voter share nothing, so their results are the same as one after the other.
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
         if threads == 1 or runs < 2:
