@@ -190,14 +190,16 @@ class Tracker:
             # One run draws from the tracker's own stream, so a one-run preset's boxes depend on nothing else.
             self._runs = [_Run(p, rng, timer)]
         else:
-            # Each run gets a random stream of its own, seeded from the tracker's.
-            single = dataclasses.replace(p, independent_runs=1)
+            # Each run gets a random stream of its own, seeded from the tracker's; whether a frame is easy is the
+            # tracker's call (``easy_after``), passed to each run's update as its share of the candidates.
+            single = dataclasses.replace(p, independent_runs=1, easy_after=0)
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
             self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
         # Draws no random numbers, so the runs are the same with it and without it.
         voting = p.filter_vote and p.run_choice == "consensus" and p.independent_runs > 1
         self._filter_voter = FilterTracker(p.template_size) if voting else None
         self._time = timer
+        self._agreed = 0  # frames in a row on which the runs agreed (``easy_after``)
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
@@ -217,6 +219,7 @@ class Tracker:
         """
         with _single_threaded_blas():
             results = [run.init(frame, box_xywh) for run in self._runs]
+        self._agreed = 0
         if self._filter_voter is not None:  # after the runs, which have checked the frame and the box
             with self._time("filter_vote"):
                 self._filter_voter.init(_as_rgb(frame), results[0].box_xywh)
@@ -247,16 +250,21 @@ class Tracker:
                 def vote() -> np.ndarray:
                     with self._time("filter_vote"):
                         return self._filter_voter.update(rgb)
-            results, voter_box = self._update_runs(rgb, details, vote)
+            p = self.params
+            share = p.easy_share if 0 < p.easy_after <= self._agreed else 1.0
+            results, voter_box = self._update_runs(rgb, details, vote, share)
             voter_boxes = [] if voter_box is None else [voter_box]
         chosen = _more_confident(results)
         if self.params.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
+        reported = _reported(results, chosen)
         if self.params.run_choice == "consensus":
             boxes = np.stack([r.box_xywh for r in results] + voter_boxes)
             chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
-            return dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
-        return _reported(results, chosen)
+            reported = dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
+        if self.params.easy_after > 0:
+            self._agreed = self._agreed + 1 if _runs_agree(reported, results) else 0
+        return reported
 
     def inspect(self, frame: np.ndarray, boxes_xywh=None) -> TrackerInspection:
         """How each run's current models score ``boxes_xywh`` in ``frame``, with its estimate, ranks and updates.
@@ -291,10 +299,10 @@ class Tracker:
             rows = [run.inspect(frame, boxes) for run in self._runs]
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
-    def _update_runs(self, frame: np.ndarray, details: bool,
-                     beside: Callable[[], np.ndarray] | None = None) -> tuple[list[FrameResult], np.ndarray | None]:
-        """Every run's update, and ``beside()`` (the voter's), if given; with more than one kernel thread, side by
-        side, one kernel thread each.
+    def _update_runs(self, frame: np.ndarray, details: bool, beside: Callable[[], np.ndarray] | None = None,
+                     share: float = 1.0) -> tuple[list[FrameResult], np.ndarray | None]:
+        """Every run's update with ``share`` of its candidates, and ``beside()`` (the voter's), if given; with more
+        than one kernel thread, side by side, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
@@ -307,18 +315,30 @@ class Tracker:
         and the voter share nothing, so their results are the same as one after the other.
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
+        tasks = [functools.partial(run.update, frame, details=details, share=share) for run in self._runs]
         if threads == 1 or runs < 2:
-            results = [run.update(frame, details=details) for run in self._runs]
+            results = [task() for task in tasks]
         elif runs > threads + 1:
             side_by_side = runs - runs % threads
-            results = map_on_threads(_on_one_kernel_thread, [functools.partial(run.update, frame, details=details)
-                                                             for run in self._runs[:side_by_side]], threads)
-            results += [run.update(frame, details=details) for run in self._runs[side_by_side:]]
+            results = map_on_threads(_on_one_kernel_thread, tasks[:side_by_side], threads)
+            results += [task() for task in tasks[side_by_side:]]
         else:
-            tasks = [functools.partial(run.update, frame, details=details) for run in self._runs]
             done = on_own_threads(_on_one_kernel_thread, tasks + ([] if beside is None else [beside]))
             return done[:runs], None if beside is None else done[runs]
         return results, None if beside is None else beside()
+
+
+#: A run's box that overlaps the reported box at least this much agrees closely enough for an easy frame
+#: (``easy_after``): the flags' ``run_iou`` at 0.8, as screened on stored runs (HISTORY.md, 2026-11-28).
+_EASY_IOU = 0.8
+
+
+def _runs_agree(reported: FrameResult, results: list[FrameResult]) -> bool:
+    """Whether every run accepted its estimate and every run's box overlaps the reported box at least
+    :data:`_EASY_IOU`."""
+    boxes = np.stack([r.box_xywh for r in results])
+    return (all(r.accepted for r in results)
+            and bool(np.nan_to_num(iou_xywh(boxes, reported.box_xywh), nan=0.0).min() >= _EASY_IOU))
 
 
 def _on_one_kernel_thread(call: Callable[[], object]) -> object:
@@ -398,24 +418,28 @@ class _Run:
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
 
-    def update(self, frame: np.ndarray, *, details: bool) -> FrameResult:
+    def update(self, frame: np.ndarray, *, details: bool, share: float = 1.0) -> FrameResult:
+        """Track one frame drawing ``share`` of each round's candidates and of the shortlist (an easy frame: the
+        tracker's ``easy_after``); the re-detection round, on frames after misses, always draws all of its own."""
         rgb = self.sequence_rgb(frame, "update")
         p = self.params
         self._frame_number += 1
         sigma = self._motion_sigma(self._state)
-        states, codes, labels, scores, scoring = self._round(rgb, self._state, p.n_particles, sigma, self._estimate)
+        shortlist = _shared(p.shortlist, share)
+        states, codes, labels, scores, scoring = self._round(rgb, self._state, _shared(p.n_particles, share), sigma,
+                                                             self._estimate, shortlist)
         rounds = [(states, codes, labels, scores)]
         if p.refine_particles > 0:
             # Second, narrower round around the first round's winner: most of the
             # accuracy of many particles for a fraction of the templates (fast preset).
             seed = int(np.argmax(scores))
-            rounds.append(self._round(rgb, states[seed], p.refine_particles, sigma * p.refine_sigma_scale,
-                                      (labels[seed], codes[seed]))[:4])
+            rounds.append(self._round(rgb, states[seed], _shared(p.refine_particles, share),
+                                      sigma * p.refine_sigma_scale, (labels[seed], codes[seed]), shortlist)[:4])
         level = self._level() if scoring == "subspace" and p.level_window > 0 else None
         if level is not None and p.redetect_after > 0 and self._misses >= p.redetect_after:
             # The target has been missing for a while: also search wide around where it was last accepted.
             rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor),
-                                      self._estimate)[:4])
+                                      self._estimate, p.shortlist)[:4])
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
         best = int(np.argmax(scores))
@@ -568,16 +592,17 @@ class _Run:
         return median, max(spread, p.level_min_spread)
 
     def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray,
-               estimate: tuple[np.ndarray, np.ndarray]):
+               estimate: tuple[np.ndarray, np.ndarray], shortlist: int):
         """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring.
 
-        With the prescreen or a shortlist, only the candidates they keep are scored and returned; ``estimate`` is
-        the ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into, and its ``(z, s)`` codes.
+        With the prescreen or a ``shortlist`` (its size, 0 for none), only the candidates they keep are scored and
+        returned; ``estimate`` is the ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into,
+        and its ``(z, s)`` codes.
         """
         p = self.params
         states = self._draw(centre, n, sigma)
         templates = None
-        if self._reference is not None or 0 < p.shortlist < len(states):
+        if self._reference is not None or 0 < shortlist < len(states):
             with self._time("warp"):
                 templates = warp_candidates(rgb, states, p.template_size)
             if self._reference is not None:
@@ -585,19 +610,19 @@ class _Run:
                     kept = self._reference.most_alike(templates, p.prescreen_share)
             else:
                 with self._time("shortlist"):
-                    kept = self._shortlisted(templates, *estimate)
+                    kept = self._shortlisted(templates, *estimate, shortlist)
             states, templates = states[kept], templates[kept]
         return (states, *self._evaluate(rgb, states, templates))
 
-    def _shortlisted(self, templates: np.ndarray, labels: np.ndarray, codes: np.ndarray) -> np.ndarray:
-        """Indices, ascending, of the ``shortlist`` templates that score best cut into ``labels`` (exact ties: the
+    def _shortlisted(self, templates: np.ndarray, labels: np.ndarray, codes: np.ndarray, size: int) -> np.ndarray:
+        """Indices, ascending, of the ``size`` templates that score best cut into ``labels`` (exact ties: the
         earlier), each superpixel's coding started from the atoms of ``codes``' (a first look: the shortlist's
         own codes are computed from nothing, as every other code)."""
         p = self.params
         cut = np.broadcast_to(labels, (len(templates), *labels.shape))
         features = superpixel_features(templates, cut, self.n_superpixels, n_bins=p.n_bins)
         scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda, start=codes))
-        return np.sort(np.argsort(-scores, kind="stable")[: p.shortlist])
+        return np.sort(np.argsort(-scores, kind="stable")[:size])
 
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray,
                   templates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
@@ -694,6 +719,11 @@ class _Run:
         codes, _ = self._codes(rgb, negatives)
         with self._time("negative_update"):
             return TensorSubspace.fit(codes, p.ranks)
+
+
+def _shared(count: int, share: float) -> int:
+    """``share`` of ``count`` candidates, rounded, at least one (none of none); all of them at ``share`` 1."""
+    return count if share == 1 or count == 0 else max(1, round(count * share))
 
 
 def _reported(results: list[FrameResult], chosen: int) -> FrameResult:

@@ -47,7 +47,7 @@ def test_the_shortlist_is_the_best_of_the_first_pass(frames_tracked):
     states[:, :2] += np.random.default_rng(5).normal(0, 4, (40, 2))
     templates = warp_candidates(frame, states, 32)
     labels, codes = run._estimate
-    kept = run._shortlisted(templates, labels, codes)
+    kept = run._shortlisted(templates, labels, codes, 10)
     np.testing.assert_array_equal(kept, slow_shortlist(run, templates, labels, 10))
     if frames_tracked == 1:  # before any update the estimate is the first box: its superpixels are SNIC's of it
         first = warp_candidates(clip.frames[0], run._state[None], 32)
