@@ -185,17 +185,17 @@ class TrackerParams:
     """With several runs: after this many frames in a row in which every run accepted its estimate and every run's
     box overlapped the reported box at least IoU 0.8 (the flags' ``run_iou``), each run draws only ``easy_share`` of
     its candidates (of each round, and of its shortlist) until a frame breaks the agreement; the next frame has the
-    full search again. Most frames of most videos are easy, and the runs' agreement, the flags' strongest cue, is
-    still measured on every frame. 0 (every preset): every frame has the full search. With ``robust``'s other
-    values, 10 frames and a share of 0.4 were 1.33x faster (whole process 0.310x CSRT against 0.216x) and scored
-    0.598 ± 0.009 on ``../shared/otb`` (3 seeds) against 0.604 ± 0.010, with Girl 0.086 and David 0.033 lower, and
-    0.380 ± 0.008 against 0.391 ± 0.011 on the unseen ``../shared/otb_extra``; a share of 0.6 scored 0.596 ± 0.005
-    (Girl -0.143, Bolt2 -0.041); with either, the flags on unseen video were worse (AUROC 0.949 -> 0.932 and 0.925).
-    So no preset uses it.
+    full search again. The runs' agreement, the flags' strongest cue, is still measured on every frame (about half
+    of the frames of ``../shared/otb`` were easy in a screen of stored runs). 0 (every preset): every frame has the
+    full search. With ``robust``'s other values, 10 frames and a share of 0.4 gave 1.33x the frames/s (whole process
+    0.310x CSRT against 0.216x) and scored 0.598 ± 0.009 on ``../shared/otb`` (3 seeds) against 0.604 ± 0.010, with
+    Girl 0.086 and David 0.033 lower, and 0.380 ± 0.008 against 0.391 ± 0.011 on the unseen ``../shared/otb_extra``;
+    a share of 0.6 scored 0.596 ± 0.005 (Girl -0.143, Bolt2 -0.041); with either, the flags on unseen video had a
+    lower AUROC (0.949 -> 0.932 and 0.925). So no preset uses it.
     [ours, benchmarks/RESULTS.md "The default's speed"]"""
     easy_share: float = 1.0
     """Share of the candidates a run draws on an easy frame (``easy_after``), of each round and of the shortlist,
-    rounded, at least one; the re-detection round draws all of its own. [ours]"""
+    rounded, at least one. [ours]"""
 
     refine_particles: int = 0
     """Candidates of a second, narrower round around the first round's best; 0 disables (paper). [ours]"""

@@ -420,7 +420,8 @@ class _Run:
 
     def update(self, frame: np.ndarray, *, details: bool, share: float = 1.0) -> FrameResult:
         """Track one frame drawing ``share`` of each round's candidates and of the shortlist (an easy frame: the
-        tracker's ``easy_after``); the re-detection round, on frames after misses, always draws all of its own."""
+        tracker's ``easy_after``). The re-detection round keeps its own counts: it follows missed frames, which
+        an easy frame never does."""
         rgb = self.sequence_rgb(frame, "update")
         p = self.params
         self._frame_number += 1
