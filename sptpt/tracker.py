@@ -240,6 +240,7 @@ class Tracker:
         -------
         FrameResult
         """
+        p = self.params
         with _single_threaded_blas():
             if len(self._runs) == 1:
                 return self._runs[0].update(frame, details=details)  # the run checks the frame itself
@@ -250,19 +251,19 @@ class Tracker:
                 def vote() -> np.ndarray:
                     with self._time("filter_vote"):
                         return self._filter_voter.update(rgb)
-            p = self.params
             share = p.easy_share if 0 < p.easy_after <= self._agreed else 1.0
             results, voter_box = self._update_runs(rgb, details, vote, share)
             voter_boxes = [] if voter_box is None else [voter_box]
         chosen = _more_confident(results)
-        if self.params.run_choice == "contrast":
+        if p.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
-        reported = _reported(results, chosen)
-        if self.params.run_choice == "consensus":
+        if p.run_choice == "consensus":
             boxes = np.stack([r.box_xywh for r in results] + voter_boxes)
             chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
             reported = dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
-        if self.params.easy_after > 0:
+        else:
+            reported = _reported(results, chosen)
+        if p.easy_after > 0:
             self._agreed = self._agreed + 1 if _runs_agree(reported, results) else 0
         return reported
 

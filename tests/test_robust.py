@@ -143,8 +143,7 @@ def test_preset_boxes_are_unchanged(preset):
     # became True, the box three runs agree on when independent_runs became 3 with run_choice "consensus", and the
     # same with the correlation-filter tracker's vote when filter_vote became True, and with only a shortlist of each
     # round's candidates evaluated in full when shortlist became 25 (robust-whole-search keeps the boxes before
-    # it). robust-prescreen (recorded when
-    # the switch was added) keeps the prescreen's boxes, which no preset uses.
+    # it). robust-prescreen (recorded when the switch was added) keeps the prescreen's boxes, which no preset uses.
     # When make_clip stopped rendering with OpenCV (whose warpAffine differs between OpenCV 4 and 5), the clip
     # changed in 1 value in 100,000, by 1 grey level: seven presets gave their recorded boxes on it, and
     # robust-two-runs, robust-three-runs and robust boxes that moved by under 0.001 px, re-recorded then.
