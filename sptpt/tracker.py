@@ -17,16 +17,19 @@ reports the mean box of those that agree.)
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import functools
+import threading
+from concurrent.futures import Future, wait
 from typing import Callable, ContextManager
 
 import numba
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from sptpt._kernels import map_on_threads, on_own_threads
+from sptpt._kernels import InOrder, map_on_threads, on_own_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh, lies_outside, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
@@ -64,18 +67,51 @@ def _no_timer(stage: str) -> ContextManager:
 # Median absolute deviation to standard deviation for normally distributed values.
 _MAD_TO_STD = 1.4826
 
-_THREADPOOLS: ThreadpoolController | None = None
+class _BlasOnOneThread:
+    """BLAS limited to one thread while anyone holds this: its matrices here are small, and its threads only fight
+    numba's.
+
+    Counted, because the limit is the whole process's: frames tracked ahead (:meth:`Tracker.submit`) hold it until
+    they are collected, and a second tracker must not lift it while the first one's runs still work.
+    The controller scans the loaded libraries once (about 5 ms); each limit after that is cheap.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._holders = 0
+        self._controller: ThreadpoolController | None = None
+        self._limiter = None
+
+    def acquire(self) -> None:
+        with self._lock:
+            if self._holders == 0:
+                if self._controller is None:
+                    self._controller = ThreadpoolController()
+                self._limiter = self._controller.limit(limits=1, user_api="blas")
+            self._holders += 1
+
+    def release(self) -> None:
+        with self._lock:
+            self._holders -= 1
+            if self._holders == 0:
+                self._limiter.restore_original_limits()
+                self._limiter = None
+
+    @contextlib.contextmanager
+    def held(self):
+        self.acquire()
+        try:
+            yield
+        finally:
+            self.release()
+
+
+_BLAS_ON_ONE_THREAD = _BlasOnOneThread()
 
 
 def _single_threaded_blas() -> ContextManager:
-    """Limit BLAS to one thread: its matrices here are small, and its threads only fight numba's.
-
-    The controller scans the loaded libraries once (about 5 ms); each limit after that is cheap.
-    """
-    global _THREADPOOLS
-    if _THREADPOOLS is None:
-        _THREADPOOLS = ThreadpoolController()
-    return _THREADPOOLS.limit(limits=1, user_api="blas")
+    """BLAS on one thread inside the block (see :class:`_BlasOnOneThread`)."""
+    return _BLAS_ON_ONE_THREAD.held()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,6 +236,10 @@ class Tracker:
         self._filter_voter = FilterTracker(p.template_size) if voting else None
         self._time = timer
         self._agreed = 0  # frames in a row on which the runs agreed (``easy_after``)
+        # Frames submitted and not yet collected, oldest first: a FrameResult, or an _InFlight still being tracked.
+        self._submitted: collections.deque = collections.deque()
+        # Each run's frames, and the voter's, one after another on a thread of their own (only once submitted).
+        self._lanes = [InOrder() for _ in range(len(self._runs) + (self._filter_voter is not None))]
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
@@ -217,6 +257,7 @@ class Tracker:
         FrameResult
             The given box, with confidence 1 and ``scoring='init'``.
         """
+        self._refuse_if_submitted("init")
         with _single_threaded_blas():
             results = [run.init(frame, box_xywh) for run in self._runs]
         self._agreed = 0
@@ -240,25 +281,124 @@ class Tracker:
         -------
         FrameResult
         """
-        p = self.params
+        self._refuse_if_submitted("update")
+        return self._track_now(frame, details)
+
+    def _track_now(self, frame: np.ndarray, details: bool) -> FrameResult:
         with _single_threaded_blas():
             if len(self._runs) == 1:
                 return self._runs[0].update(frame, details=details)  # the run checks the frame itself
             # Checked before any run or the voter moves on: a frame they would refuse leaves them all as they were.
             rgb = self._runs[0].sequence_rgb(frame, "update")
-            vote = None
-            if self._filter_voter is not None:
-                def vote() -> np.ndarray:
-                    with self._time("filter_vote"):
-                        return self._filter_voter.update(rgb)
-            share = p.easy_share if 0 < p.easy_after <= self._agreed else 1.0
+            vote = None if self._filter_voter is None else functools.partial(self._vote, rgb)
+            share = self.params.easy_share if 0 < self.params.easy_after <= self._agreed else 1.0
             results, voter_box = self._update_runs(rgb, details, vote, share)
-            voter_boxes = [] if voter_box is None else [voter_box]
+        return self._report(rgb, results, voter_box)
+
+    def submit(self, frame: np.ndarray, *, details: bool = False) -> None:
+        """Start tracking the next frame and return without waiting for it; :meth:`collect` gives its result.
+
+        The same results as :meth:`update`, in the same order, to the bit; but each run (and the voter) goes on to
+        the frames submitted after this one as soon as it has finished its own part of this one, instead of
+        waiting for the slowest run every frame: no run needs another's result to track its next frame. Keeps
+        both cores busy where :meth:`update` leaves one idle while the last run of a frame finishes. Submit a few
+        frames ahead of the one collected (two, in the annotator).
+
+        Where runs cannot go ahead (one run; one kernel thread, as in a batch worker with one core; more runs
+        than one more than the kernel threads; or ``easy_after``, whose next share waits on this frame's
+        consensus), the frame is tracked here, at once, as :meth:`update` would.
+
+        ``frame`` is read until its result is collected: do not write into it before. Checked here, as by
+        :meth:`update`: a frame that would be refused raises before any run moves on.
+        """
+        if self._runs_go_ahead():
+            rgb = self._runs[0].sequence_rgb(frame, "update")
+            _BLAS_ON_ONE_THREAD.acquire()  # released when the frame is collected
+            tasks = [functools.partial(run.update, rgb, details=details) for run in self._runs]
+            if self._filter_voter is not None:
+                tasks.append(functools.partial(self._vote, rgb))
+            self._submitted.append(_InFlight(rgb, [lane.submit(functools.partial(_on_one_kernel_thread, task))
+                                                   for lane, task in zip(self._lanes, tasks)]))
+            return
+        self._settle_submitted()  # every run has finished the frames before this one
+        self._submitted.append(self._track_now(frame, details))
+
+    def collect(self) -> FrameResult:
+        """The result of the oldest frame submitted and not yet collected, once it is tracked.
+
+        Raises
+        ------
+        RuntimeError
+            When nothing is submitted.
+        Exception
+            What a run raised while tracking the frame; the frames submitted after it are then dropped (each
+            waited for), and the runs are left where the error stopped them: start again with :meth:`init`.
+        """
+        if not self._submitted:
+            raise RuntimeError("collect() with no frame submitted: submit(frame) first")
+        self._settle(0)
+        return self._submitted.popleft()
+
+    @property
+    def submitted(self) -> int:
+        """Frames submitted and not yet collected."""
+        return len(self._submitted)
+
+    def discard(self) -> None:
+        """Drop every frame submitted and not yet collected, once the runs tracking them have stopped (an
+        interrupted loop). The runs have tracked them, so the tracker is then past them: start again with
+        :meth:`init` to track on."""
+        self._drop_from(0)
+
+    def _drop_from(self, index: int) -> None:
+        """Drop the submitted entries from ``index`` on, once their runs have stopped."""
+        while len(self._submitted) > index:
+            entry = self._submitted.pop()
+            if isinstance(entry, _InFlight):
+                wait(entry.futures)
+                _BLAS_ON_ONE_THREAD.release()
+
+    def _runs_go_ahead(self) -> bool:
+        threads, runs = numba.get_num_threads(), len(self._runs)
+        return runs > 1 and 1 < threads and runs <= threads + 1 and self.params.easy_after == 0
+
+    def _refuse_if_submitted(self, method: str) -> None:
+        if self._submitted:
+            raise RuntimeError(f"{method}() with {len(self._submitted)} submitted frame(s) not collected: "
+                               f"collect() them first, or discard() them")
+
+    def _vote(self, rgb: np.ndarray) -> np.ndarray:
+        with self._time("filter_vote"):
+            return self._filter_voter.update(rgb)
+
+    def _settle_submitted(self) -> None:
+        for index in range(len(self._submitted)):
+            self._settle(index)
+
+    def _settle(self, index: int) -> None:
+        """Turn submitted entry ``index`` (those before it settled) into its FrameResult, waiting for its runs."""
+        entry = self._submitted[index]
+        if not isinstance(entry, _InFlight):
+            return
+        wait(entry.futures)
+        _BLAS_ON_ONE_THREAD.release()
+        failed = next((f.exception() for f in entry.futures if f.exception() is not None), None)
+        if failed is not None:
+            self._submitted[index] = None  # its BLAS hold is released
+            self._drop_from(index)
+            raise failed
+        done = [future.result() for future in entry.futures]
+        runs = len(self._runs)
+        self._submitted[index] = self._report(entry.rgb, done[:runs], done[runs] if len(done) > runs else None)
+
+    def _report(self, rgb: np.ndarray, results: list[FrameResult], voter_box: np.ndarray | None) -> FrameResult:
+        """The frame's reported result from every run's (and the voter's box): what ``run_choice`` picks."""
+        p = self.params
         chosen = _more_confident(results)
         if p.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
         if p.run_choice == "consensus":
-            boxes = np.stack([r.box_xywh for r in results] + voter_boxes)
+            boxes = np.stack([r.box_xywh for r in results] + ([] if voter_box is None else [voter_box]))
             chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
             reported = dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         else:
@@ -295,6 +435,7 @@ class Tracker:
         ValueError, TypeError
             On a frame of another size or type, or boxes that are not ``(N, 4)`` finite numbers with positive size.
         """
+        self._refuse_if_submitted("inspect")
         boxes = np.empty((0, 4)) if boxes_xywh is None else _validate_boxes(boxes_xywh)
         with _single_threaded_blas():
             rows = [run.inspect(frame, boxes) for run in self._runs]
@@ -327,6 +468,14 @@ class Tracker:
             done = on_own_threads(_on_one_kernel_thread, tasks + ([] if beside is None else [beside]))
             return done[:runs], None if beside is None else done[runs]
         return results, None if beside is None else beside()
+
+
+@dataclasses.dataclass(frozen=True)
+class _InFlight:
+    """A submitted frame while its runs track it: the frame, and each run's future (the voter's last)."""
+
+    rgb: np.ndarray
+    futures: list[Future]
 
 
 #: A run's box that overlaps the reported box at least this much agrees closely enough for an easy frame

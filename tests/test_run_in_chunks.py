@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from sptpt._kernels import map_on_threads, on_own_threads, run_in_chunks
+from sptpt._kernels import InOrder, map_on_threads, on_own_threads, run_in_chunks
 
 
 def test_every_item_is_done_once_whatever_the_chunk_count() -> None:
@@ -118,3 +118,35 @@ def test_on_own_threads_raises_once_every_call_has_stopped() -> None:
     with pytest.raises(ValueError, match="a later call failed"):
         on_own_threads(lambda item: (_ for _ in ()).throw(ValueError("a later call failed")) if item else item,
                        [0, 1])
+
+
+def test_in_order_makes_its_calls_one_after_another_in_submission_order_while_the_caller_goes_on() -> None:
+    lane = InOrder()
+    release = threading.Event()
+    running: list[int] = []
+    done: list[int] = []
+
+    def call(item: int) -> int:
+        running.append(item)
+        assert len(running) - len(done) == 1, "two calls of one lane at once"
+        if item == 0:
+            assert release.wait(10)  # the caller submits the rest meanwhile: submit never waits
+        done.append(item)
+        return item * 10
+
+    futures = [lane.submit(lambda item=item: call(item)) for item in range(5)]
+    assert not futures[0].done()
+    release.set()
+    assert [future.result(timeout=10) for future in futures] == [0, 10, 20, 30, 40]
+    assert done == list(range(5))
+
+
+def test_in_order_hands_a_call_s_error_to_its_future_and_goes_on_with_the_next() -> None:
+    lane = InOrder()
+    failing = lane.submit(lambda: (_ for _ in ()).throw(ValueError("call 0 failed")))
+    after = lane.submit(lambda: "next")
+    with pytest.raises(ValueError, match="call 0 failed"):
+        failing.result(timeout=10)
+    assert after.result(timeout=10) == "next"
+    # Idle again: a later call starts a new thread's turn.
+    assert lane.submit(lambda: 7).result(timeout=10) == 7

@@ -4,7 +4,8 @@ The batch kernels are serial ``nogil`` loops over an item range ``start:stop``
 writing into a preallocated output; :func:`run_in_chunks` runs contiguous
 blocks of a batch on threads (:func:`map_on_threads` runs a few independent
 Python calls there; :func:`on_own_threads` runs each on a thread of its own,
-for the tracker's runs). numba's ``parallel=True`` (``prange``) would do
+for the tracker's runs, and :class:`InOrder` runs calls one after another on them, for a run that goes ahead of
+the others). numba's ``parallel=True`` (``prange``) would do
 the same, but its parallel lowering added about 2 s of compilation per kernel
 on a fresh install (``cue_features``: 3.9 s parallel, 1.6 s serial), most of
 the quick start's first run, for no speed gain on these embarrassingly
@@ -13,13 +14,14 @@ parallel batches.
 
 from __future__ import annotations
 
+import collections
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 import numba
 
-__all__ = ["map_on_threads", "on_own_threads", "run_in_chunks"]
+__all__ = ["InOrder", "map_on_threads", "on_own_threads", "run_in_chunks"]
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
@@ -127,17 +129,64 @@ def on_own_threads(function, items) -> list:
     than cores the operating system shares the cores among them, so one call's serial work overlaps the others'
     kernels instead of leaving a core idle. Each result is computed exactly as it would be alone.
     """
-    global _OWN
     items = list(items)
     if len(items) <= 1:
         return [function(item) for item in items]
-    with _POOL_LOCK:
-        if _OWN is None:
-            _OWN = ThreadPoolExecutor(max_workers=_OWN_MAX, thread_name_prefix="sptpt-own")
-        pool = _OWN
+    pool = _own_pool()
     futures = [pool.submit(function, item) for item in items[1:]]
     try:
         first = function(items[0])
     finally:
         wait(futures)  # also when the first call raised: none may still be running once the caller goes on
     return [first] + [future.result() for future in futures]
+
+
+def _own_pool() -> ThreadPoolExecutor:
+    """The threads of :func:`on_own_threads` and :class:`InOrder`, created on first use."""
+    global _OWN
+    with _POOL_LOCK:
+        if _OWN is None:
+            _OWN = ThreadPoolExecutor(max_workers=_OWN_MAX, thread_name_prefix="sptpt-own")
+        return _OWN
+
+
+class InOrder:
+    """Calls made one after another in the order they were submitted, each on a thread of :func:`on_own_threads`'
+    pool while the caller goes on.
+
+    For a run of the tracker that may go ahead of the others: its frames must be tracked in turn, but need not
+    wait for the other runs. Holds a thread only while it has calls to make (none of its own when idle), so a
+    tracker that is dropped leaves no thread behind.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._queue: collections.deque = collections.deque()  # (future, call) not started yet
+        self._busy = False
+
+    def submit(self, call) -> Future:
+        """``call()`` after every call submitted before it; its future holds its result or its exception."""
+        future: Future = Future()
+        with self._lock:
+            self._queue.append((future, call))
+            if self._busy:
+                return future  # the thread making the calls before it takes it next
+            self._busy = True
+        _own_pool().submit(self._drain)
+        return future
+
+    def _drain(self) -> None:
+        while True:
+            with self._lock:
+                if not self._queue:
+                    self._busy = False
+                    return
+                future, call = self._queue.popleft()
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                result = call()
+            except BaseException as exc:  # handed to whoever waits on the future
+                future.set_exception(exc)
+            else:
+                future.set_result(result)
