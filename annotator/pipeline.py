@@ -39,7 +39,7 @@ from sptpt import compile_kernels
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
-__all__ = ["FrameLoopEnd", "FrameMark", "HeldFrames", "OverlaySink", "SpanThumbnail", "Target", "TrackRecords",
+__all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink", "SpanThumbnail", "Target", "TrackRecords",
            "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks", "seed_for_track", "track_frame",
            "track_frames", "track_source"]
 
@@ -392,66 +392,137 @@ class FrameLoopEnd:
     interrupted: bool = False
 
 
+#: Frames the tracking stage keeps submitted beyond the one it waits for: a run that finished its part of a frame
+#: goes on with the next ones instead of waiting for the slowest run (:meth:`sptpt.tracker.Tracker.submit`).
+FRAMES_AHEAD = 2
+
+
+class FramesAhead:
+    """The tracking stage with frames in flight: each frame goes to every target's tracker as soon as it is decoded,
+    and its results are taken once every tracker has them, in frame order, ``ahead`` frames behind the newest.
+
+    The first frame starts the trackers (:func:`track_frame`); later frames are submitted
+    (:meth:`~sptpt.tracker.Tracker.submit`), so their results are what :meth:`~sptpt.tracker.Tracker.update` would
+    give, to the bit. A frame's seconds are the time the loop spent on it in each tracker's ``submit`` and
+    ``collect`` (with frames in flight, about the wall time a frame takes, not the runs' summed work).
+    """
+
+    def __init__(self, trackers: dict[int, Tracker], targets: Sequence[Target], ahead: int = FRAMES_AHEAD) -> None:
+        self.trackers, self.targets, self.ahead = trackers, targets, ahead
+        # (frame_index, frame, results by track id or None while submitted, seconds by track id so far)
+        self._in_flight: collections.deque = collections.deque()
+        self._started = False
+
+    def __len__(self) -> int:
+        return len(self._in_flight)
+
+    @property
+    def full(self) -> bool:
+        """More frames in flight than ``ahead``: take the oldest before adding another."""
+        return len(self._in_flight) > self.ahead
+
+    def add(self, frame_index: int, frame: np.ndarray) -> None:
+        """Track ``frame`` (RGB; not written into until it is taken): the first starts the trackers."""
+        if not self._started:
+            results, seconds = track_frame(self.trackers, self.targets, frame, first=True)
+            self._started = True
+            self._in_flight.append((frame_index, frame, results, seconds))
+            return
+        seconds: dict[int, float] = {}
+        for target in self.targets:
+            tic = time.perf_counter()
+            # Details always: the candidates' scores are a failure signal.
+            self.trackers[target.track_id].submit(frame, details=True)
+            seconds[target.track_id] = time.perf_counter() - tic
+        self._in_flight.append((frame_index, frame, None, seconds))
+
+    def take(self) -> tuple[int, np.ndarray, dict[int, FrameResult], dict[int, float]]:
+        """The oldest frame's index, frame, results and seconds by track id, once every tracker has them."""
+        frame_index, frame, results, seconds = self._in_flight[0]
+        if results is None:
+            results = {}
+            for target in self.targets:
+                tid = target.track_id
+                tic = time.perf_counter()
+                results[tid] = self.trackers[tid].collect()
+                seconds[tid] += time.perf_counter() - tic
+        self._in_flight.popleft()
+        return frame_index, frame, results, seconds
+
+    def discard(self) -> None:
+        """Drop the frames in flight, once the trackers have stopped working on them (an interrupted loop)."""
+        self._in_flight.clear()
+        for tracker in self.trackers.values():
+            tracker.discard()
+
+
 def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker], follow_up, *,
-                 stop_requested=lambda: False) -> FrameLoopEnd:
-    """The frame loop: track each frame, then hand it to ``follow_up`` on a thread of its own.
+                 stop_requested=lambda: False, ahead: int = FRAMES_AHEAD) -> FrameLoopEnd:
+    """The frame loop: track each frame (:class:`FramesAhead`), then hand it to ``follow_up`` on a thread of its
+    own.
 
     ``follow_up(position, frame_index, frame, results, seconds)`` runs in frame order on one thread while the next
-    frame is tracked: the tracker's kernels keep both cores busy, but between them leave one idle for several ms a
-    frame, and the follow-up (failure signals, flags, overlay drawing and encoding: 3-4 ms a frame) fills that
-    time. One thread, fed in frame order, so every signal, flag and overlay frame is what it would be if the loop
-    did it all in turn. At most two frames wait behind, so an error there stops tracking soon; the first error is
-    the one raised.
+    frames are tracked: the follow-up (failure signals, flags, overlay drawing and encoding: 3-4 ms a frame) fills
+    time the trackers leave a core idle. One thread, fed in frame order, so every signal, flag and overlay frame
+    is what it would be if the loop did it all in turn. At most two frames wait behind, so an error there stops
+    tracking soon; the first error is the one raised.
 
     ``source`` yields ``(frame_index, frame)``; a :class:`~annotator.frames.DecodeError` from it ends the loop,
-    as do ``stop_requested()`` (checked between frames) and a Ctrl-C outside the main thread, keeping every frame
-    tracked so far.
+    as do ``stop_requested()`` (checked between frames) and a Ctrl-C outside the main thread; every frame tracked
+    so far is kept (after a Ctrl-C, those in flight are dropped).
     """
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as pool:
         submitted: collections.deque = collections.deque()
+        in_flight = FramesAhead(trackers, targets, ahead)
         try:
-            end = _track_and_submit(iter(source), targets, trackers, follow_up, pool, submitted, stop_requested)
+            end = _track_and_submit(iter(source), in_flight, follow_up, pool, submitted, stop_requested)
             wait(submitted)  # every frame is followed up before the caller finishes the flags
             while submitted:
                 submitted.popleft().result()
             return end
         except BaseException:
-            # The follow-ups queued behind the error are dropped (they would run on the state it left), and the
-            # one running is waited for, its own error ignored.
+            # The trackers' frames in flight are waited for and dropped, as are the follow-ups queued behind the
+            # error (they would run on the state it left); the one running is waited for, its own error ignored.
+            in_flight.discard()
             for future in submitted:
                 future.cancel()
             wait(submitted)
             raise
 
 
-def _track_and_submit(frames, targets, trackers, follow_up, pool: ThreadPoolExecutor, submitted: collections.deque,
-                      stop_requested) -> FrameLoopEnd:
+def _track_and_submit(frames, in_flight: FramesAhead, follow_up, pool: ThreadPoolExecutor,
+                      submitted: collections.deque, stop_requested) -> FrameLoopEnd:
     end = FrameLoopEnd(frames_tracked=0, seconds_tracking=0.0)
-    while not stop_requested():
-        try:
-            frame_index, frame = next(frames)
-            results, seconds = track_frame(trackers, targets, frame, first=end.frames_tracked == 0)
-        except StopIteration:
-            return end
-        except DecodeError as exc:
-            end.decode_error = exc
-            return end
-        except KeyboardInterrupt:
-            # Ctrl-C outside the main thread: keep every frame finished so far (a half-tracked frame is dropped).
-            end.interrupted = True
-            return end
+
+    def follow(frame_index, frame, results, seconds) -> None:
         end.seconds_tracking += sum(seconds.values())
         submitted.append(pool.submit(follow_up, end.frames_tracked, frame_index, frame, results, seconds))
         end.frames_tracked += 1
-        try:
-            while len(submitted) > 2 or (submitted and submitted[0].done()):
-                submitted[0].result()  # raises the follow-up's error; removed only once it is done
-                submitted.popleft()
-        except KeyboardInterrupt:
-            # A second Ctrl-C while waiting: keep every frame tracked so far, as during tracking.
+        while len(submitted) > 2 or (submitted and submitted[0].done()):
+            submitted[0].result()  # raises the follow-up's error; removed only once it is done
+            submitted.popleft()
+
+    try:
+        while not stop_requested():
+            try:
+                frame_index, frame = next(frames)
+            except StopIteration:
+                break
+            except DecodeError as exc:
+                end.decode_error = exc
+                break
+            in_flight.add(frame_index, frame)
+            while in_flight.full:
+                follow(*in_flight.take())
+        else:
             end.interrupted = True
-            return end
-    end.interrupted = True
+        while len(in_flight):  # the frames decoded before the loop ended
+            follow(*in_flight.take())
+    except KeyboardInterrupt:
+        # Ctrl-C outside the main thread, or a second one while waiting: keep every frame followed up so far
+        # (a frame half-tracked or in flight is dropped).
+        in_flight.discard()
+        end.interrupted = True
     return end
 
 
@@ -465,7 +536,7 @@ def track_source(
 ) -> TrackingRun:
     """Track every target through the source's selected frames.
 
-    The stages: :func:`track_frames` (with :func:`track_frame`) feeds each frame to :class:`TrackRecords`, and,
+    The stages: :func:`track_frames` (with :class:`FramesAhead`) feeds each frame to :class:`TrackRecords`, and,
     with an overlay, through :class:`HeldFrames` to an :class:`OverlaySink`; the flags are then finished by
     :func:`final_flags`.
 

@@ -96,6 +96,7 @@ class ScriptedTracker:
     def __init__(self, params, seed) -> None:
         assert isinstance(seed, np.random.Generator)
         self.params = params
+        self.pending: list = []
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         self.first = read_index(frame)
@@ -112,6 +113,23 @@ class ScriptedTracker:
         box = self.box + [k - self.first, 0.0, 0.0, 0.0]
         return FrameResult(box_xywh=box, log_likelihood=-1.0 if bad else 10.0, confidence=0.2 if bad else 0.9,
                            accepted=not bad, scoring="subspace")
+
+    # Frames in flight, as the real tracker's: a frame's error is raised when its result is collected.
+    def submit(self, frame: np.ndarray, *, details: bool = False) -> None:
+        try:
+            self.pending.append(self.update(frame, details=details))
+        except RuntimeError as exc:
+            self.pending.append(exc)
+
+    def collect(self) -> FrameResult:
+        result = self.pending.pop(0)
+        if isinstance(result, Exception):
+            self.pending.clear()
+            raise result
+        return result
+
+    def discard(self) -> None:
+        self.pending.clear()
 
 
 @pytest.fixture(scope="module")

@@ -46,6 +46,7 @@ def scripted_result(track_id: int, position: int) -> FrameResult:
 class ScriptedTracker:
     def __init__(self, track_id: int, calls: list) -> None:
         self.track_id, self.calls, self.position = track_id, calls, 0
+        self.pending: list = []
 
     def init(self, image, box_xywh):
         self.calls.append((self.track_id, "init", int(image[0, 0, 0]), tuple(box_xywh)))
@@ -55,6 +56,19 @@ class ScriptedTracker:
         self.position += 1
         self.calls.append((self.track_id, "update", int(image[0, 0, 0]), details))
         return scripted_result(self.track_id, self.position)
+
+    # Frames in flight, as the real tracker's: results in submission order.
+    def submit(self, image, *, details=False):
+        self.pending.append(self.update(image, details=details))
+        self.calls[-1] = (self.track_id, "submit") + self.calls[-1][2:]
+
+    def collect(self):
+        self.calls.append((self.track_id, "collect"))
+        return self.pending.pop(0)
+
+    def discard(self):
+        self.calls.append((self.track_id, "discard", len(self.pending)))
+        self.pending.clear()
 
 
 def scripted_trackers(calls: list) -> dict[int, ScriptedTracker]:
@@ -111,6 +125,40 @@ def test_track_frames_follows_every_frame_up_once_in_order():
     assert seen == [(k, 10 + k, k, [1, 2]) for k in range(7)]
     assert end.frames_tracked == 7 and end.decode_error is None and not end.interrupted
     assert end.seconds_tracking >= 0
+
+
+@pytest.mark.parametrize("ahead", [0, 2])
+def test_track_frames_submits_frames_ahead_of_the_one_it_waits_for(ahead):
+    """Each tracker gets frame k + ahead before frame k's result is collected, and never more in flight."""
+    calls: list = []
+    seen: list = []
+    track_frames([(k, frame(k)) for k in range(6)], TARGETS, scripted_trackers(calls),
+                 lambda position, *rest: seen.append(position), ahead=ahead)
+    assert seen == list(range(6))
+    one = [call[1:3] for call in calls if call[0] == 1]
+    assert one[0] == ("init", 0)
+    # Frames 1..5 submitted in order, each collected once, in order; the last ones after the source ended.
+    expected = [("submit", k) for k in range(1, ahead + 1)]
+    for k in range(ahead + 1, 6):
+        expected += [("submit", k), ("collect",)]
+    expected += [("collect",)] * ahead
+    assert one[1:] == expected
+    in_flight = max(sum(c[0] == "submit" for c in one[1:i]) - sum(c[0] == "collect" for c in one[1:i])
+                    for i in range(1, len(one) + 1))
+    assert in_flight == ahead + 1 if ahead else in_flight == 1
+
+
+def test_track_frames_drops_the_frames_in_flight_on_ctrl_c_and_keeps_those_before():
+    def source():
+        for k in range(5):
+            yield k, frame(k)
+        raise KeyboardInterrupt  # as a Ctrl-C reaches a loop outside the main thread
+
+    calls: list = []
+    seen: list = []
+    end = track_frames(source(), TARGETS, scripted_trackers(calls), lambda position, *rest: seen.append(position))
+    assert end.interrupted and seen == [0, 1, 2] and end.frames_tracked == 3  # 3 and 4 were in flight
+    assert (1, "discard", 2) in calls and (2, "discard", 2) in calls
 
 
 def test_track_frames_keeps_the_frames_before_a_decode_error():
