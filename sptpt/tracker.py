@@ -72,7 +72,7 @@ class _BlasOnOneThread:
     numba's.
 
     Counted, because the limit is the whole process's: frames tracked ahead (:meth:`Tracker.submit`) hold it until
-    they are collected, and a second tracker must not lift it while the first one's runs still work.
+    their runs are done, and a second tracker must not lift it while the first one's runs still work.
     The controller scans the loaded libraries once (about 5 ms); each limit after that is cheap.
     """
 
@@ -313,12 +313,18 @@ class Tracker:
         """
         if self._runs_go_ahead():
             rgb = self._runs[0].sequence_rgb(frame, "update")
-            _BLAS_ON_ONE_THREAD.acquire()  # released when the frame is collected
             tasks = [functools.partial(run.update, rgb, details=details) for run in self._runs]
             if self._filter_voter is not None:
                 tasks.append(functools.partial(self._vote, rgb))
-            self._submitted.append(_InFlight(rgb, [lane.submit(functools.partial(_on_one_kernel_thread, task))
-                                                   for lane, task in zip(self._lanes, tasks)]))
+            # Held until the frame's last task ends (not until it is collected: a tracker dropped with frames in
+            # flight must not leave the process's BLAS on one thread).
+            _BLAS_ON_ONE_THREAD.acquire()
+            release = _CountDown(len(tasks), _BLAS_ON_ONE_THREAD.release)
+            futures = [lane.submit(functools.partial(_on_one_kernel_thread, task))
+                       for lane, task in zip(self._lanes, tasks)]
+            for future in futures:
+                future.add_done_callback(release)
+            self._submitted.append(_InFlight(rgb, futures))
             return
         self._settle_submitted()  # every run has finished the frames before this one
         self._submitted.append(self._track_now(frame, details))
@@ -356,7 +362,6 @@ class Tracker:
             entry = self._submitted.pop()
             if isinstance(entry, _InFlight):
                 wait(entry.futures)
-                _BLAS_ON_ONE_THREAD.release()
 
     def _runs_go_ahead(self) -> bool:
         threads, runs = numba.get_num_threads(), len(self._runs)
@@ -381,10 +386,8 @@ class Tracker:
         if not isinstance(entry, _InFlight):
             return
         wait(entry.futures)
-        _BLAS_ON_ONE_THREAD.release()
         failed = next((f.exception() for f in entry.futures if f.exception() is not None), None)
         if failed is not None:
-            self._submitted[index] = None  # its BLAS hold is released
             self._drop_from(index)
             raise failed
         done = [future.result() for future in entry.futures]
@@ -476,6 +479,20 @@ class _InFlight:
 
     rgb: np.ndarray
     futures: list[Future]
+
+
+class _CountDown:
+    """Calls ``then()`` on the ``count``-th call of itself (from any thread)."""
+
+    def __init__(self, count: int, then: Callable[[], object]) -> None:
+        self._left, self._then, self._lock = count, then, threading.Lock()
+
+    def __call__(self, *ignored) -> None:
+        with self._lock:
+            self._left -= 1
+            last = self._left == 0
+        if last:
+            self._then()
 
 
 #: A run's box that overlaps the reported box at least this much agrees closely enough for an easy frame

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
+from concurrent.futures import wait
 
 import numba
 import numpy as np
@@ -181,4 +183,22 @@ def test_blas_stays_on_one_thread_until_the_last_holder_lets_go():
     hold.release()
     assert all(n == 1 for n in blas_threads())
     hold.release()
+    assert blas_threads() == before
+
+
+@needs_two_threads
+def test_a_tracker_dropped_with_frames_in_flight_gives_blas_its_threads_back(clip):
+    before = blas_threads()
+    tracker = Tracker(three_runs_and_the_voter(), seed=3)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    with numba_threads(2):
+        tracker.submit(clip.frames[1])
+        tracker.submit(clip.frames[2])
+    futures = [future for entry in tracker._submitted for future in entry.futures]
+    del tracker  # never collected
+    wait(futures)
+    for _ in range(100):  # the last task's done-callback runs just after its future is done
+        if blas_threads() == before:
+            break
+        time.sleep(0.01)
     assert blas_threads() == before
