@@ -8,13 +8,14 @@ its anchor and a re-track is reproducible. Frames come from a
 
 from __future__ import annotations
 
+import collections
 import time
 from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
-from annotator.pipeline import seed_for_track
+from annotator.pipeline import FRAMES_AHEAD, seed_for_track
 from annotator.pass_cache import PassResult
 from annotator.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
@@ -90,8 +91,7 @@ class SegmentRun:
         self.buffered = self.bwd_todo and n <= max_buffer
         self.deferred = self.bwd_todo and not self.buffered
         self._buffer: list[np.ndarray] = []
-        self._tracker: Tracker | None = None
-        self._meter: SignalMeter | None = None
+        self._forward: _PassAhead | None = None
 
     def _key(self, direction: int) -> PassKey:
         s = self.segment
@@ -146,22 +146,22 @@ class SegmentRun:
     def feed(self, position: int, frame: np.ndarray) -> None:
         s = self.segment
         if position == s.start and self.fwd_todo:
-            self._tracker = self._tracker_for(position, 0)
+            tracker = self._tracker_for(position, 0)
             tic = time.perf_counter()
-            result = self._tracker.init(frame, self.box_start)
+            result = tracker.init(frame, self.box_start)
             self.start_row = (result.log_likelihood, time.perf_counter() - tic)
-            self._meter = SignalMeter()
-            self._meter.first(frame, self.box_start)
+            meter = SignalMeter()
+            meter.first(frame, self.box_start)
             self.calls += 1
+            self._forward = _PassAhead(tracker, lambda p, *rest: self._store(self.fwd, p - s.start - 1, *rest, meter))
         elif s.start < position < s.stop:
             if self.fwd_todo:
-                tic = time.perf_counter()
-                result = self._tracker.update(frame, details=True)
-                self._store(self.fwd, position - s.start - 1, result, time.perf_counter() - tic, self._meter, frame)
+                self._forward.add(position, frame)
             if self.buffered:
                 self._buffer.append(frame)
         if position == s.stop - 1 and self.fwd_todo:
-            self._tracker, self._meter = None, None
+            self._forward.finish()
+            self._forward = None
             self.fwd_todo = False
             self._remember(0, self.fwd, self.start_row)
         if position == s.stop and self.buffered:
@@ -198,15 +198,13 @@ class SegmentRun:
         return tracker, meter
 
     def _backward_continue(self, tracker: Tracker, meter: SignalMeter, frames, first_position: int) -> None:
-        position = first_position
-        for frame in frames:
-            tic = time.perf_counter()
-            result = tracker.update(frame, details=True)
-            self._store(self.bwd, position - self.segment.start - 1, result, time.perf_counter() - tic, meter, frame)
-            position -= 1
+        ahead = _PassAhead(tracker, lambda p, *rest: self._store(self.bwd, p - self.segment.start - 1, *rest, meter))
+        for position, frame in enumerate(frames):
+            ahead.add(first_position - position, frame)
+        ahead.finish()
 
-    def _store(self, target: PassResult, row: int, result, seconds: float, meter: SignalMeter,
-               frame: np.ndarray) -> None:
+    def _store(self, target: PassResult, row: int, result, seconds: float, frame: np.ndarray,
+               meter: SignalMeter) -> None:
         target.boxes_xywh[row] = result.box_xywh
         target.confidence[row] = result.confidence
         target.log_likelihood[row] = result.log_likelihood
@@ -218,3 +216,34 @@ class SegmentRun:
                              particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
         target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
+
+
+class _PassAhead:
+    """One pass's frames in flight: each submitted to its tracker as it comes, and stored in order
+    :data:`~annotator.pipeline.FRAMES_AHEAD` frames behind, so the tracker's runs need not wait for each other
+    every frame (:meth:`sptpt.tracker.Tracker.submit`; the results are ``update``'s to the bit).
+
+    ``store(position, result, seconds, frame)`` gets each frame's result; its seconds are the pass's time in
+    ``submit`` and ``collect``.
+    """
+
+    def __init__(self, tracker: Tracker, store) -> None:
+        self.tracker, self.store = tracker, store
+        self._pending: collections.deque = collections.deque()  # (position, frame, seconds in submit)
+
+    def add(self, position: int, frame: np.ndarray) -> None:
+        tic = time.perf_counter()
+        self.tracker.submit(frame, details=True)
+        self._pending.append((position, frame, time.perf_counter() - tic))
+        while len(self._pending) > FRAMES_AHEAD:
+            self._take()
+
+    def finish(self) -> None:
+        while self._pending:
+            self._take()
+
+    def _take(self) -> None:
+        position, frame, seconds = self._pending.popleft()
+        tic = time.perf_counter()
+        result = self.tracker.collect()
+        self.store(position, result, seconds + time.perf_counter() - tic, frame)
