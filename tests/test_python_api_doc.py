@@ -70,12 +70,17 @@ def test_the_correction_is_applied_and_the_store_read_back_has_it(ran):
 
 
 def test_the_tracker_alone(ran):
-    namespace = ran["after"][-1]
-    assert namespace["index"] == 9 and len(ran["printed"][-1].splitlines()) == 10
+    namespace = ran["after"][-2]
+    assert namespace["index"] == 9 and len(ran["printed"][-2].splitlines()) == 10
     from sptpt import FrameResult, Tracker, TrackerParams, preset
 
     assert isinstance(namespace["tracker"], Tracker) and isinstance(namespace["result"], FrameResult)
     assert isinstance(preset("robust"), TrackerParams)
+
+
+def test_frames_submitted_ahead_give_update_s_boxes(ran):
+    assert ran["printed"][-1] == "10 True\n"
+    assert ran["after"][-1]["ahead"].submitted == 0
 
 
 def test_each_package_names_its_public_api():
