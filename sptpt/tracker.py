@@ -21,13 +21,14 @@ import collections
 import contextlib
 import dataclasses
 import functools
+import os
 import threading
 from concurrent.futures import Future, wait
 from typing import Callable, ContextManager
 
 import numba
 import numpy as np
-from threadpoolctl import ThreadpoolController
+from threadpoolctl import OpenBLASController, ThreadpoolController
 
 from sptpt._kernels import InOrder, map_on_threads, on_own_threads
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
@@ -67,12 +68,16 @@ def _no_timer(stage: str) -> ContextManager:
 # Median absolute deviation to standard deviation for normally distributed values.
 _MAD_TO_STD = 1.4826
 
+
 class _BlasOnOneThread:
     """BLAS limited to one thread while anyone holds this: its matrices here are small, and its threads only fight
     numba's.
 
     Counted, because the limit is the whole process's: frames tracked ahead (:meth:`Tracker.submit`) hold it until
-    their runs are done, and a second tracker must not lift it while the first one's runs still work.
+    their runs are done, and a second tracker must not lift it while the first one's runs still work. The last
+    holder may let go on another thread than the first took it: threadpoolctl lets only one thread (the first to
+    set a limit) change OpenBLAS's pthreads pool and silently ignores the others, so control is handed to
+    whichever thread sets or lifts the limit here, under this lock.
     The controller scans the loaded libraries once (about 5 ms); each limit after that is cheap.
     """
 
@@ -87,15 +92,19 @@ class _BlasOnOneThread:
             if self._holders == 0:
                 if self._controller is None:
                     self._controller = ThreadpoolController()
+                _hand_over_openblas()
                 self._limiter = self._controller.limit(limits=1, user_api="blas")
+                _hand_over_openblas()
             self._holders += 1
 
     def release(self) -> None:
         with self._lock:
             self._holders -= 1
             if self._holders == 0:
+                _hand_over_openblas()
                 self._limiter.restore_original_limits()
                 self._limiter = None
+                _hand_over_openblas()
 
     @contextlib.contextmanager
     def held(self):
@@ -105,8 +114,27 @@ class _BlasOnOneThread:
         finally:
             self.release()
 
+    def forget(self) -> None:
+        """In a forked child: the parent's holders are not there to let go, so the limit is lifted now and the
+        child's own holders start from none."""
+        self._lock = threading.Lock()
+        limiter, self._holders, self._limiter = self._limiter, 0, None
+        if limiter is not None:
+            _hand_over_openblas()
+            limiter.restore_original_limits()
+            _hand_over_openblas()
+
+
+def _hand_over_openblas() -> None:
+    """Let the next thread that sets an OpenBLAS limit through threadpoolctl take control (see
+    :class:`_BlasOnOneThread`); a no-op with threadpoolctl before 3.5, which had no controlling thread."""
+    clear = getattr(OpenBLASController, "clear_controlling_thread", None)
+    if clear is not None:
+        clear(force=True)
+
 
 _BLAS_ON_ONE_THREAD = _BlasOnOneThread()
+os.register_at_fork(after_in_child=_BLAS_ON_ONE_THREAD.forget)
 
 
 def _single_threaded_blas() -> ContextManager:
@@ -290,9 +318,8 @@ class Tracker:
                 return self._runs[0].update(frame, details=details)  # the run checks the frame itself
             # Checked before any run or the voter moves on: a frame they would refuse leaves them all as they were.
             rgb = self._runs[0].sequence_rgb(frame, "update")
-            vote = None if self._filter_voter is None else functools.partial(self._vote, rgb)
             share = self.params.easy_share if 0 < self.params.easy_after <= self._agreed else 1.0
-            results, voter_box = self._update_runs(rgb, details, vote, share)
+            results, voter_box = self._update_runs(rgb, details, share)
         return self._report(rgb, results, voter_box)
 
     def submit(self, frame: np.ndarray, *, details: bool = False) -> None:
@@ -309,25 +336,30 @@ class Tracker:
         consensus), the frame is tracked here, at once, as :meth:`update` would.
 
         ``frame`` is read until its result is collected: do not write into it before. Checked here, as by
-        :meth:`update`: a frame that would be refused raises before any run moves on.
+        :meth:`update`: a frame that would be refused raises before any run moves on. Where the frame is tracked
+        at once, an error of a frame submitted before it (or of this one) is raised here rather than by
+        :meth:`collect`.
         """
-        if self._runs_go_ahead():
-            rgb = self._runs[0].sequence_rgb(frame, "update")
-            tasks = [functools.partial(run.update, rgb, details=details) for run in self._runs]
-            if self._filter_voter is not None:
-                tasks.append(functools.partial(self._vote, rgb))
-            # Held until the frame's last task ends (not until it is collected: a tracker dropped with frames in
-            # flight must not leave the process's BLAS on one thread).
-            _BLAS_ON_ONE_THREAD.acquire()
-            release = _CountDown(len(tasks), _BLAS_ON_ONE_THREAD.release)
-            futures = [lane.submit(functools.partial(_on_one_kernel_thread, task))
-                       for lane, task in zip(self._lanes, tasks)]
-            for future in futures:
-                future.add_done_callback(release)
-            self._submitted.append(_InFlight(rgb, futures))
+        if not (self.params.easy_after == 0 and _all_at_once(numba.get_num_threads(), len(self._runs))):
+            self._settle_submitted()  # every run has finished the frames before this one
+            self._submitted.append(self._track_now(frame, details))
             return
-        self._settle_submitted()  # every run has finished the frames before this one
-        self._submitted.append(self._track_now(frame, details))
+        rgb = self._runs[0].sequence_rgb(frame, "update")
+        tasks = self._tasks(rgb, details, 1.0)
+        # Held until the frame's last task ends, not until it is collected: a tracker dropped with frames in
+        # flight must not leave the process's BLAS on one thread.
+        _BLAS_ON_ONE_THREAD.acquire()
+        release = _CountDown(len(tasks), _BLAS_ON_ONE_THREAD.release)
+        futures: list[Future] = []
+        try:
+            for lane, task in zip(self._lanes, tasks):
+                futures.append(lane.submit(functools.partial(_on_one_kernel_thread, task)))
+                futures[-1].add_done_callback(release)
+        finally:
+            for _ in range(len(tasks) - len(futures)):  # interrupted part-way: those never submitted let go now
+                release()
+            if futures:  # recorded even then, so that collect or discard waits for what did start
+                self._submitted.append(_InFlight(rgb, futures, complete=len(futures) == len(tasks)))
 
     def collect(self) -> FrameResult:
         """The result of the oldest frame submitted and not yet collected, once it is tracked.
@@ -337,8 +369,9 @@ class Tracker:
         RuntimeError
             When nothing is submitted.
         Exception
-            What a run raised while tracking the frame; the frames submitted after it are then dropped (each
-            waited for), and the runs are left where the error stopped them: start again with :meth:`init`.
+            What a run raised while tracking the frame. The frames submitted after it are then dropped (what
+            their runs had not started is cancelled, what they had is waited for), so each run is left part-way:
+            start again with :meth:`init`.
         """
         if not self._submitted:
             raise RuntimeError("collect() with no frame submitted: submit(frame) first")
@@ -351,21 +384,31 @@ class Tracker:
         return len(self._submitted)
 
     def discard(self) -> None:
-        """Drop every frame submitted and not yet collected, once the runs tracking them have stopped (an
-        interrupted loop). The runs have tracked them, so the tracker is then past them: start again with
-        :meth:`init` to track on."""
+        """Drop every frame submitted and not yet collected (an interrupted loop): what the runs had not started
+        is cancelled, what they had is waited for. The runs are then part-way: start again with :meth:`init` to
+        track on."""
         self._drop_from(0)
+
+    def __getstate__(self) -> dict:
+        # A copy (copy.deepcopy, pickle) starts with nothing submitted and lanes of its own.
+        self._refuse_if_submitted("copying")
+        return self.__dict__.copy()
 
     def _drop_from(self, index: int) -> None:
         """Drop the submitted entries from ``index`` on, once their runs have stopped."""
-        while len(self._submitted) > index:
-            entry = self._submitted.pop()
-            if isinstance(entry, _InFlight):
-                wait(entry.futures)
+        dropped = [self._submitted.pop() for _ in range(len(self._submitted) - index)]
+        futures = [future for entry in dropped if isinstance(entry, _InFlight) for future in entry.futures]
+        for future in futures:
+            future.cancel()  # a call not started yet never starts (its done-callbacks still run)
+        wait(futures)
 
-    def _runs_go_ahead(self) -> bool:
-        threads, runs = numba.get_num_threads(), len(self._runs)
-        return runs > 1 and 1 < threads and runs <= threads + 1 and self.params.easy_after == 0
+    def _tasks(self, rgb: np.ndarray, details: bool, share: float) -> list[Callable[[], object]]:
+        """Each run's update of the frame and, with the voter, its vote (last)."""
+        tasks: list[Callable[[], object]] = [functools.partial(run.update, rgb, details=details, share=share)
+                                             for run in self._runs]
+        if self._filter_voter is not None:
+            tasks.append(functools.partial(self._vote, rgb))
+        return tasks
 
     def _refuse_if_submitted(self, method: str) -> None:
         if self._submitted:
@@ -387,6 +430,9 @@ class Tracker:
             return
         wait(entry.futures)
         failed = next((f.exception() for f in entry.futures if f.exception() is not None), None)
+        if failed is None and not entry.complete:
+            failed = RuntimeError("submit() was interrupted before every run had this frame: start again with "
+                                  "init()")
         if failed is not None:
             self._drop_from(index)
             raise failed
@@ -444,10 +490,10 @@ class Tracker:
             rows = [run.inspect(frame, boxes) for run in self._runs]
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
-    def _update_runs(self, frame: np.ndarray, details: bool, beside: Callable[[], np.ndarray] | None = None,
+    def _update_runs(self, rgb: np.ndarray, details: bool,
                      share: float = 1.0) -> tuple[list[FrameResult], np.ndarray | None]:
-        """Every run's update with ``share`` of its candidates, and ``beside()`` (the voter's), if given; with more
-        than one kernel thread, side by side, one kernel thread each.
+        """Every run's update with ``share`` of its candidates, and the voter's box (None without a voter); with
+        more than one kernel thread, side by side, one kernel thread each.
 
         A run's kernels keep both cores busy, but between them it scores, refits and chooses on one; side by
         side, one run's serial work overlaps another's kernels. Up to one run more than the threads (three on two
@@ -457,20 +503,26 @@ class Tracker:
         than after them gained 0-3%, within noise (HISTORY.md). With still more runs, the largest multiple of the
         thread count runs side by side and the rest after them on every thread, so the threads never exceed the
         kernel threads (a batch worker's share of the cores) by more than one; the voter then follows them. Runs
-        and the voter share nothing, so their results are the same as one after the other.
+        and the voter share nothing, so their results are the same as one after the other. (:meth:`submit` lets
+        the runs that go all at once go on to later frames too.)
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
-        tasks = [functools.partial(run.update, frame, details=details, share=share) for run in self._runs]
-        if threads == 1 or runs < 2:
-            results = [task() for task in tasks]
-        elif runs > threads + 1:
+        tasks = self._tasks(rgb, details, share)
+        if _all_at_once(threads, runs):
+            done = on_own_threads(_on_one_kernel_thread, tasks)
+        elif threads > 1 and runs > 1:
             side_by_side = runs - runs % threads
-            results = map_on_threads(_on_one_kernel_thread, tasks[:side_by_side], threads)
-            results += [task() for task in tasks[side_by_side:]]
+            done = map_on_threads(_on_one_kernel_thread, tasks[:side_by_side], threads)
+            done += [task() for task in tasks[side_by_side:]]  # the voter last
         else:
-            done = on_own_threads(_on_one_kernel_thread, tasks + ([] if beside is None else [beside]))
-            return done[:runs], None if beside is None else done[runs]
-        return results, None if beside is None else beside()
+            done = [task() for task in tasks]
+        return done[:runs], done[runs] if len(done) > runs else None
+
+
+def _all_at_once(threads: int, runs: int) -> bool:
+    """Whether ``runs`` runs (and the voter) go all at once, one kernel thread each, with ``threads`` kernel
+    threads (:meth:`Tracker._update_runs`); only then can a run go ahead of the others (:meth:`Tracker.submit`)."""
+    return threads > 1 and 1 < runs <= threads + 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -479,6 +531,7 @@ class _InFlight:
 
     rgb: np.ndarray
     futures: list[Future]
+    complete: bool = True  # False: submit was interrupted before every run had the frame
 
 
 class _CountDown:

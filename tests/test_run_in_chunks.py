@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import threading
 import time
 
@@ -150,3 +151,34 @@ def test_in_order_hands_a_call_s_error_to_its_future_and_goes_on_with_the_next()
     assert after.result(timeout=10) == "next"
     # Idle again: a later call starts a new thread's turn.
     assert lane.submit(lambda: 7).result(timeout=10) == 7
+
+
+def test_in_order_fails_its_calls_when_no_thread_can_make_them_and_works_again_after(monkeypatch) -> None:
+    import sptpt._kernels as kernels
+
+    class NoThreads:
+        def submit(self, *args):
+            raise RuntimeError("cannot schedule new futures after interpreter shutdown")
+
+    lane = InOrder()
+    monkeypatch.setattr(kernels, "_own_pool", lambda: NoThreads())
+    with pytest.raises(RuntimeError, match="interpreter shutdown"):
+        lane.submit(lambda: 1)
+    monkeypatch.undo()
+    assert lane.submit(lambda: 2).result(timeout=10) == 2  # not left waiting for a thread that never came
+
+
+def test_in_order_after_a_fork_fails_what_the_parent_s_thread_would_have_made() -> None:
+    lane = InOrder()
+    release = threading.Event()
+    running = lane.submit(lambda: release.wait(10))
+    queued = lane.submit(lambda: "never")
+    time.sleep(0.05)
+    with pytest.raises(TypeError, match="while it has calls"):
+        pickle.dumps(lane)
+    lane._forget()  # what the fork hook does in the child
+    for future in (running, queued):
+        with pytest.raises(RuntimeError, match="forked"):
+            future.result(timeout=1)
+    release.set()
+    assert pickle.loads(pickle.dumps(lane)).submit(lambda: 3).result(timeout=10) == 3

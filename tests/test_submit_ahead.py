@@ -3,7 +3,9 @@ run going on to the next frame as soon as its own part of a frame is done."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import pickle
 import threading
 import time
 from concurrent.futures import wait
@@ -174,7 +176,8 @@ def blas_threads() -> list[int]:
 
 
 def test_blas_stays_on_one_thread_until_the_last_holder_lets_go():
-    """Frames in flight hold the limit until collected; a second holder (another tracker's) must not lift it."""
+    """Frames in flight hold the limit until their runs are done; a second holder (another tracker's) must not lift
+    it; the last holder lifts it from whichever thread it lets go on."""
     before = blas_threads()
     hold = tracker_module._BlasOnOneThread()
     hold.acquire()
@@ -182,7 +185,9 @@ def test_blas_stays_on_one_thread_until_the_last_holder_lets_go():
     assert all(n == 1 for n in blas_threads())
     hold.release()
     assert all(n == 1 for n in blas_threads())
-    hold.release()
+    thread = threading.Thread(target=hold.release)  # as a run's lane lets go of a frame's hold
+    thread.start()
+    thread.join()
     assert blas_threads() == before
 
 
@@ -198,6 +203,80 @@ def test_a_tracker_dropped_with_frames_in_flight_gives_blas_its_threads_back(cli
     del tracker  # never collected
     wait(futures)
     for _ in range(100):  # the last task's done-callback runs just after its future is done
+        if blas_threads() == before:
+            break
+        time.sleep(0.01)
+    assert blas_threads() == before
+
+
+def test_a_tracker_is_copied_with_nothing_in_flight_and_refuses_while_frames_are(clip):
+    tracker = Tracker(three_runs_and_the_voter(), seed=4)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    twin = copy.deepcopy(tracker)
+    again = pickle.loads(pickle.dumps(tracker))
+    boxes = [t.update(clip.frames[1]).box_xywh for t in (tracker, twin, again)]
+    np.testing.assert_array_equal(boxes[0], boxes[1])
+    np.testing.assert_array_equal(boxes[0], boxes[2])
+    with numba_threads(2):
+        tracker.submit(clip.frames[2])
+        with pytest.raises(RuntimeError, match="copying\\(\\) with 1 submitted frame"):
+            copy.deepcopy(tracker)
+        tracker.collect()
+
+
+@needs_two_threads
+def test_discard_and_an_error_cancel_what_the_runs_have_not_started(clip, monkeypatch):
+    calls = []
+
+    def update(self, frame, *, details, share=1.0):
+        calls.append(int(frame[0, 0, 0]))
+        time.sleep(0.2)
+        return FrameResult(box_xywh=np.array([10.0, 10.0, 20.0, 20.0]), log_likelihood=1.0, confidence=0.5,
+                           accepted=True, scoring="subspace")
+
+    tracker = Tracker(dataclasses.replace(get_preset("fast"), independent_runs=3), seed=1)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    monkeypatch.setattr(tracker_module._Run, "update", update)
+    frames = [clip.frames[1].copy() for _ in range(4)]
+    for k, frame in enumerate(frames, start=1):
+        frame[0, 0, 0] = k
+    with numba_threads(2):
+        for frame in frames:
+            tracker.submit(frame)
+        for _ in range(100):  # until every run is inside its first frame
+            if len(calls) == 3:
+                break
+            time.sleep(0.01)
+        tracker.discard()
+    assert tracker.submitted == 0
+    assert sorted(calls) == [1, 1, 1]  # each run's first frame had started; the three later ones never ran
+
+
+@needs_two_threads
+def test_an_interrupted_submit_leaves_nothing_running_unseen(clip, monkeypatch):
+    """A Ctrl-C part-way through submit: the runs that got the frame are waited for, collect says the frame is
+    incomplete, and BLAS gets its threads back."""
+    before = blas_threads()
+    tracker = Tracker(three_runs_and_the_voter(), seed=5)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+    real_submit = tracker_module.InOrder.submit
+    made = []
+
+    def submit(lane, call):
+        if len(made) == 2:
+            raise KeyboardInterrupt
+        made.append(lane)
+        return real_submit(lane, call)
+
+    monkeypatch.setattr(tracker_module.InOrder, "submit", submit)
+    with numba_threads(2):
+        with pytest.raises(KeyboardInterrupt):
+            tracker.submit(clip.frames[1])
+        assert tracker.submitted == 1
+        with pytest.raises(RuntimeError, match="interrupted before every run had this frame"):
+            tracker.collect()
+    assert tracker.submitted == 0
+    for _ in range(100):
         if blas_threads() == before:
             break
         time.sleep(0.01)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import collections
 import os
 import threading
+import weakref
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 import numba
@@ -31,6 +32,8 @@ _POOL_LOCK = threading.Lock()
 # numba has one thread, so its stages run on the caller's thread).
 _OWN: ThreadPoolExecutor | None = None
 _OWN_MAX = 64
+# Every InOrder, for the fork hook (weakly: a dropped tracker's lanes go with it).
+_LANES: weakref.WeakSet = weakref.WeakSet()
 
 
 def _forget_pool() -> None:
@@ -40,6 +43,8 @@ def _forget_pool() -> None:
     _POOL = None
     _OWN = None
     _POOL_LOCK = threading.Lock()
+    for lane in list(_LANES):  # their threads are gone too: the calls queued there will never run
+        lane._forget()
 
 
 os.register_at_fork(after_in_child=_forget_pool)
@@ -163,6 +168,8 @@ class InOrder:
         self._lock = threading.Lock()
         self._queue: collections.deque = collections.deque()  # (future, call) not started yet
         self._busy = False
+        self._running: Future | None = None  # the call being made (for the fork hook)
+        _LANES.add(self)
 
     def submit(self, call) -> Future:
         """``call()`` after every call submitted before it; its future holds its result or its exception."""
@@ -172,8 +179,38 @@ class InOrder:
             if self._busy:
                 return future  # the thread making the calls before it takes it next
             self._busy = True
-        _own_pool().submit(self._drain)
+        try:
+            _own_pool().submit(self._drain)
+        except BaseException as exc:  # no thread to make the calls (interpreter shutting down, interrupted)
+            self._fail_queued(exc)
+            raise
         return future
+
+    def __getstate__(self) -> dict:
+        # A copy (of a tracker, say) gets a lane of its own, idle; calls in progress cannot be copied.
+        with self._lock:
+            if self._busy:
+                raise TypeError("cannot copy a lane while it has calls to make")
+        return {}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__()
+
+    def _forget(self) -> None:
+        """In a forked child: the parent's thread making these calls is not there."""
+        self._lock = threading.Lock()
+        lost = RuntimeError("the process forked while this call waited or ran: it will never finish here")
+        running, self._running = self._running, None
+        if running is not None and not running.done():
+            running.set_exception(lost)
+        self._fail_queued(lost)
+
+    def _fail_queued(self, exc: BaseException) -> None:
+        with self._lock:
+            queued, self._queue, self._busy = self._queue, collections.deque(), False
+        for future, _ in queued:
+            if future.set_running_or_notify_cancel():
+                future.set_exception(exc)
 
     def _drain(self) -> None:
         while True:
@@ -182,11 +219,14 @@ class InOrder:
                     self._busy = False
                     return
                 future, call = self._queue.popleft()
-            if not future.set_running_or_notify_cancel():
-                continue
+                if not future.set_running_or_notify_cancel():
+                    continue
+                self._running = future
             try:
                 result = call()
             except BaseException as exc:  # handed to whoever waits on the future
                 future.set_exception(exc)
             else:
                 future.set_result(result)
+            finally:
+                self._running = None
