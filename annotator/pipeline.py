@@ -39,8 +39,8 @@ from sptpt import compile_kernels
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
-__all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink", "SpanThumbnail", "Target", "TrackRecords",
-           "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks", "seed_for_track", "track_frame",
+__all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink", "SpanThumbnail",
+           "Target", "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks", "seed_for_track", "track_frame",
            "track_frames", "track_source"]
 
 THUMBNAIL_WIDTH = 200
@@ -135,7 +135,7 @@ class _NothingTracked(Exception):
 
 @contextlib.contextmanager
 def _deferred_interrupt():
-    """Turn the first Ctrl-C into a request to stop after the current frame; a second one stops at once.
+    """Turn the first Ctrl-C into a request to stop after the frames in flight; a second one stops at once.
 
     A KeyboardInterrupt raised at an arbitrary point (half-way through
     recording a frame for several tracks, or while encoding) would leave the
@@ -398,56 +398,56 @@ FRAMES_AHEAD = 2
 
 
 class FramesAhead:
-    """The tracking stage with frames in flight: each frame goes to every target's tracker as soon as it is decoded,
-    and its results are taken once every tracker has them, in frame order, ``ahead`` frames behind the newest.
+    """The tracking stage with frames in flight: each frame goes to every tracker as soon as it is decoded, and its
+    results are taken once every tracker has them, in frame order, ``ahead`` frames behind the newest.
 
-    The first frame starts the trackers (:func:`track_frame`); later frames are submitted
-    (:meth:`~sptpt.tracker.Tracker.submit`), so their results are what :meth:`~sptpt.tracker.Tracker.update` would
-    give, to the bit. A frame's seconds are the time the loop spent on it in each tracker's ``submit`` and
-    ``collect`` (with frames in flight, about the wall time a frame takes, not the runs' summed work).
+    Frames are submitted (:meth:`~sptpt.tracker.Tracker.submit`), so their results are what
+    :meth:`~sptpt.tracker.Tracker.update` would give, to the bit; a frame tracked otherwise (the first, which
+    starts the trackers) joins the queue with :meth:`add_tracked`. A frame's seconds are the time the caller spent
+    in the trackers' ``submit`` and ``collect`` for it, split evenly among the trackers: their runs work at the
+    same time as each other and as the caller's own work, so what each tracker alone took is not measured, and
+    the sum over frames is the time the caller waited on tracking.
+
+    Parameters
+    ----------
+    trackers : dict of int to Tracker
+        By track id, in the order the results are to come.
+    ahead : int
+        Frames in flight beyond the one waited for.
     """
 
-    def __init__(self, trackers: dict[int, Tracker], targets: Sequence[Target], ahead: int = FRAMES_AHEAD) -> None:
-        self.trackers, self.targets, self.ahead = trackers, targets, ahead
-        # (frame_index, frame, results by track id or None while submitted, seconds by track id so far)
+    def __init__(self, trackers: dict[int, Tracker], ahead: int = FRAMES_AHEAD) -> None:
+        self.trackers, self.ahead = trackers, ahead
+        # (frame_index, frame, results by track id or None while submitted, seconds so far)
         self._in_flight: collections.deque = collections.deque()
-        self._started = False
 
     def __len__(self) -> int:
         return len(self._in_flight)
 
-    @property
-    def full(self) -> bool:
-        """More frames in flight than ``ahead``: take the oldest before adding another."""
-        return len(self._in_flight) > self.ahead
-
     def add(self, frame_index: int, frame: np.ndarray) -> None:
-        """Track ``frame`` (RGB; not written into until it is taken): the first starts the trackers."""
-        if not self._started:
-            results, seconds = track_frame(self.trackers, self.targets, frame, first=True)
-            self._started = True
-            self._in_flight.append((frame_index, frame, results, seconds))
-            return
-        seconds: dict[int, float] = {}
-        for target in self.targets:
-            tic = time.perf_counter()
-            # Details always: the candidates' scores are a failure signal.
-            self.trackers[target.track_id].submit(frame, details=True)
-            seconds[target.track_id] = time.perf_counter() - tic
-        self._in_flight.append((frame_index, frame, None, seconds))
+        """Submit ``frame`` (RGB; not written into until it is taken) to every tracker."""
+        tic = time.perf_counter()
+        for tracker in self.trackers.values():
+            tracker.submit(frame, details=True)  # details always: the candidates' scores are a failure signal
+        self._in_flight.append((frame_index, frame, None, time.perf_counter() - tic))
 
-    def take(self) -> tuple[int, np.ndarray, dict[int, FrameResult], dict[int, float]]:
-        """The oldest frame's index, frame, results and seconds by track id, once every tracker has them."""
-        frame_index, frame, results, seconds = self._in_flight[0]
-        if results is None:
-            results = {}
-            for target in self.targets:
-                tid = target.track_id
+    def add_tracked(self, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult],
+                    seconds: dict[int, float]) -> None:
+        """Queue a frame already tracked (its results and seconds by track id), after those in flight."""
+        self._in_flight.append((frame_index, frame, results, seconds))
+
+    def settled(self, *, final: bool = False):
+        """Take the oldest frames while more than ``ahead`` are in flight (with ``final``, all of them): yields
+        ``(frame_index, frame, results, seconds)``, results and seconds by track id."""
+        while self._in_flight and (final or len(self._in_flight) > self.ahead):
+            frame_index, frame, results, seconds = self._in_flight[0]
+            if results is None:
                 tic = time.perf_counter()
-                results[tid] = self.trackers[tid].collect()
-                seconds[tid] += time.perf_counter() - tic
-        self._in_flight.popleft()
-        return frame_index, frame, results, seconds
+                results = {tid: tracker.collect() for tid, tracker in self.trackers.items()}
+                share = (seconds + time.perf_counter() - tic) / len(self.trackers)
+                seconds = {tid: share for tid in self.trackers}
+            self._in_flight.popleft()
+            yield frame_index, frame, results, seconds
 
     def discard(self) -> None:
         """Drop the frames in flight, once the trackers have stopped working on them (an interrupted loop)."""
@@ -473,9 +473,9 @@ def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker]
     """
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as pool:
         submitted: collections.deque = collections.deque()
-        in_flight = FramesAhead(trackers, targets, ahead)
+        in_flight = FramesAhead({t.track_id: trackers[t.track_id] for t in targets}, ahead)
         try:
-            end = _track_and_submit(iter(source), in_flight, follow_up, pool, submitted, stop_requested)
+            end = _track_and_submit(iter(source), targets, in_flight, follow_up, pool, submitted, stop_requested)
             wait(submitted)  # every frame is followed up before the caller finishes the flags
             while submitted:
                 submitted.popleft().result()
@@ -490,8 +490,8 @@ def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker]
             raise
 
 
-def _track_and_submit(frames, in_flight: FramesAhead, follow_up, pool: ThreadPoolExecutor,
-                      submitted: collections.deque, stop_requested) -> FrameLoopEnd:
+def _track_and_submit(frames, targets: Sequence[Target], in_flight: FramesAhead, follow_up,
+                      pool: ThreadPoolExecutor, submitted: collections.deque, stop_requested) -> FrameLoopEnd:
     end = FrameLoopEnd(frames_tracked=0, seconds_tracking=0.0)
 
     def follow(frame_index, frame, results, seconds) -> None:
@@ -511,13 +511,17 @@ def _track_and_submit(frames, in_flight: FramesAhead, follow_up, pool: ThreadPoo
             except DecodeError as exc:
                 end.decode_error = exc
                 break
-            in_flight.add(frame_index, frame)
-            while in_flight.full:
-                follow(*in_flight.take())
+            if end.frames_tracked == 0 and not len(in_flight):
+                in_flight.add_tracked(frame_index, frame, *track_frame(in_flight.trackers, targets, frame,
+                                                                       first=True))
+            else:
+                in_flight.add(frame_index, frame)
+            for taken in in_flight.settled():
+                follow(*taken)
         else:
             end.interrupted = True
-        while len(in_flight):  # the frames decoded before the loop ended
-            follow(*in_flight.take())
+        for taken in in_flight.settled(final=True):  # the frames decoded before the loop ended
+            follow(*taken)
     except KeyboardInterrupt:
         # Ctrl-C outside the main thread, or a second one while waiting: keep every frame followed up so far
         # (a frame half-tracked or in flight is dropped).

@@ -148,6 +148,45 @@ def test_track_frames_submits_frames_ahead_of_the_one_it_waits_for(ahead):
     assert in_flight == ahead + 1 if ahead else in_flight == 1
 
 
+def test_track_frames_with_real_trackers_gives_update_s_results_to_the_bit():
+    """Two targets, each tracked by three runs and the voter, two frames ahead on two kernel threads."""
+    import dataclasses
+
+    import numba
+
+    from sptpt.params import get_preset
+    from sptpt.tracker import Tracker
+    from sptpt_dev.synthetic import make_clip
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread here: no run goes ahead")
+    clip = make_clip(8, size=(96, 72), object_size=(24, 20), seed=2)
+    targets = [Target(tuple(clip.boxes_xywh[0]), track_id=1), Target((60.0, 40.0, 20.0, 20.0), track_id=2)]
+    params = dataclasses.replace(get_preset("fast"), n_particles=40, n_negatives=10, independent_runs=3,
+                                 run_choice="consensus", filter_vote=True)
+    new = lambda: {t.track_id: Tracker(params, seed=t.track_id) for t in targets}  # noqa: E731
+    previous = numba.get_num_threads()
+    numba.set_num_threads(2)
+    try:
+        seen: list = []
+        track_frames(list(enumerate(clip.frames)), targets, new(),
+                     lambda position, index, image, results, seconds: seen.append(results))
+        in_step = new()
+        expected = [{t.track_id: in_step[t.track_id].init(clip.frames[0], t.box_xywh) for t in targets}]
+        expected += [{tid: tracker.update(frame, details=True) for tid, tracker in in_step.items()}
+                     for frame in clip.frames[1:]]
+    finally:
+        numba.set_num_threads(previous)
+    assert len(seen) == len(expected) == 8
+    for got, want in zip(seen, expected):
+        assert list(got) == [1, 2]
+        for tid in (1, 2):
+            np.testing.assert_array_equal(got[tid].box_xywh, want[tid].box_xywh)
+            assert got[tid].log_likelihood == want[tid].log_likelihood
+            if want[tid].particle_scores is not None:
+                np.testing.assert_array_equal(got[tid].particle_scores, want[tid].particle_scores)
+
+
 def test_track_frames_drops_the_frames_in_flight_on_ctrl_c_and_keeps_those_before():
     def source():
         for k in range(5):

@@ -17,6 +17,7 @@ import shutil
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 import pytest
 import typer
@@ -372,6 +373,39 @@ def test_backward_in_chunks_equals_buffered(first, corrected):
     chunked = retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, CONFIG,
                              previous=previous, max_buffer_frames=3)
     np.testing.assert_array_equal(chunked.tracks[0].boxes_xywh, corrected.tracks[0].boxes_xywh)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="numba has one thread here: no run goes ahead")
+def test_passes_with_runs_ahead_store_the_rows_of_runs_in_step(first, monkeypatch):
+    """Three runs and the voter on two kernel threads: the passes submit frames ahead; the same rows as when every
+    frame is tracked at once (backward in chunks too)."""
+    import sptpt.tracker as tracker_module
+
+    config = resolve_config({"seed": 1, "tracker": {"n_particles": 30, "n_negatives": 10, "independent_runs": 3,
+                                                    "run_choice": "consensus", "filter_vote": True}})
+    previous = {1: PreviousTrack(first.tracks[0], first.scoring[1])}
+
+    def run(max_buffer):
+        return retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {10: tuple(CLIP.boxes_xywh[10])}}, config,
+                              previous=previous, max_buffer_frames=max_buffer).tracks[0]
+
+    previous_threads = numba.get_num_threads()
+    numba.set_num_threads(2)
+    try:
+        submitted = []
+        real_submit = tracker_module.InOrder.submit
+        monkeypatch.setattr(tracker_module.InOrder, "submit",
+                            lambda lane, call: submitted.append(1) or real_submit(lane, call))
+        ahead, chunked = run(512), run(3)
+        assert submitted  # the runs did go ahead
+        monkeypatch.setattr(tracker_module, "_all_at_once", lambda threads, runs: False)
+        in_step = run(512)
+    finally:
+        numba.set_num_threads(previous_threads)
+    for name in ("boxes_xywh", "confidence", "log_likelihood", "accepted", "p_fail"):
+        np.testing.assert_array_equal(getattr(ahead, name), getattr(in_step, name))
+        np.testing.assert_array_equal(getattr(chunked, name), getattr(in_step, name))
+    assert ahead.reasons == in_step.reasons
 
 
 def test_pass_cache_reuses_passes_and_changes_no_number(corrected):

@@ -8,14 +8,13 @@ its anchor and a re-track is reproducible. Frames come from a
 
 from __future__ import annotations
 
-import collections
 import time
 from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
-from annotator.pipeline import FRAMES_AHEAD, seed_for_track
+from annotator.pipeline import FramesAhead, seed_for_track
 from annotator.pass_cache import PassResult
 from annotator.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
@@ -91,7 +90,7 @@ class SegmentRun:
         self.buffered = self.bwd_todo and n <= max_buffer
         self.deferred = self.bwd_todo and not self.buffered
         self._buffer: list[np.ndarray] = []
-        self._forward: _PassAhead | None = None
+        self._forward: tuple[FramesAhead, SignalMeter] | None = None  # the forward pass's frames in flight
 
     def _key(self, direction: int) -> PassKey:
         s = self.segment
@@ -153,14 +152,16 @@ class SegmentRun:
             meter = SignalMeter()
             meter.first(frame, self.box_start)
             self.calls += 1
-            self._forward = _PassAhead(tracker, lambda p, *rest: self._store(self.fwd, p - s.start - 1, *rest, meter))
+            # Frames go to the tracker ahead of the rows stored (Tracker.submit: the same rows, sooner).
+            self._forward = FramesAhead({0: tracker}), meter
         elif s.start < position < s.stop:
             if self.fwd_todo:
-                self._forward.add(position, frame)
+                self._forward[0].add(position, frame)
+                self._store_settled(self.fwd, *self._forward)
             if self.buffered:
                 self._buffer.append(frame)
         if position == s.stop - 1 and self.fwd_todo:
-            self._forward.finish()
+            self._store_settled(self.fwd, *self._forward, final=True)
             self._forward = None
             self.fwd_todo = False
             self._remember(0, self.fwd, self.start_row)
@@ -198,13 +199,19 @@ class SegmentRun:
         return tracker, meter
 
     def _backward_continue(self, tracker: Tracker, meter: SignalMeter, frames, first_position: int) -> None:
-        ahead = _PassAhead(tracker, lambda p, *rest: self._store(self.bwd, p - self.segment.start - 1, *rest, meter))
-        for position, frame in enumerate(frames):
-            ahead.add(first_position - position, frame)
-        ahead.finish()
+        ahead = FramesAhead({0: tracker})
+        for offset, frame in enumerate(frames):
+            ahead.add(first_position - offset, frame)
+            self._store_settled(self.bwd, ahead, meter)
+        self._store_settled(self.bwd, ahead, meter, final=True)
 
-    def _store(self, target: PassResult, row: int, result, seconds: float, frame: np.ndarray,
-               meter: SignalMeter) -> None:
+    def _store_settled(self, target: PassResult, ahead: FramesAhead, meter: SignalMeter, *,
+                       final: bool = False) -> None:
+        for position, frame, results, seconds in ahead.settled(final=final):
+            self._store(target, position - self.segment.start - 1, results[0], seconds[0], meter, frame)
+
+    def _store(self, target: PassResult, row: int, result, seconds: float, meter: SignalMeter,
+               frame: np.ndarray) -> None:
         target.boxes_xywh[row] = result.box_xywh
         target.confidence[row] = result.confidence
         target.log_likelihood[row] = result.log_likelihood
@@ -216,34 +223,3 @@ class SegmentRun:
                              particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
         target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
-
-
-class _PassAhead:
-    """One pass's frames in flight: each submitted to its tracker as it comes, and stored in order
-    :data:`~annotator.pipeline.FRAMES_AHEAD` frames behind, so the tracker's runs need not wait for each other
-    every frame (:meth:`sptpt.tracker.Tracker.submit`; the results are ``update``'s to the bit).
-
-    ``store(position, result, seconds, frame)`` gets each frame's result; its seconds are the pass's time in
-    ``submit`` and ``collect``.
-    """
-
-    def __init__(self, tracker: Tracker, store) -> None:
-        self.tracker, self.store = tracker, store
-        self._pending: collections.deque = collections.deque()  # (position, frame, seconds in submit)
-
-    def add(self, position: int, frame: np.ndarray) -> None:
-        tic = time.perf_counter()
-        self.tracker.submit(frame, details=True)
-        self._pending.append((position, frame, time.perf_counter() - tic))
-        while len(self._pending) > FRAMES_AHEAD:
-            self._take()
-
-    def finish(self) -> None:
-        while self._pending:
-            self._take()
-
-    def _take(self) -> None:
-        position, frame, seconds = self._pending.popleft()
-        tic = time.perf_counter()
-        result = self.tracker.collect()
-        self.store(position, result, seconds + time.perf_counter() - tic, frame)
