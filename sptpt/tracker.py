@@ -331,6 +331,9 @@ class Tracker:
         both cores busy where :meth:`update` leaves one idle while the last run of a frame finishes. Submit a few
         frames ahead of the one collected (two, in the annotator).
 
+        Several trackers fed this way (one per target) have all their runs working at once: the operating system
+        shares the cores among them, as among one tracker's runs.
+
         Where runs cannot go ahead (one run; one kernel thread, as in a batch worker with one core; more runs
         than one more than the kernel threads; or ``easy_after``, whose next share waits on this frame's
         consensus), the frame is tracked here, at once, as :meth:`update` would.
