@@ -56,6 +56,29 @@ def by_submit(clip, params, ahead, seed=7):
     return results
 
 
+def numbered(clip, n: int) -> list[np.ndarray]:
+    """Copies of frames 1..n whose first pixel holds the frame's number (for scripted runs to read)."""
+    frames = [clip.frames[k].copy() for k in range(1, n + 1)]
+    for k, frame in enumerate(frames, start=1):
+        frame[0, 0, 0] = k
+    return frames
+
+
+def scripted_runs(clip, monkeypatch, act) -> Tracker:
+    """A started tracker of three runs whose update only calls ``act(run index, frame number)`` (the frames of
+    :func:`numbered`) and answers a fixed box."""
+    tracker = Tracker(dataclasses.replace(get_preset("fast"), independent_runs=3), seed=1)
+    tracker.init(clip.frames[0], clip.boxes_xywh[0])
+
+    def update(self, frame, *, details, share=1.0):
+        act(tracker._runs.index(self), int(frame[0, 0, 0]))
+        return FrameResult(box_xywh=np.array([10.0, 10.0, 20.0, 20.0]), log_likelihood=1.0, confidence=0.5,
+                           accepted=True, scoring="subspace")
+
+    monkeypatch.setattr(tracker_module._Run, "update", update)
+    return tracker
+
+
 def assert_same(expected: list[FrameResult], got: list[FrameResult]) -> None:
     assert len(expected) == len(got)
     for a, b in zip(expected, got):
@@ -103,20 +126,13 @@ def test_a_run_goes_on_to_the_next_frame_while_another_still_tracks_this_one(cli
         with lock:
             return started.setdefault((run, frame), threading.Event())
 
-    def update(self, frame, *, details, share=1.0):
-        run, k = tracker._runs.index(self), int(frame[0, 0, 0])
+    def act(run: int, k: int) -> None:
         event(run, k).set()
         if (run, k) == (1, 1) and not event(0, 2).wait(10):
             raise AssertionError("run 0 did not go on to frame 2")
-        return FrameResult(box_xywh=np.array([10.0, 10.0, 20.0, 20.0]), log_likelihood=1.0, confidence=0.5,
-                           accepted=True, scoring="subspace")
 
-    tracker = Tracker(dataclasses.replace(get_preset("fast"), independent_runs=3), seed=1)
-    tracker.init(clip.frames[0], clip.boxes_xywh[0])
-    monkeypatch.setattr(tracker_module._Run, "update", update)
-    frames = [clip.frames[k].copy() for k in range(1, 4)]
-    for k, frame in enumerate(frames, start=1):
-        frame[0, 0, 0] = k
+    tracker = scripted_runs(clip, monkeypatch, act)
+    frames = numbered(clip, 3)
     with numba_threads(2):
         for frame in frames:
             tracker.submit(frame)
@@ -137,9 +153,7 @@ def test_a_run_s_error_reaches_collect_and_drops_the_frames_after_it(clip, monke
     tracker = Tracker(three_runs_and_the_voter(), seed=1)
     tracker.init(clip.frames[0], clip.boxes_xywh[0])
     monkeypatch.setattr(tracker_module._Run, "update", update)
-    frames = [clip.frames[k].copy() for k in range(1, 5)]
-    for k, frame in enumerate(frames, start=1):
-        frame[0, 0, 0] = k
+    frames = numbered(clip, 4)
     with numba_threads(2):
         for frame in frames:
             tracker.submit(frame)
@@ -225,21 +239,10 @@ def test_a_tracker_is_copied_with_nothing_in_flight_and_refuses_while_frames_are
 
 
 @needs_two_threads
-def test_discard_and_an_error_cancel_what_the_runs_have_not_started(clip, monkeypatch):
+def test_discard_cancels_what_the_runs_have_not_started(clip, monkeypatch):
     calls = []
-
-    def update(self, frame, *, details, share=1.0):
-        calls.append(int(frame[0, 0, 0]))
-        time.sleep(0.2)
-        return FrameResult(box_xywh=np.array([10.0, 10.0, 20.0, 20.0]), log_likelihood=1.0, confidence=0.5,
-                           accepted=True, scoring="subspace")
-
-    tracker = Tracker(dataclasses.replace(get_preset("fast"), independent_runs=3), seed=1)
-    tracker.init(clip.frames[0], clip.boxes_xywh[0])
-    monkeypatch.setattr(tracker_module._Run, "update", update)
-    frames = [clip.frames[1].copy() for _ in range(4)]
-    for k, frame in enumerate(frames, start=1):
-        frame[0, 0, 0] = k
+    tracker = scripted_runs(clip, monkeypatch, lambda run, k: calls.append(k) or time.sleep(0.2))
+    frames = numbered(clip, 4)
     with numba_threads(2):
         for frame in frames:
             tracker.submit(frame)
