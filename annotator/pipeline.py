@@ -40,8 +40,8 @@ from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
 __all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink", "SpanThumbnail",
-           "Target", "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks", "seed_for_track", "track_frame",
-           "track_frames", "track_source"]
+           "Target", "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks",
+           "seed_for_track", "track_frame", "track_frames", "track_source"]
 
 THUMBNAIL_WIDTH = 200
 
