@@ -180,6 +180,7 @@ def encode_tensors(
     *,
     lam: float = 0.01,
     start: np.ndarray | None = None,
+    max_solves: int | None = None,
 ) -> np.ndarray:
     """Code tensors: the non-negative LASSO code of every superpixel, pooled per template.
 
@@ -199,6 +200,11 @@ def encode_tensors(
         A code tensor whose supports the solves start from, superpixel by superpixel (each column of every
         template from that column's positive atoms): the same optimum, reached in fewer steps when the codes are
         close to these, but equal to the default's only up to the solver's tolerance, not to the bit.
+    max_solves : int, optional
+        With ``start``: stop each code after this many active-set solves beyond the start (0: the start's own
+        solve, its atoms pruned until every one is positive). A first look, not the optimum: the codes are
+        non-negative and their objective never above the start's, but no KKT residual is promised. None (the
+        default) solves to the optimum.
 
     Returns
     -------
@@ -220,11 +226,15 @@ def encode_tensors(
         if start.shape != (np.shape(dictionary)[-1], s):
             raise ValueError(f"start must be a (z, s) = ({np.shape(dictionary)[-1]}, {s}) code tensor, got shape "
                              f"{start.shape}")
-    return _encode(features.reshape(n * s, b), dictionary, lam, group=s, start=start)
+    if max_solves is not None:
+        if start is None:
+            raise ValueError("max_solves needs a start: it caps the solves that follow the start's support")
+        max_solves = _nonnegative_int(max_solves, "max_solves")
+    return _encode(features.reshape(n * s, b), dictionary, lam, group=s, start=start, max_solves=max_solves)
 
 
 def _encode(signals: np.ndarray, dictionary: np.ndarray, lam: float, *, group: int,
-            start: np.ndarray | None = None) -> np.ndarray:
+            start: np.ndarray | None = None, max_solves: int | None = None) -> np.ndarray:
     """Validated arguments into the kernel; (M / group, z, group) codes."""
     signals, dictionary, lam = _lasso_arguments(signals, dictionary, lam)
     n_atoms = dictionary.shape[1]
@@ -236,8 +246,11 @@ def _encode(signals: np.ndarray, dictionary: np.ndarray, lam: float, *, group: i
     ridge = _REL_RIDGE * float(np.diagonal(gram).max())
     if not ridge > 0.0:
         ridge = np.finfo(np.float64).tiny
-    max_iter = _ITER_PER_ATOM * n_atoms + _ITER_EXTRA
-    return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, _MAX_SWEEPS,
+    if max_solves is None:
+        max_iter, max_sweeps = _ITER_PER_ATOM * n_atoms + _ITER_EXTRA, _MAX_SWEEPS
+    else:  # a first look: no polish by coordinate descent either
+        max_iter, max_sweeps = max_solves, 0
+    return nonnegative_lasso(gram, dictionary, signals, lam, _REL_TOL, ridge, max_iter, max_sweeps,
                              numba.get_num_threads(), group, start)
 
 
@@ -311,6 +324,13 @@ def _as_matrix(value: object, name: str) -> np.ndarray:
     if not np.isfinite(array).all():
         raise ValueError(f"{name} contains NaN or infinite values")
     return array
+
+
+def _nonnegative_int(value: object, name: str) -> int:
+    """``value`` as an int >= 0, or an error naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
+        raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+    return int(value)
 
 
 def _nonnegative_float(value: object, name: str) -> float:

@@ -180,6 +180,11 @@ class TrackerParams:
     search's winner among them in 92% of rounds; the same accuracy on ../shared/otb and otb_extra over 3 seeds,
     1.23x the whole process's frames/s).
     [ours, benchmarks/RESULTS.md "The default's speed"]"""
+    shortlist_solves: int = 0
+    """With a ``shortlist``: the active-set solves each superpixel's code of the first pass gets after starting on
+    the atoms of the estimate's code for that superpixel, a first look rather than the optimum; 0 solves each
+    code exactly, as every other code is. The first pass only ranks candidates, and the codes of the shortlisted
+    ones are then computed exactly from nothing. [ours, benchmarks/RESULTS.md "The default's speed"]"""
 
     easy_after: int = 0
     """With several runs: after this many frames in a row in which every run accepted its estimate and every run's
@@ -295,6 +300,9 @@ class TrackerParams:
         _check(self.contrast_candidates >= 0, "contrast_candidates", self.contrast_candidates, "an integer >= 0")
         _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
         _check(self.shortlist >= 0, "shortlist", self.shortlist, "an integer >= 0")
+        _check(self.shortlist_solves >= 0, "shortlist_solves", self.shortlist_solves, "an integer >= 0")
+        _check(self.shortlist_solves == 0 or self.shortlist > 0, "shortlist_solves", self.shortlist_solves,
+               "0 unless shortlist > 0 (it caps the codes of the shortlist's first pass)")
         _check(self.shortlist == 0 or self.prescreen_share == 1, "shortlist", self.shortlist,
                "0 when prescreen_share is below 1 (one first look at the candidates, or the other)")
         _check(self.easy_after >= 0, "easy_after", self.easy_after, "an integer >= 0")

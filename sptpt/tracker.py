@@ -840,12 +840,14 @@ class _Run:
 
     def _shortlisted(self, templates: np.ndarray, labels: np.ndarray, codes: np.ndarray, size: int) -> np.ndarray:
         """Indices, ascending, of the ``size`` templates that score best cut into ``labels`` (exact ties: the
-        earlier), each superpixel's coding started from the atoms of ``codes``' (a first look: the shortlist's
-        own codes are computed from nothing, as every other code)."""
+        earlier), each superpixel's coding started from the atoms of ``codes``' and given ``shortlist_solves``
+        solves beyond them, if set (a first look: the shortlist's own codes are computed from nothing, as every
+        other code)."""
         p = self.params
         cut = np.broadcast_to(labels, (len(templates), *labels.shape))
         features = superpixel_features(templates, cut, self.n_superpixels, n_bins=p.n_bins)
-        scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda, start=codes))
+        scores, _ = self._scores(encode_tensors(features, self._dictionary, lam=p.lasso_lambda, start=codes,
+                                                max_solves=p.shortlist_solves or None))
         return np.sort(np.argsort(-scores, kind="stable")[:size])
 
     def _evaluate(self, rgb: np.ndarray, states: np.ndarray,
