@@ -171,6 +171,110 @@ def test_a_warm_start_must_be_one_code_tensor(problem) -> None:
         encode_tensors(features, dictionary, start=np.ones((25, 50)))
 
 
+def reference_capped(signal: np.ndarray, dictionary: np.ndarray, lam: float, start: np.ndarray,
+                     max_solves: int) -> np.ndarray:
+    """Lawson-Hanson by dense solves, as the kernel steps it: the start's atoms pruned until all are positive, then
+    at most ``max_solves`` solves, each after the atom of largest positive gradient enters (or after a step back
+    to the boundary when a passive code would turn negative)."""
+    gram = dictionary.T @ dictionary
+    c = dictionary.T @ signal
+    tol = 1e-10 * max(np.abs(c).max(), lam)
+    c = c - lam
+    ridge = 1e-12 * np.diagonal(gram).max()
+
+    def solve(passive: list[int]) -> np.ndarray:
+        return np.linalg.solve(gram[np.ix_(passive, passive)] + ridge * np.eye(len(passive)), c[passive])
+
+    passive = list(np.flatnonzero(start > 0))
+    h = np.zeros(len(c))
+    while passive:
+        sol = solve(passive)
+        if (sol > 0).all():
+            h[passive] = sol
+            break
+        passive = [q for q, v in zip(passive, sol) if v > 0]
+    solves, blocked = 0, set()
+    while solves < max_solves:
+        gradient = c - gram @ h
+        free = [i for i in range(len(c)) if i not in passive and i not in blocked and gradient[i] > tol]
+        if not free:
+            break
+        entering = max(free, key=lambda i: (gradient[i], -i))
+        passive.append(entering)
+        first = True
+        while solves < max_solves:
+            solves += 1
+            sol = solve(passive)
+            if (sol > 0).all():
+                h[passive] = sol
+                blocked = set()
+                break
+            if first and sol[-1] <= 0:
+                passive.pop()
+                blocked.add(entering)
+                break
+            first = False
+            ratios = [(h[q] / (h[q] - v) if h[q] - v > 0 else 0.0, k)
+                      for k, (q, v) in enumerate(zip(passive, sol)) if v <= 0]
+            alpha, leaving = min(ratios)
+            h[passive] += alpha * (sol - h[passive])
+            h[passive[leaving]] = 0.0
+            h[[q for q in passive if h[q] <= 0]] = 0.0
+            passive = [q for q in passive if h[q] > 0]
+    return h
+
+
+@pytest.mark.parametrize("max_solves", [0, 1, 2, 3])
+def test_capped_codes_match_the_reference(problem, max_solves: int) -> None:
+    """Codes capped at a few solves after a start (the shortlist's first look) are the active set's iterate after
+    those solves, as a slow reference steps it."""
+    signals, dictionary = problem
+    n, s = 6, 25
+    features = signals[: n * s].reshape(n, s, -1)
+    start = encode_tensors(signals[n * s : n * s + s][None], dictionary)[0]  # a neighbour's codes
+    capped = encode_tensors(features, dictionary, start=start, max_solves=max_solves)
+    want = np.stack([np.stack([reference_capped(features[t, j], dictionary, LAM, start[:, j], max_solves)
+                               for j in range(s)], axis=1) for t in range(n)])
+    np.testing.assert_allclose(capped, want, rtol=0, atol=1e-9)
+    assert (capped >= 0).all()
+
+
+def test_capped_codes_approach_the_optimum(problem) -> None:
+    """Each solve lowers the objective or keeps it; the start's own solve is already below the start; a cap the
+    solves never reach gives the optimum to the bit, as an uncapped warm start does."""
+    signals, dictionary = problem
+    n, s = 8, 25
+    features = signals[: n * s].reshape(n, s, -1)
+    start = encode_tensors(signals[n * s : n * s + s][None], dictionary)[0]
+    flat = features.reshape(n * s, -1)
+
+    def objectives(tensors: np.ndarray) -> np.ndarray:
+        return objective(flat, dictionary, tensors.transpose(0, 2, 1).reshape(n * s, -1), LAM)
+
+    levels = [objectives(encode_tensors(features, dictionary, start=start, max_solves=k)) for k in range(6)]
+    for before, after in zip(levels, levels[1:]):
+        assert np.all(after <= before + 1e-12)
+    assert np.all(levels[0] <= objectives(np.broadcast_to(start, (n, *start.shape))) + 1e-12)
+    optimum = encode_tensors(features, dictionary, start=start)
+    assert np.array_equal(encode_tensors(features, dictionary, start=start, max_solves=10_000), optimum)
+    assert np.all(levels[2] >= objectives(optimum) - 1e-12)
+    assert levels[2].sum() > objectives(optimum).sum()  # two solves are not yet the optimum here
+
+
+@pytest.mark.parametrize("max_solves, start, match", [
+    (2, None, "max_solves needs a start"),
+    (-1, "codes", "max_solves must be an integer >= 0, got -1"),
+    (1.5, "codes", "max_solves must be an integer >= 0, got 1.5"),
+    (True, "codes", "max_solves must be an integer >= 0, got True"),
+])
+def test_capped_codes_refuse_bad_caps(problem, max_solves, start, match) -> None:
+    signals, dictionary = problem
+    features = signals[:50].reshape(2, 25, -1)
+    start = None if start is None else encode_tensors(features[:1], dictionary)[0]
+    with pytest.raises(ValueError, match=match):
+        encode_tensors(features, dictionary, start=start, max_solves=max_solves)
+
+
 def test_code_tensors_need_three_axes(problem) -> None:
     signals, dictionary = problem
     with pytest.raises(ValueError, match=r"features must be an \(n, s, B\) array"):

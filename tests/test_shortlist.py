@@ -18,26 +18,30 @@ from sptpt.tracker import Tracker
 from sptpt_dev.synthetic import make_clip
 
 
-def _robust(shortlist: int, runs: int = 1):
-    return dataclasses.replace(get_preset("robust"), shortlist=shortlist, independent_runs=runs)
+def _robust(shortlist: int, runs: int = 1, solves: int = 0):
+    return dataclasses.replace(get_preset("robust"), shortlist=shortlist, independent_runs=runs,
+                               shortlist_solves=solves)
 
 
-def slow_shortlist(run, templates: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
-    """One template at a time: cut into ``labels``, described, coded from nothing, scored by the run's models as
-    they are; the ``k`` best, ties to the earlier, in draw order."""
+def slow_shortlist(run, templates: np.ndarray, labels: np.ndarray, codes: np.ndarray, k: int) -> np.ndarray:
+    """One template at a time: cut into ``labels``, described, coded (from nothing; with ``shortlist_solves``,
+    from the atoms of ``codes`` and that many solves), scored by the run's models as they are; the ``k`` best,
+    ties to the earlier, in draw order."""
     p = run.params
+    capped = dict(start=codes, max_solves=p.shortlist_solves) if p.shortlist_solves else {}
     scores = []
     for template in templates:
         features = superpixel_features(template[None], labels[None], run.n_superpixels, n_bins=p.n_bins)
-        scores.append(run._scores(encode_tensors(features, run._dictionary, lam=p.lasso_lambda))[0][0])
+        scores.append(run._scores(encode_tensors(features, run._dictionary, lam=p.lasso_lambda, **capped))[0][0])
     order = sorted(range(len(templates)), key=lambda i: (-scores[i], i))
     return np.array(sorted(order[:k]))
 
 
+@pytest.mark.parametrize("solves", [0, 2])  # exact codes, then codes capped at two solves
 @pytest.mark.parametrize("frames_tracked", [1, 12])  # the bootstrap score, then the subspace models
-def test_the_shortlist_is_the_best_of_the_first_pass(frames_tracked):
+def test_the_shortlist_is_the_best_of_the_first_pass(frames_tracked, solves):
     clip = make_clip(frames_tracked + 2, seed=3)
-    tracker = Tracker(_robust(10), seed=4)
+    tracker = Tracker(_robust(10, solves=solves), seed=4)
     tracker.init(clip.frames[0], clip.boxes_xywh[0])
     for frame in clip.frames[1:frames_tracked]:
         tracker.update(frame)
@@ -48,7 +52,7 @@ def test_the_shortlist_is_the_best_of_the_first_pass(frames_tracked):
     templates = warp_candidates(frame, states, 32)
     labels, codes = run._estimate
     kept = run._shortlisted(templates, labels, codes, 10)
-    np.testing.assert_array_equal(kept, slow_shortlist(run, templates, labels, 10))
+    np.testing.assert_array_equal(kept, slow_shortlist(run, templates, labels, codes, 10))
     if frames_tracked == 1:  # before any update the estimate is the first box: its superpixels are SNIC's of it
         first = warp_candidates(clip.frames[0], run._state[None], 32)
         p = run.params
@@ -84,17 +88,18 @@ def test_a_shortlist_as_long_as_the_round_changes_nothing():
     np.testing.assert_array_equal(boxes[0], boxes[1])
 
 
-def test_the_shortlist_is_deterministic_and_follows_the_object_as_the_whole_search_does():
+@pytest.mark.parametrize("solves", [0, 2])
+def test_the_shortlist_is_deterministic_and_follows_the_object_as_the_whole_search_does(solves):
     clip = make_clip(20, seed=3)
 
-    def track(shortlist: int) -> np.ndarray:
-        tracker = Tracker(_robust(shortlist, runs=3), seed=9)
+    def track(shortlist: int, solves: int = 0) -> np.ndarray:
+        tracker = Tracker(_robust(shortlist, runs=3, solves=solves), seed=9)
         boxes = [tracker.init(clip.frames[0], clip.boxes_xywh[0]).box_xywh]
         boxes += [tracker.update(frame).box_xywh for frame in clip.frames[1:]]
         return np.array(boxes)
 
-    short = track(25)
-    np.testing.assert_array_equal(short, track(25))
+    short = track(25, solves)
+    np.testing.assert_array_equal(short, track(25, solves))
     overlap, whole = iou_xywh(short, clip.boxes_xywh), iou_xywh(track(0), clip.boxes_xywh)
     assert overlap.mean() >= whole.mean() - 0.05, (overlap.round(2), whole.round(2))
 
@@ -104,3 +109,7 @@ def test_the_shortlist_is_a_count_and_not_with_the_prescreen():
         dataclasses.replace(get_preset("robust"), shortlist=-1)
     with pytest.raises(ValueError, match="shortlist"):
         dataclasses.replace(get_preset("robust"), shortlist=25, prescreen_share=0.5)
+    with pytest.raises(ValueError, match=r"shortlist_solves=-1 is invalid: expected an integer >= 0"):
+        dataclasses.replace(get_preset("robust"), shortlist_solves=-1)
+    with pytest.raises(ValueError, match=r"shortlist_solves=2 is invalid: expected 0 unless shortlist > 0"):
+        dataclasses.replace(get_preset("robust"), shortlist=0, shortlist_solves=2)
