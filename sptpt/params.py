@@ -181,9 +181,9 @@ class TrackerParams:
     1.23x the whole process's frames/s).
     [ours, benchmarks/RESULTS.md "The default's speed"]"""
     shortlist_solves: int = 0
-    """With a ``shortlist``: the active-set solves each superpixel's code of the first pass gets after starting on
-    the atoms of the estimate's code for that superpixel, a first look rather than the optimum; 0 solves each
-    code exactly, as every other code is. The first pass only ranks candidates, and the codes of the shortlisted
+    """With a ``shortlist`` (ignored without one: there is no first pass): the active-set solves each superpixel's
+    code of the first pass gets after starting on the atoms of the estimate's code for that superpixel, a first
+    look rather than the optimum; 0 solves each code exactly, as every other code is. The first pass only ranks candidates, and the codes of the shortlisted
     ones are then computed exactly from nothing. [ours, benchmarks/RESULTS.md "The default's speed"]"""
 
     easy_after: int = 0
@@ -301,8 +301,6 @@ class TrackerParams:
         _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
         _check(self.shortlist >= 0, "shortlist", self.shortlist, "an integer >= 0")
         _check(self.shortlist_solves >= 0, "shortlist_solves", self.shortlist_solves, "an integer >= 0")
-        _check(self.shortlist_solves == 0 or self.shortlist > 0, "shortlist_solves", self.shortlist_solves,
-               "0 unless shortlist > 0 (it caps the codes of the shortlist's first pass)")
         _check(self.shortlist == 0 or self.prescreen_share == 1, "shortlist", self.shortlist,
                "0 when prescreen_share is below 1 (one first look at the candidates, or the other)")
         _check(self.easy_after >= 0, "easy_after", self.easy_after, "an integer >= 0")
