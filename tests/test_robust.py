@@ -165,11 +165,27 @@ BLAS_VARIANTS = {"Haswell": "haswell", "Zen": "haswell"}
 
 def blas_architecture() -> str:
     """The architecture of NumPy's OpenBLAS kernels (threadpoolctl), or the BLAS's name where it is not OpenBLAS."""
+    import numpy
     from threadpoolctl import threadpool_info
 
-    blas = [i for i in threadpool_info() if i.get("user_api") == "blas"]
-    return next((str(i.get("architecture")) for i in blas if i.get("internal_api") == "openblas"),
-                blas[0].get("internal_api", "unknown") if blas else "unknown")
+    return numpy_blas_architecture(threadpool_info(), Path(numpy.__file__).parent)
+
+
+def numpy_blas_architecture(libraries: list[dict], numpy_dir: Path) -> str:
+    """The architecture of the OpenBLAS among threadpoolctl's ``libraries`` that NumPy loaded: the one in NumPy's
+    folder or in a wheel's ``numpy.libs`` beside it, else the first (a NumPy linked to the system's BLAS).
+
+    Other packages bring an OpenBLAS of their own, listed first once imported: opencv-python-headless's 0.3.15
+    names a Zen 4's kernels "Zen" where NumPy's own (0.3.31, AVX-512) names them SkylakeX, and taking its name
+    picked the Haswell golden files for the AVX-512 kernels that computed the boxes (2026-12-04)."""
+    blas = [i for i in libraries if i.get("user_api") == "blas"]
+    openblas = [i for i in blas if i.get("internal_api") == "openblas"]
+    mine = [i for i in openblas
+            if Path(i["filepath"]).parent.name == f"{numpy_dir.name}.libs" or numpy_dir in Path(i["filepath"]).parents]
+    chosen = (mine or openblas)[:1]
+    if chosen:
+        return str(chosen[0].get("architecture"))
+    return blas[0].get("internal_api", "unknown") if blas else "unknown"
 
 
 def golden_boxes_file(preset: str) -> Path:
@@ -177,6 +193,22 @@ def golden_boxes_file(preset: str) -> Path:
     recorded with the AVX-512 kernels (written with ``np.savetxt`` of :func:`track`'s boxes), else that file."""
     own = GOLDEN / f"{preset}_clip3_seed5_boxes.{BLAS_VARIANTS.get(blas_architecture())}.txt"
     return own if own.exists() else GOLDEN / f"{preset}_clip3_seed5_boxes.txt"
+
+
+def test_the_golden_files_follow_numpys_blas_not_another_packages():
+    site = Path("/venv/lib/python3.11/site-packages")
+    opencv = {"user_api": "blas", "internal_api": "openblas", "architecture": "Zen",
+              "filepath": str(site / "opencv_python_headless.libs/libopenblasp-r0.3.15.so")}
+    wheel = {"user_api": "blas", "internal_api": "openblas", "architecture": "SkylakeX",
+             "filepath": str(site / "numpy.libs/libscipy_openblas64_.so")}
+    inside = dict(wheel, architecture="Haswell", filepath=str(site / "numpy/.libs/libopenblas.so"))
+    system = dict(wheel, architecture="Zen", filepath="/usr/lib/libopenblas.so.0")
+    openmp = {"user_api": "openmp", "internal_api": "openmp", "filepath": str(site / "sklearn/libgomp.so")}
+    assert numpy_blas_architecture([openmp, opencv, wheel], site / "numpy") == "SkylakeX"
+    assert numpy_blas_architecture([opencv, inside], site / "numpy") == "Haswell"
+    assert numpy_blas_architecture([system], site / "numpy") == "Zen"
+    assert numpy_blas_architecture([{"user_api": "blas", "internal_api": "mkl", "filepath": "/x"}], site) == "mkl"
+    assert numpy_blas_architecture([], site / "numpy") == "unknown"
 
 
 def test_robust_same_seed_same_boxes():
