@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import re
+from pathlib import Path
 
 import pytest
 import yaml
@@ -10,6 +12,8 @@ import yaml
 from annotator.config import DEFAULT_PRESET, ConfigError, RunConfig, load_config_file, resolve_config
 from annotator.flagging import FlagParams
 from sptpt.params import get_preset
+
+PRESETS_PAGE = Path(__file__).resolve().parents[1] / "docs" / "presets.md"
 
 
 def write_yaml(tmp_path, text: str, name: str = "run.yaml"):
@@ -171,3 +175,31 @@ def test_a_binary_file_is_not_a_config(tmp_path):
     path.write_bytes(b"\x00\xff\xfe\x9c" * 50)
     with pytest.raises(ConfigError, match=r"clip.mp4 is not text \(UTF-8, or UTF-16 with a byte-order mark\): give a YAML file"):
         load_config_file(path)
+
+
+def _yaml_blocks(page: str) -> list[str]:
+    return re.findall(r"^```yaml\n(.*?)^```$", page, flags=re.S | re.M)
+
+
+def test_the_config_examples_of_the_presets_page_are_valid_configs():
+    blocks = _yaml_blocks(PRESETS_PAGE.read_text(encoding="utf-8"))
+    assert len(blocks) >= 2  # the config file's example and "Going faster"
+    for block in blocks:
+        resolve_config(yaml.safe_load(block), source="docs/presets.md")
+
+
+def test_going_faster_compares_with_robusts_own_values():
+    """Each line of the faster config names robust's value for that key (``# ... (robust: VALUE)``): they must be
+    robust's, and the config must change each of them."""
+    page = PRESETS_PAGE.read_text(encoding="utf-8")
+    faster = next(block for block in _yaml_blocks(page) if "(robust:" in block)
+    tracker = resolve_config(yaml.safe_load(faster)).tracker
+    robust = get_preset("robust")
+    commented = re.findall(r"^\s+(\w+): (\S+)\s+#.*\(robust: ([^)]+)\)$", faster, flags=re.M)
+    assert {key for key, _, _ in commented} == set(yaml.safe_load(faster)["tracker"])
+    for key, value, said in commented:
+        assert getattr(tracker, key) == yaml.safe_load(value) != getattr(robust, key)
+        if said != "exact codes":  # shortlist_solves 0: every code solved to its optimum
+            assert yaml.safe_load(said) == getattr(robust, key), key
+        else:
+            assert robust.shortlist_solves == 0
