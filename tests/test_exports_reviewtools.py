@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 import yaml
 
+from _cvat_import import cvat_keyframe_count, cvat_worst_error
 from _reader_env import run_check
 from annotator import atomic
-from annotator.exports.review_tools import REVIEW_SCORE_NAME
-from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
+from annotator.exports.review_tools import MAX_KEYFRAME_GAP, REVIEW_SCORE_NAME, fewest_keyframes
+from annotator.exports.cvat import MAX_ERROR_PX, build_cvat_xml, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import write_mot
 from annotator.exports.yolo import write_yolo
@@ -64,9 +65,11 @@ def test_cvat_golden_and_datumaro(tmp_path):
     path = write_cvat_xml(tmp_path / "cvat.xml", VIDEO, make_tracks(), frames=FRAMES)
     check_golden(path, "cvat.xml")
     text = path.read_text()
-    # Keyframes: first frame, the flagged span start (4), the absence (6), the correction (8); 2 and 10 interpolate.
+    # Keyframes: the first frame; 2, as the line from 0 to 4 passes 7 px from it; 4, the flagged span's start and
+    # the last frame seen before the absence; 6, the absence and the span's end; 8, the correction; 10, the last.
     walker = re.search(r'<track id="0".*?</track>', text, re.S).group(0)
-    assert re.findall(r'frame="(\d+)".*?keyframe="1"', walker) == ["0", "4", "6", "8"]
+    assert re.findall(r'frame="(\d+)".*?keyframe="1"', walker) == ["0", "2", "4", "6", "8", "10"]
+    assert cvat_worst_error(path, make_tracks(), FRAMES) <= MAX_ERROR_PX
     assert walker.count(f'<attribute name="{REVIEW_SCORE_NAME}">') == 6
 
     seen = run_check("datumaro_cvat", path=str(path))
@@ -93,10 +96,109 @@ def test_cvat_frames_are_source_indices_with_range_in_meta():
     assert "<original_size>\n        <width>64</width>\n        <height>48</height>" in text
 
 
+def jittery_track(n: int, *, seed: int, step: int = 1, start: int = 0) -> TrackResult:
+    """A tracker-like track: smooth motion with per-frame jitter, two flagged spans, an absence, a NaN row, a
+    correction, and a last box seen before the range ends (so the track is ended by an extra outside box)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=np.float64)
+    boxes = np.stack([150 + 60 * np.sin(t / 25), 90 + 0.7 * t, 48 + 6 * np.cos(t / 17), 40 + 0.05 * t], axis=1)
+    boxes += rng.normal(0, 0.4, boxes.shape)
+    flagged = np.zeros(n, bool)
+    flagged[20:26] = flagged[50:58] = True
+    outside = np.zeros(n, bool)
+    outside[50:58] = True
+    boxes[70] = np.nan
+    keyframe = np.zeros(n, bool)
+    keyframe[[0, 40]] = True
+    return TrackResult(
+        track_id=5, label="object", frame_indices=start + step * np.arange(n), boxes_xywh=boxes,
+        confidence=np.full(n, 0.8), log_likelihood=np.zeros(n), accepted=~flagged, flagged=flagged,
+        reasons=tuple("check" if f else "" for f in flagged), keyframe=keyframe, outside=outside,
+        seconds=np.zeros(n))
+
+
+@pytest.mark.parametrize("hold_before_outside", [False, True], ids=["cvat-2.x", "cvat-1.x"])
+@pytest.mark.parametrize("step", [1, 3])
+def test_cvat_import_shows_every_tracked_box(tmp_path, step, hold_before_outside):
+    """CVAT keeps only keyframes and interpolates between them: its import of our file shows every box of the run
+    within MAX_ERROR_PX, hides the absent and NaN frames, and ends the track where the run ends it."""
+    n = 100
+    track = jittery_track(n, seed=step, step=step, start=2)
+    frames = range(2, 2 + step * (n + 10), step)  # the range goes on after the track's last row
+    video = VideoInfo(path="v.mp4", name="v", width=320, height=240, fps=30.0, frame_count=frames.stop + 1)
+    path = write_cvat_xml(tmp_path / "cvat.xml", video, [track], frames=frames)
+    assert cvat_worst_error(path, [track], frames, hold_before_outside=hold_before_outside) <= MAX_ERROR_PX
+    keys = cvat_keyframe_count(path)
+    assert keys < n  # fewer handles than boxes: the jitter is 0.4 px
+    text = path.read_text()
+    for bound in (20, 25, 50, 57, 40):  # flagged spans' first and last rows, the correction
+        assert re.search(rf'<box frame="{2 + step * bound}"[^>]*keyframe="1"', text), bound
+
+
+def test_cvat_file_of_a_jittery_track_with_a_bigger_error_is_what_cvat_drops():
+    """The rule the test replays is CVAT's: the same boxes with keyframes only where the object leaves or comes back
+    (as this exporter wrote them before) are far off."""
+    track = jittery_track(100, seed=0)
+    frames = range(0, 110)
+    video = VideoInfo(path="v.mp4", name="v", width=320, height=240, fps=30.0, frame_count=120)
+    text = build_cvat_xml(video, [track], frames=frames)
+    kept = set(re.findall(r'<box frame="(\d+)"[^>]*keyframe="1"', text))
+    bounds = ("0", "49", "50", "58", "69", "70", "71", "99", "100")  # absent 50-57 and 70 (NaN); ends at 99
+    stripped = re.sub(r'(<box frame="(\d+)"[^>]*keyframe=")1"',
+                      lambda m: m.group(1) + ("1" if m.group(2) in bounds else "0") + '"',
+                      text)
+    assert len(kept) > 5
+    from tempfile import TemporaryDirectory
+
+    with TemporaryDirectory() as folder:
+        path = Path(folder) / "cvat.xml"
+        path.write_text(stripped)
+        assert cvat_worst_error(path, [track], frames) > 5 * MAX_ERROR_PX
+
+
+def _brute_fewest(t, written, exact, required, max_error):
+    """Fewest kept rows by trying every segment (quadratic in segments, cubic in all): the reference."""
+    n = len(t)
+
+    def fits(a, b):
+        k = np.arange(a + 1, b)
+        line = written[a] + (written[b] - written[a]) * ((t[k] - t[a]) / (t[b] - t[a]))[:, None]
+        return len(k) == 0 or np.abs(line - exact[k]).max() <= max_error
+
+    cost = [0] * n
+    for i in range(n - 2, -1, -1):
+        nxt = next(j for j in range(i + 1, n) if required[j] or j == n - 1)
+        cost[i] = min(cost[j] + 1 for j in range(i + 1, nxt + 1) if fits(i, j))
+    return cost[0] + 1, fits
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fewest_keyframes_is_the_fewest_and_within_the_error(seed):
+    rng = np.random.default_rng(seed)
+    n = 120
+    t = np.cumsum(rng.integers(1, 4, n)).astype(np.float64)
+    exact = np.cumsum(rng.normal(0, rng.uniform(0.05, 0.6), (n, 4)), axis=0) + 100
+    written = np.round(exact, 2)
+    required = rng.random(n) < 0.04
+    keep = fewest_keyframes(t, written, exact, required, 0.5)
+    best, fits = _brute_fewest(t, written, exact, required, 0.5)
+    rows = np.flatnonzero(keep)
+    assert keep[0] and keep[-1] and keep[required].all()
+    assert all(fits(a, b) for a, b in zip(rows[:-1], rows[1:]))
+    assert keep.sum() == best
+
+
+def test_fewest_keyframes_of_a_still_object_puts_one_every_max_gap_rows():
+    n = 3 * MAX_KEYFRAME_GAP + 1
+    exact = np.tile([10.0, 20.0, 60.0, 70.0], (n, 1))
+    keep = fewest_keyframes(np.arange(n, dtype=np.float64), exact, exact, np.zeros(n, bool), 0.5)
+    assert np.flatnonzero(keep).tolist() == [0, MAX_KEYFRAME_GAP, 2 * MAX_KEYFRAME_GAP, 3 * MAX_KEYFRAME_GAP]
+
+
 # --------------------------------------------------------------------------- MOT
 
 
-def test_mot_golden_datumaro_and_motmetrics(tmp_path):
+def test_mot_golden_motmetrics_and_datumaro(tmp_path):
     written = write_mot(tmp_path / "mot", VIDEO, make_tracks(), frames=FRAMES)
     assert written == [tmp_path / "mot" / "gt" / "gt.txt", tmp_path / "mot" / "gt" / "labels.txt"]
     check_golden(written[0], "mot/gt/gt.txt")
@@ -109,20 +211,26 @@ def test_mot_golden_datumaro_and_motmetrics(tmp_path):
             if not track.outside[i] and np.isfinite(track.boxes_xywh[i]).all():
                 expected[(FRAMES.index(int(frame)) + 1, track.track_id)] = track.boxes_xywh[i]
 
+    # MOTChallenge's evaluation reads bb_left, bb_top as 1-based and subtracts 1: it gets our 0-based boxes back.
+    rows = run_check("motmetrics", path=str(written[0]))["rows"]
+    assert sorted((f, t) for f, t, *_ in rows) == sorted(expected)
+    for f, t, x, y, w, h, _ in rows:
+        np.testing.assert_allclose([x, y, w, h], expected[(f, t)])
+
+    # Datumaro's mot_seq (CVAT's "MOT 1.1") takes them as written: one pixel right and down, as documented.
     seen = run_check("datumaro_mot", path=str(tmp_path / "mot"))
     assert seen["labels"] == ["person", "car"]
     got = {(int(item["id"]), b["attributes"]["track_id"]): b for item in seen["items"] for b in item["boxes"]}
     assert sorted(got) == sorted(expected)
     for key, box in got.items():
-        np.testing.assert_allclose(box["xywh"], expected[key])
+        np.testing.assert_allclose(box["xywh"], expected[key] + np.array([1.0, 1.0, 0.0, 0.0]))
         assert box["label"] == ("person" if key[1] == 1 else "car")
-
-    # motmetrics reads MOTChallenge files as 1-based and subtracts 1: origin=1 gives our 0-based boxes back.
-    write_mot(tmp_path / "mot1", VIDEO, make_tracks(), frames=FRAMES, origin=1)
-    rows = run_check("motmetrics", path=str(tmp_path / "mot1" / "gt" / "gt.txt"))["rows"]
-    assert sorted((f, t) for f, t, *_ in rows) == sorted(expected)
-    for f, t, x, y, w, h, _ in rows:
-        np.testing.assert_allclose([x, y, w, h], expected[(f, t)])
+    # origin=0 writes the unshifted pixels those readers want.
+    write_mot(tmp_path / "mot0", VIDEO, make_tracks(), frames=FRAMES, origin=0)
+    seen = run_check("datumaro_mot", path=str(tmp_path / "mot0"))
+    for item in seen["items"]:
+        for box in item["boxes"]:
+            np.testing.assert_allclose(box["xywh"], expected[(int(item["id"]), box["attributes"]["track_id"])])
 
 
 # --------------------------------------------------------------------------- Label Studio

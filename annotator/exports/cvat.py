@@ -19,9 +19,14 @@ datumaro's ``cvat`` importer load the file unchanged:
   given (CVAT renumbers tracks from 0 on every dump), and one ``<box>`` per
   processed frame of the track with 0-based corners ``xtl ytl xbr ybr``
   (2 decimals, as CVAT dumps), ``occluded`` and ``z_order`` 0.
-* ``keyframe="1"`` on the first frame, on human corrections, at the start of
-  each flagged span and wherever the object leaves or comes back: the frames
-  a reviewer should check; CVAT interpolates between keyframes.
+* ``keyframe="1"`` where CVAT needs it to show the tracker's boxes: CVAT's
+  importer keeps only keyframes and interpolates linearly between them, so
+  the keyframes are the frames a reviewer should check (the first frame,
+  human corrections, the bounds of each flagged span, where the object
+  leaves or comes back) and, between those, the fewest frames that keep
+  CVAT's interpolation within :data:`MAX_ERROR_PX` of every tracked box
+  (see :func:`_keyframes`). The other boxes are written too, with
+  ``keyframe="0"``, for readers that keep every box (Datumaro).
 * A frame whose object is absent (``outside``) or has no estimate (NaN) is a
   box with ``outside="1"`` at the last known coordinates, as CVAT needs a
   box element to know when an object leaves. A track that ends before the
@@ -45,8 +50,10 @@ from annotator.exports.review_tools import (
     REVIEW_SCORE_DECIMALS,
     REVIEW_SCORE_NAME,
     check_frame_range,
+    fewest_keyframes,
     labels_in_order,
     number,
+    positions,
     review_keyframes,
     review_scores,
     visible,
@@ -54,10 +61,12 @@ from annotator.exports.review_tools import (
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt.boxes import xywh_to_xyxy
 
-__all__ = ["CVAT_VERSION", "build_cvat_xml", "cvat_keyframes", "write_cvat_xml"]
+__all__ = ["CVAT_VERSION", "MAX_ERROR_PX", "build_cvat_xml", "cvat_keyframes", "write_cvat_xml"]
 
 CVAT_VERSION = "1.1"
 _COORD_DECIMALS = 2  # CVAT dumps "{:.2f}"; more would not survive a round trip through CVAT anyway
+#: Largest gap, in pixels, between any corner CVAT shows after importing the file and the tracker's box.
+MAX_ERROR_PX = 0.5
 
 
 def _score_attribute_spec() -> list[str]:
@@ -140,17 +149,46 @@ def _track_rows(track: TrackResult, frames: range) -> list[tuple[int, np.ndarray
     known = np.flatnonzero(shown)
     source_row = np.maximum.accumulate(np.where(shown, np.arange(len(track)), -1))
     source_row[source_row < 0] = known[0]
-    keys = review_keyframes(track)
-    changes = np.concatenate([[True], shown[1:] != shown[:-1]])  # object leaves or comes back
+    keys = _keyframes(track, frames, shown)
     scores = review_scores(track)
     rows = [(int(frame), track.boxes_xywh[source_row[i]], not bool(shown[i]), bool(track.occluded[i] and shown[i]),
-             bool(keys[i] or changes[i]), float(scores[i])) for i, frame in enumerate(track.frame_indices)]
+             bool(keys[i]), float(scores[i])) for i, frame in enumerate(track.frame_indices)]
     last = int(track.frame_indices[-1])
     if shown[-1] and last != frames[-1]:
         # Without this CVAT would keep showing the last box to the end of the task.
         rows.append((last + frames.step, track.boxes_xywh[source_row[-1]], True, False, True, float(scores[-1])))
     return rows
 
+
+def _keyframes(track: TrackResult, frames: range, shown: np.ndarray) -> np.ndarray:
+    """(F,) bool: the rows written with ``keyframe="1"``, so that CVAT's import shows every box of the track.
+
+    CVAT keeps only keyframes and draws each row between two of them by
+    linear interpolation of the corners in frame number; a row after an
+    ``outside`` keyframe is outside until the next keyframe, and the last
+    keyframe holds to the end. So the keyframes are: the rows a reviewer
+    should check (:func:`review_keyframes`) and the last row of each flagged
+    span; where the object leaves or comes back; the last row it is seen
+    before it leaves (older CVAT holds, newer CVAT interpolates, the box
+    before an ``outside`` keyframe); and between those, the fewest rows that
+    keep CVAT's interpolation of the corners as written within
+    :data:`MAX_ERROR_PX` of the tracker's box (:func:`fewest_keyframes`).
+    """
+    before = np.concatenate([[False], shown[:-1]])
+    after = np.concatenate([shown[1:], [False]])
+    flagged_after = np.concatenate([track.flagged[1:], [False]])
+    required = review_keyframes(track) | (track.flagged & ~flagged_after) | (shown != before) | (shown & ~after)
+    required[0] = True
+    keys = required & ~shown  # absent rows: only where the object leaves (or a reviewer should look)
+    corners = xywh_to_xyxy(track.boxes_xywh)
+    position = positions(frames, track).astype(np.float64)
+    run_starts = np.flatnonzero(shown & ~before)
+    run_ends = np.flatnonzero(shown & ~after)
+    for a, b in zip(run_starts, run_ends):
+        exact = corners[a:b + 1]
+        written = np.array([float(f"{v:.{_COORD_DECIMALS}f}") for v in exact.ravel()]).reshape(exact.shape)
+        keys[a:b + 1] = fewest_keyframes(position[a:b + 1], written, exact, required[a:b + 1], MAX_ERROR_PX)
+    return keys
 
 def _corners(box_xywh: np.ndarray) -> list[float]:
     """``xtl, ytl, xbr, ybr`` as written (rounded to the file's decimals)."""

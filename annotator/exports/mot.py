@@ -1,4 +1,4 @@
-"""MOT 1.1 ground truth (``mot/gt/gt.txt`` and ``mot/gt/labels.txt``), as CVAT and datumaro's ``mot_seq`` read it.
+"""MOTChallenge ground truth (``mot/gt/gt.txt`` and ``mot/gt/labels.txt``), in MOTChallenge's 1-based pixels.
 
 ``gt.txt`` has one row per object per frame where the object is present::
 
@@ -10,10 +10,13 @@
   source = start + (frame - 1) * step.
 * ``track_id`` is ``TrackResult.track_id``.
 * ``x, y, w, h``: the box, not clipped (MOTChallenge ground truth keeps
-  boxes that leave the image), 3 decimals. ``origin=0`` (default) writes
-  0-based pixels, the coordinates CVAT's "MOT 1.1" and datumaro read and
-  write (they do not shift); ``origin=1`` shifts to MOTChallenge's 1-based
-  convention for evaluation against MOTChallenge files.
+  boxes that leave the image), 3 decimals. ``x, y`` (``bb_left, bb_top``)
+  are **1-based**, as MOTChallenge defines them: its evaluation
+  (motmetrics' ``loadtxt(fmt="mot15-2D")``) subtracts 1, so a
+  0-based box ``x`` is written ``x + 1``. CVAT's "MOT 1.1" importer and
+  Datumaro's ``mot_seq`` take ``x, y`` as written, with no shift: in CVAT
+  review with ``cvat.xml`` instead, which CVAT reads to the pixel.
+  ``origin=0`` writes 0-based pixels for a tool that wants them.
 * ``not_ignored`` is 1; ``class_id`` indexes ``labels.txt`` from 1 (datumaro
   reads ``class_id - 1``); ``visibility`` is 1, or 0 for an occluded box
   (datumaro's ``1 - occluded``).
@@ -38,7 +41,7 @@ __all__ = ["build_mot_gt", "write_mot"]
 
 
 def build_mot_gt(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: range | None = None,
-                 origin: int = 0) -> tuple[str, str]:
+                 origin: int = 1) -> tuple[str, str]:
     """The text of ``gt.txt`` and ``labels.txt`` (layout in the module docstring).
 
     Parameters
@@ -49,11 +52,11 @@ def build_mot_gt(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: ran
     frames : range or None
         The processed range of source frame indices, whose positions are MOT's frame numbers; None for the
         whole video.
-    origin : {0, 1}
-        Pixel origin of ``x, y``: 0 as CVAT and datumaro, 1 as MOTChallenge.
+    origin : {1, 0}
+        Pixel origin of ``x, y``: 1 as MOTChallenge (the default), 0 for tools that read them unshifted.
     """
     if origin not in (0, 1):
-        raise ValueError(f"origin must be 0 (CVAT, datumaro) or 1 (MOTChallenge), got {origin!r}")
+        raise ValueError(f"origin must be 1 (MOTChallenge) or 0 (unshifted), got {origin!r}")
     tracks = list(tracks)
     frames = check_frame_range(video, tracks, frames)
     labels = labels_in_order(tracks) or ["object"]
@@ -74,7 +77,7 @@ def build_mot_gt(video: VideoInfo, tracks: Sequence[TrackResult], *, frames: ran
 
 
 def write_mot(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[TrackResult], *,
-              frames: range | None = None, origin: int = 0) -> list[Path]:
+              frames: range | None = None, origin: int = 1) -> list[Path]:
     """Write ``out_dir/gt/gt.txt`` and ``out_dir/gt/labels.txt`` atomically; return their paths.
 
     ``out_dir`` is the sequence folder (``<out>/mot``); keywords as :func:`build_mot_gt`.
