@@ -37,8 +37,10 @@ def retracked(track: TrackResult) -> TrackResult:
     boxes[3] = [18.0, 12.0, 20.0, 20.0]
     keyframe = track.keyframe.copy()
     keyframe[1] = True
+    keyframe[3] = False  # the tracker moved the box at 9: no human anchor there (a re-track never moves one)
     sources = list(track.keyframe_source)
     sources[1] = "reviewed.xml:40"
+    sources[3] = ""
     return TrackResult(**{**track.__dict__, "boxes_xywh": boxes, "keyframe": keyframe, "keyframe_source": tuple(sources)})
 
 
@@ -75,6 +77,27 @@ def test_cvat_a_changed_given_keyframe_is_a_correction_even_where_it_equals_the_
     path.write_text(edit_box(path.read_text(), 9, xtl="18.00", ytl="12.00", xbr="38.00", ybr="32.00"))
     found = read_cvat_corrections(path, video=VIDEO, tracks=[retracked(before)], frames=SHIFTED, exported=given)
     assert [(c.frame, c.box_xywh) for c in found] == [(9, (18.0, 12.0, 20.0, 20.0))]
+
+
+@pytest.mark.parametrize("with_record", [True, False])
+def test_cvat_whole_pixel_rounding_is_no_correction_and_a_bigger_move_is(tmp_path, with_record):
+    """FiftyOne writes every corner rounded to a whole pixel: up to 1 px on a width; a reviewer moves further."""
+    import test_exports_reviewtools
+
+    track = test_exports_reviewtools.jittery_track(100, seed=7)
+    frames = range(0, 100)
+    video = VideoInfo(path="v.mp4", name="v", width=320, height=240, fps=30.0, frame_count=100)
+    given = [cvat_keyframes(video, [track], frames=frames)] if with_record else None
+    text = build_cvat_xml(video, [track], frames=frames)
+    rounded = re.sub(r'(xtl|ytl|xbr|ybr)="(-?[\d.]+)"', lambda m: f'{m.group(1)}="{round(float(m.group(2)))}"', text)
+    path = tmp_path / "rounded.xml"
+    path.write_text(rounded)
+    assert read_cvat_corrections(path, video=video, tracks=[track], frames=frames, exported=given) == []
+    box = re.search(r'<box frame="10"[^>]*>', rounded).group(0)
+    moved = float(re.search(r'xtl="([\d.]+)"', box).group(1)) + 1.5
+    path.write_text(edit_box(rounded, 10, xtl=f"{moved:g}", keyframe="1"))
+    found = read_cvat_corrections(path, video=video, tracks=[track], frames=frames, exported=given)
+    assert [c.frame for c in found] == [10]
 
 
 def test_cvat_the_record_of_a_run_folder_is_read_through_run_corrections(tmp_path):
@@ -133,7 +156,8 @@ def cvat_message(path: Path) -> str:
 def test_datumaro_cvat_export_is_named_as_cvat_for_images():
     """Datumaro 1.13's "cvat" export of the run's cvat.xml (tests/data/review_tools/README.md)."""
     message = cvat_message(DATA / "datumaro_cvat_images.xml")
-    assert '"CVAT for images"' in message and 'export the task as "CVAT for video 1.1"' in message
+    assert '"CVAT for images"' in message and 'export "CVAT for video 1.1" from CVAT' in message
+    assert "FiftyOne" in message and "Datumaro" not in message  # Datumaro has no CVAT for video exporter
 
 
 def test_file_without_original_size_says_so(tmp_path):

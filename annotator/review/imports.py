@@ -10,7 +10,8 @@ be read) with a one-line message naming the file.
 
 A reviewer's file holds the run's own keyframes too (first frame, flagged
 spans, ...), so only what a person **changed relative to what the tool gave
-them** is a correction: a keyframe more than :data:`SAME_BOX_PX` from the
+them** is a correction: a keyframe more than :data:`SAME_BOX_PX` (1 px, the
+rounding the tools apply: FiftyOne writes whole pixels) from the
 given keyframe at that frame, or hidden or shown where it was not. What was
 given is, for Label Studio, the prediction the annotation started from (its
 ``parent_prediction``, which the export carries); for CVAT, the keyframes of
@@ -25,7 +26,8 @@ from it, a box where the run had the object absent, or an absence where the
 run had a box.
 
 **CVAT for video 1.1** (the run's ``cvat.xml`` after review, dumped by
-CVAT, or exported by FiftyOne or Datumaro as CVAT for video): boxes with
+CVAT, or exported by FiftyOne as CVATVideoDataset; Datumaro has no such
+exporter): boxes with
 ``keyframe="1"``; ``outside="1"`` marks the object absent from that frame
 on. An ``outside`` keyframe just past the processed range (FiftyOne ends
 every track so) is skipped with a warning. "CVAT for images" (one
@@ -71,9 +73,12 @@ from sptpt.boxes import clip_xywh, xywh_to_xyxy, xyxy_to_xywh
 
 __all__ = ["SAME_BOX_PX", "read_cvat_corrections", "read_labelstudio_corrections"]
 
-#: Largest coordinate change, in pixels, still taken for the run's own box: CVAT rounds to 1/100 px
-#: and Label Studio stores percent; no reviewer's edit is that small.
-SAME_BOX_PX = 0.05
+#: Largest coordinate change, in pixels, still taken for the run's own box: the tools round what they were given
+#: (CVAT to 1/100 px, FiftyOne to whole pixels on each corner, so a width moves by up to 1 px; Label Studio stores
+#: percent), and a reviewer who moves a box means more than a pixel.
+SAME_BOX_PX = 1.0
+#: Room for the float error of a difference of rounded corners (a width of 47 where 47.99 was given).
+_SLACK = 1e-6
 
 Box = tuple[float, float, float, float]
 
@@ -104,7 +109,7 @@ class _RunTrack:
         either way an unedited box must not count as a correction.
         """
         for run in (self._raw_box(frame), self.clipped_box(frame)):
-            if run is not None and max(abs(a - b) for a, b in zip(run, box)) <= SAME_BOX_PX:
+            if run is not None and max(abs(a - b) for a, b in zip(run, box)) <= SAME_BOX_PX + _SLACK:
                 return False
         return True
 
@@ -113,6 +118,15 @@ class _RunTrack:
         if i is None or self.track.outside[i] or not np.isfinite(self.track.boxes_xywh[i]).all():
             return None
         return tuple(float(v) for v in self.track.boxes_xywh[i])
+
+    def anchored(self, frame: int, corners: tuple[float, ...] | None) -> bool:
+        """Whether the run holds a human anchor at ``frame`` with these corners (None: an absence)."""
+        i = self.row.get(frame)
+        if i is None or not self.track.keyframe[i]:
+            return False
+        if corners is None:
+            return bool(self.track.outside[i])
+        return not self.track.outside[i] and not self.box_changed(frame, tuple(xyxy_to_xywh(corners).tolist()))
 
     def absence_changed(self, frame: int) -> bool:
         """An absence at ``frame`` is news only where the run shows the object in the image: the exporters hide
@@ -188,7 +202,7 @@ def _given_versions(exported: Sequence[Any] | None) -> list[_Given]:
 def _same_corners(a: tuple[float, ...] | None, b: tuple[float, ...] | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
-    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX
+    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX + _SLACK
 
 
 def _same_as_given(given: tuple[float, ...] | None, box: tuple[float, ...] | None, video: VideoInfo) -> bool:
@@ -277,8 +291,8 @@ def _check_cvat_task(root: ET.Element, where, video: VideoInfo, frames: range) -
     """Refuse a file that is not CVAT for video 1.1, or whose task is not the run's (frames, size, start, step)."""
     if root.tag == "annotations" and root.find("track") is None and root.find("image") is not None:
         raise ToolError(f"{where(root.find('image'))}: this is a \"CVAT for images\" file (one <image> per frame, no "
-                        "<track>), which loses the tracks: export the task as \"CVAT for video 1.1\" (in Datumaro, "
-                        "FiftyOne or CVAT) and give that file", EXIT_VALUE)
+                        "<track>), which loses the tracks: export \"CVAT for video 1.1\" from CVAT (Export task "
+                        "dataset) or FiftyOne (CVATVideoDataset) and give that file", EXIT_VALUE)
     if root.tag != "annotations" or root.find("meta") is None:
         raise ToolError(f"{where(root)}: expected <annotations> with <meta>, the CVAT for video 1.1 layout, got "
                         f"<{root.tag}>", EXIT_VALUE)
@@ -316,20 +330,28 @@ def _given_version(exported: Sequence[Any] | None, xml_tracks: list[ET.Element],
                    video: VideoInfo) -> _Given | None:
     # The version of the run's cvat.xml this file was made from: the one whose keyframes it keeps the most of,
     # less those it has at a frame where that version had another (on a tie, the latest). The run's own
-    # keyframes count for the version they were written in; a reviewer's correction, once applied, is also a
-    # keyframe of every later version, which the mismatches then weigh against.
+    # keyframes count for the version they were written in. A reviewer's correction, once applied, is also a
+    # keyframe of every later version: a version's mismatch that a later version holds is that correction,
+    # already applied, and does not count against it (else a file re-given after its re-track would match the
+    # later version as well as its own, and the later version's re-tracked keyframes would become corrections).
     versions = _given_versions(exported)
     if not versions:
         return None
     keyframes = [(track.track_id, _int_or(box.get("frame")), _corners_or_none(box))
                  for element, track in zip(xml_tracks, tracks) for box in element if box.get("keyframe") == "1"]
 
-    def score(version: _Given) -> int:
-        held = [(version[t][f], c) for t, f, c in keyframes if f in version.get(t, {})]
-        kept = sum(1 for g, c in held if _same_as_given(g, c, video))
-        return kept - (len(held) - kept)
+    def holds(version: _Given, t: int, f: int, c: tuple[float, ...] | None) -> bool:
+        return f in version.get(t, {}) and _same_as_given(version[t][f], c, video)
 
-    return max(reversed(versions), key=score)
+    def score(n: int) -> int:
+        version = versions[n]
+        held = [(t, f, c) for t, f, c in keyframes if f in version.get(t, {})]
+        kept = sum(1 for t, f, c in held if holds(version, t, f, c))
+        applied = sum(1 for t, f, c in held if not holds(version, t, f, c)
+                      and any(holds(later, t, f, c) for later in versions[n + 1:]))
+        return kept - (len(held) - kept - applied)
+
+    return versions[max(reversed(range(len(versions))), key=score)]
 
 
 def _cvat_track_corrections(element: ET.Element, track: TrackResult, where, video: VideoInfo, frames: range,
@@ -365,7 +387,11 @@ def _cvat_track_corrections(element: ET.Element, track: TrackResult, where, vide
             if (_same_as_given(track_given[frame], _corners_or_none(box), video)
                     and not (hidden and box.get("outside") != "1")):
                 continue  # the tool's own keyframe, left as it was (unless it ends a new absence)
-            changed = True  # a keyframe the tool gave, changed by a person
+            # A keyframe the tool gave, changed by a person; unless the run holds that change as a human anchor
+            # already (a correction applied by an earlier re-track, the file given again).
+            changed = not run.anchored(frame, _corners_or_none(box))
+            if not changed and not hidden:
+                continue
         else:
             changed = False  # a keyframe a person added: compared with the run below
         if box.get("outside") == "1":
@@ -484,7 +510,7 @@ class _GivenSequence:
 def _same_box(a: Box | None, b: Box | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
-    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX
+    return max(abs(x - y) for x, y in zip(a, b)) <= SAME_BOX_PX + _SLACK
 
 
 def read_labelstudio_corrections(path: str | os.PathLike, *, video: VideoInfo, tracks: Sequence[TrackResult],
