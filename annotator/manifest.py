@@ -11,6 +11,11 @@ the object in the first processed frame, read as ``--box`` reads it:
     numbers, or a mapping ``{box: ..., label: ..., track_id: ...}``. Give
     either ``box`` or ``boxes``. Track ids default to the box's position
     (1, 2, ...).
+``box_origin``
+    ``0`` (the default) when the item's boxes are 0-based pixels, ``1`` when
+    they are OTB-style 1-based (pasted from an OTB ``groundtruth_rect.txt``),
+    as ``--box-origin`` for a single video. ``batch --box-origin`` sets it
+    for the items that give none.
 ``label``
     Category of the boxes that do not name their own (default ``object``).
 ``start``, ``stop``, ``step``
@@ -88,7 +93,8 @@ __all__ = [
 ]
 
 #: Fields an item may have; ``video`` and one of ``box`` / ``boxes`` are required.
-ITEM_FIELDS: tuple[str, ...] = ("video", "box", "boxes", "label", "start", "stop", "step", "id", "params")
+ITEM_FIELDS: tuple[str, ...] = ("video", "box", "boxes", "box_origin", "label", "start", "stop", "step", "id",
+                                 "params")
 #: Keys of a mapping inside ``boxes``.
 BOX_FIELDS: tuple[str, ...] = ("box", "label", "track_id")
 #: Manifest file extensions and their format.
@@ -251,9 +257,9 @@ def _closest(key: str, valid: Sequence[str]) -> str:
     return f"did you mean {close[0]!r}?" if close else f"valid fields: {', '.join(valid)}"
 
 
-def _parse_box(value: Any, name: str, errs: _RowErrors) -> Box | None:
+def _parse_box(value: Any, name: str, errs: _RowErrors, origin: int = 0) -> Box | None:
     try:
-        return parse_box(value, name=name)
+        return parse_box(value, name=name, origin=origin)
     except BoxError as exc:
         errs.add(name, str(exc))
         return None
@@ -331,7 +337,20 @@ def _normalise_params(value: Any, errs: _RowErrors) -> dict[str, Any]:
     return out
 
 
-def _parse_boxes(record: Mapping[str, Any], errs: _RowErrors) -> list[Target]:
+def _parse_origin(record: Mapping[str, Any], default: int, errs: _RowErrors) -> int:
+    value = record.get("box_origin")
+    if value is None:
+        return default
+    if isinstance(value, str) and value.strip() in ("0", "1"):
+        return int(value)
+    if value in (0, 1) and not isinstance(value, bool):
+        return int(value)
+    errs.add("box_origin", f"box_origin {value!r} is not 0 or 1: give 0 for 0-based pixels, 1 for OTB-style "
+                           "1-based boxes")
+    return default
+
+
+def _parse_boxes(record: Mapping[str, Any], errs: _RowErrors, origin: int = 0) -> list[Target]:
     label_value = record.get("label")
     if "box" in record and "boxes" in record:
         errs.add("boxes", "both box and boxes are given: give one box as box, or a list of them as boxes")
@@ -390,7 +409,7 @@ def _parse_boxes(record: Mapping[str, Any], errs: _RowErrors) -> list[Target]:
             if "track_id" in entry:
                 track_id = _parse_int(entry["track_id"], f"{name}.track_id", errs, minimum=1)
             entry = entry["box"]
-        box = _parse_box(entry, name, errs)
+        box = _parse_box(entry, name, errs, origin)
         if box is None or track_id is None:
             continue
         if track_id in used_ids:
@@ -402,7 +421,8 @@ def _parse_boxes(record: Mapping[str, Any], errs: _RowErrors) -> list[Target]:
     return targets
 
 
-def _parse_record(record: Mapping[str, Any], *, base: Path, errs: _RowErrors) -> dict[str, Any] | None:
+def _parse_record(record: Mapping[str, Any], *, base: Path, errs: _RowErrors,
+                  box_origin: int = 0) -> dict[str, Any] | None:
     """One raw item (a mapping of field values) -> the keyword arguments of a BatchItem, or None."""
     n_before = len(errs.errors)
     for key in record:
@@ -418,7 +438,7 @@ def _parse_record(record: Mapping[str, Any], *, base: Path, errs: _RowErrors) ->
         errs.add("video", f"video {video!r} is not a path: give the path of a video file or image folder")
     else:
         input_path = Path(os.path.abspath(base / Path(video.strip()).expanduser()))
-    targets = _parse_boxes(record, errs)
+    targets = _parse_boxes(record, errs, _parse_origin(record, box_origin, errs))
     ranges: dict[str, int | None] = {}
     for key, minimum in (("start", 0), ("stop", 1), ("step", 1)):
         ranges[key] = _parse_int(record[key], key, errs, minimum=minimum) if record.get(key) is not None else None
@@ -560,13 +580,16 @@ def _records_yaml(path: Path, text: str, errors: list[ManifestError]) -> Iterabl
 _READERS = {"csv": _records_csv, "jsonl": _records_jsonl, "yaml": _records_yaml}
 
 
-def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
+def read_manifest(path: str | os.PathLike, *, box_origin: int = 0) -> list[BatchItem]:
     """Read and check a manifest; relative video paths resolve against its folder.
 
     Parameters
     ----------
     path : path-like
         A ``.csv``, ``.jsonl``, ``.yaml`` or ``.yml`` file (see the module notes).
+    box_origin : {0, 1}
+        The origin of the boxes of items without a ``box_origin`` field: 0 for
+        0-based pixels, 1 for OTB-style 1-based boxes.
 
     Returns
     -------
@@ -580,6 +603,8 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
         and the field; nothing is returned unless the whole manifest is valid.
     """
     path = Path(path)
+    if box_origin not in (0, 1):
+        raise ValueError(f"box_origin must be 0 or 1, got {box_origin!r}")
     if not path.exists():
         raise InvalidManifestError([ManifestError(path, 0, "", "manifest file does not exist: give the path of a "
                                                                "CSV, JSON Lines or YAML manifest")],
@@ -600,7 +625,7 @@ def read_manifest(path: str | os.PathLike) -> list[BatchItem]:
     raw_items: list[dict[str, Any]] = []
     for line, record, key_lines in _READERS[fmt](path, text, errors):
         errs = _RowErrors(str(path), line, key_lines)
-        parsed = _parse_record(record, base=path.parent, errs=errs)
+        parsed = _parse_record(record, base=path.parent, errs=errs, box_origin=box_origin)
         errors.extend(errs.errors)
         if parsed is not None:
             raw_items.append({**parsed, "source": str(path), "line": line})

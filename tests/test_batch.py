@@ -394,6 +394,20 @@ def test_manifest_errors_stop_the_batch_before_any_work(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_batch_box_origin_is_checked_in_one_line_before_any_work(tmp_path, capsys):
+    manifest = tmp_path / "m.csv"
+    manifest.write_text('video,box\na.mp4,"1,2,3,4"\n')
+    (tmp_path / "otb").mkdir()
+    for argv, code, needle in (
+            (["batch", str(manifest), "--box-origin", "2"], 4, "--box-origin 2 is invalid: expected 0 (default) or 1"),
+            (["batch", "--otb-root", str(tmp_path / "otb"), "--box-origin", "1"], 2, "drop --box-origin")):
+        with pytest.raises(SystemExit) as info:
+            main([*argv, "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err.splitlines()
+        assert info.value.code == code and len(err) == 1 and needle in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_missing_manifest_exits_3_and_an_otb_root_without_sequences_4(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     for argv, code, needle in ((["batch", str(tmp_path / "none.csv")], 3, "manifest file does not exist"),

@@ -104,6 +104,24 @@ def test_minimal_items_are_the_same_in_every_format(tmp_path):
     assert strip(csv_items) == strip(jsonl_items) == strip(yaml_items)
 
 
+def test_box_origin_1_reads_otb_style_boxes_per_item_or_for_the_batch(tmp_path):
+    """An OTB box pasted with box_origin 1 is the 0-based box one pixel up and left; items that say win."""
+    for name, text in (("o.csv", "video,box,box_origin\na.mp4,\"11,21,30,40\",1\nb.mp4,\"10,20,30,40\",\n"),
+                       ("o.jsonl", '{"video": "a.mp4", "box": "11,21,30,40", "box_origin": 1}\n'
+                                   '{"video": "b.mp4", "box": "10,20,30,40"}\n'),
+                       ("o.yaml", "- {video: a.mp4, boxes: ['11,21,30,40', [2, 2, 5, 5]], box_origin: 1}\n"
+                                  "- {video: b.mp4, box: '10,20,30,40'}\n")):
+        items = read_manifest(write(tmp_path, name, text))
+        assert items[0].targets[0].box_xywh == (10.0, 20.0, 30.0, 40.0), name
+        assert items[1].targets[0].box_xywh == (10.0, 20.0, 30.0, 40.0), name
+    items = read_manifest(write(tmp_path, "o.yaml", text), box_origin=1)
+    assert items[0].targets[1].box_xywh == (1.0, 1.0, 5.0, 5.0)
+    assert items[1].targets[0].box_xywh == (9.0, 19.0, 30.0, 40.0)  # no field: the batch's origin
+    explicit = read_manifest(write(tmp_path, "z.jsonl", '{"video": "a.mp4", "box": "10,20,30,40", "box_origin": 0}\n'),
+                             box_origin=1)
+    assert explicit[0].targets[0].box_xywh == (10.0, 20.0, 30.0, 40.0)
+
+
 def test_csv_params_columns_and_track_ids(tmp_path):
     path = write(tmp_path, "p.csv", "video,box,params.n_particles,params.threshold\na.mp4,\"1,2,3,4\",80,0.3\nb.mp4,\"1,2,3,4\",,\n")
     a, b = read_manifest(path)
@@ -150,6 +168,8 @@ def test_csv_params_columns_and_track_ids(tmp_path):
         ("bad.yaml", "- just a string\n", [(1, "", "not a mapping")]),
         ("bad.yaml", "- video: a.mp4\n  box: 1,2,3,4\n  params: {preset: nope}\n", [(3, "params", "unknown preset")]),
         ("bad.txt", "video,box\n", [(0, "", "extension '.txt' is not known")]),
+        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "box_origin": 2}\n', [(1, "box_origin", "not 0 or 1")]),
+        ("bad.csv", "video,box,box_origin\na.mp4,\"1,2,3,4\",one\n", [(2, "box_origin", "not 0 or 1")]),
     ],
 )
 def test_bad_rows_are_reported_with_file_line_and_field(tmp_path, name, text, expected):

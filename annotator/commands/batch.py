@@ -19,6 +19,7 @@ def batch_command(
     otb_root: Optional[Path] = typer.Option(None, "--otb-root", help="Use an OTB-layout root as the manifest (boxes from each ground truth's first line)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Parallel worker processes on this machine (default: the number of cores)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a Dask distributed scheduler to run the items on instead."),
+    box_origin: int = typer.Option(0, "--box-origin", help="1 to read the boxes of items without a box_origin field as OTB-style 1-based coordinates."),
     start: Optional[int] = typer.Option(None, "--start", help="First frame of items whose manifest row gives none (default 0)."),
     stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this frame in items whose row gives none (default: the end)."),
     preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset for all items (item params override)."),
@@ -44,8 +45,14 @@ def batch_command(
             raise ToolError("give either a MANIFEST file or --otb-root DIR (one of them)", EXIT_USAGE)
         if scheduler is not None:
             require_extra("--scheduler")  # before the manifest is read: a missing install is the first thing to fix
+        if box_origin not in (0, 1):
+            raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
+        if otb_root is not None and box_origin:
+            raise ToolError("--box-origin applies to a manifest's boxes: --otb-root reads OTB's 1-based ground "
+                            "truth as such already; drop --box-origin", EXIT_USAGE)
         try:
-            items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest)
+            items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest,
+                                                                                              box_origin=box_origin)
             file_values = load_config_file(config_file) if config_file is not None else {}
             chosen = [f.strip() for f in formats.split(",") if f.strip()]
             if media_url is not None and not media_url.endswith(("/", "=")):
