@@ -6,6 +6,8 @@ Issue #14 item 2: a run made with ``--start``/``--stop`` (or a batch with
 
 from __future__ import annotations
 
+import dataclasses
+
 import shutil
 from pathlib import Path
 
@@ -58,13 +60,35 @@ def test_a_whole_run_needs_no_note_and_a_longer_store_is_refused(tmp_path):
     write_otb_boxes(tmp_path / "gt.txt", gt)
     out = tmp_path / "run"
     out.mkdir()
-    write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=8, step=1, tracks=[_track(np.arange(8), gt)]))
+    write_store(out / STORE_NAME, RunStore(video=dataclasses.replace(VIDEO, frame_count=8), start=0, stop=8, step=1,
+                                           tracks=[_track(np.arange(8), gt)]))
     pairs: list = []
     assert evaluate_result_file(out, tmp_path / "gt.txt", pairs=pairs).auc > 0.95 and pairs[0][0].note is None
-    write_store(out / STORE_NAME, RunStore(video=VIDEO, start=0, stop=9, step=1,
-                                           tracks=[_track(np.arange(9), np.vstack([gt, gt[:1]]))]))
-    with pytest.raises(EvaluationError, match=r"source frames up to 8 but the ground truth .* has 8 rows"):
+    assert pairs[0][0].name == "Alpha"  # the run's own name, not the ground truth's folder's
+
+
+@pytest.mark.parametrize("frames", [9, 20])
+def test_a_run_of_a_video_of_another_length_is_refused_unless_overlap(tmp_path, frames):
+    """A ground truth of 8 rows for a 9- or 20-frame video is another video's (or another cut): refused, with the
+    way out; --overlap scores the 8 frames both hold, and says so."""
+    gt = _gt(8)
+    write_otb_boxes(tmp_path / "gt.txt", gt)
+    out = tmp_path / "run"
+    out.mkdir()
+    boxes = np.vstack([gt, np.repeat(gt[:1], frames - 8, axis=0)])
+    write_store(out / STORE_NAME, RunStore(video=dataclasses.replace(VIDEO, frame_count=frames), start=0,
+                                           stop=frames, step=1, tracks=[_track(np.arange(frames), boxes)]))
+    with pytest.raises(EvaluationError, match=rf"is of a {frames}-frame video but the ground truth .* has 8 rows: "
+                                              r".*--overlap to score the frames both hold"):
         evaluate_result_file(out, tmp_path / "gt.txt")
+    code, _, err = _run("eval", out, tmp_path / "gt.txt")
+    assert code == 4 and err.count("\n") == 1 and "--overlap" in err
+    pairs: list = []
+    assert evaluate_result_file(out, tmp_path / "gt.txt", pairs=pairs, overlap=True).auc > 0.95
+    assert pairs[0][0].note == f"Alpha: {frames - 8} frame{'s' if frames > 9 else ''} of the run past the 8-row " \
+                               "ground truth left out (--overlap)"
+    code, table, err = _run("eval", out, tmp_path / "gt.txt", "--overlap")
+    assert code == 0 and "ground truth left out (--overlap)" in err and "Alpha" in table
 
 
 def test_a_multi_track_store_is_picked_by_otb_multi_target_name(tmp_path):
@@ -74,7 +98,8 @@ def test_a_multi_track_store_is_picked_by_otb_multi_target_name(tmp_path):
         (root / f"Jog.{k}").mkdir(parents=True)
         write_otb_boxes(root / f"Jog.{k}" / "groundtruth_rect.txt", gt + k)
     results = tmp_path / "res"
-    store = RunStore(video=VIDEO, start=0, stop=6, step=1, tracks=[_track(np.arange(6), gt + 1, 1),
+    store = RunStore(video=dataclasses.replace(VIDEO, frame_count=6), start=0, stop=6, step=1,
+                     tracks=[_track(np.arange(6), gt + 1, 1),
                                                                    _track(np.arange(6), gt + 2, 2)])
     for k in (1, 2):
         (results / f"Jog.{k}").mkdir(parents=True)
@@ -122,10 +147,15 @@ def test_eval_of_a_batch_with_stop_and_sequences(otb_root, tmp_path):
     code, table, err = _run("eval", out, otb_root)
     assert code == 0, err
     assert err.count("scored the 10 frames the run processed (source frames 0-9)") == 2
-    # Only one sequence has results: --sequences picks it, and the hint names the option.
+    # Only one sequence has results: the dataset eval scores it and names the one left out; --sequences naming a
+    # sequence without a result is refused with the path expected.
     shutil.rmtree(out / "Beta")
-    code, _, err = _run("eval", out, otb_root)
-    assert code != 0 and "--sequences" in err
+    code, table, err = _run("eval", out, otb_root)
+    assert code == 0, err
+    assert "Alpha" in table and "Beta" not in table
+    assert "1 sequence of" in err and "without a result left out: Beta" in err
+    code, _, err = _run("eval", out, otb_root, "--sequences", "Alpha,Beta")
+    assert code != 0 and "no result for 1 of 2" in err and str(out / "Beta") in err
     code, table, err = _run("eval", out, otb_root, "--sequences", "Alpha")
     assert code == 0, err
     assert "Alpha" in table and "Beta" not in table
@@ -180,8 +210,10 @@ def test_eval_leaves_a_track_that_asks_for_keyframes_out_of_the_flag_metrics(tmp
     code, table, err = _run("eval", tmp_path / "run", tmp_path / "gt.txt")
     assert code == 0, err
     assert "| AUROC of p_fail for failure frames (IoU < 0.5) | 1.000 |" in table
-    assert "| flag precision | nan |" in table and "| flag recall | nan |" in table
-    assert "the track looked lost and its flags ask for keyframes" in table + err
+    explained = "n/a: no track with doubtful-frame flags: every track looked lost and its flags ask for keyframes"
+    assert f"| flag precision | {explained} |" in table and f"| flag recall | {explained} |" in table
+    assert "nan" not in table
+    assert "the track looked lost and its flags ask for keyframes" in err
 
 
 def test_eval_of_binary_files_and_an_out_that_is_a_file_are_one_line_errors(tmp_path):

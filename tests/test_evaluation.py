@@ -471,8 +471,11 @@ def test_missing_sequences_are_listed_with_expected_paths(tmp_path):
     results = tmp_path / "res"
     results.mkdir()
     write_otb_boxes(results / "Alpha.txt", truth["Alpha"])
+    skipped: list = []
+    assert list(load_dataset_pairs(tmp_path / "otb", results, skipped=skipped)) == ["Alpha"]  # what results hold
+    assert skipped == ["Human", "Jog.1", "Jog.2"]
     with pytest.raises(EvaluationError) as info:
-        load_dataset_pairs(tmp_path / "otb", results)
+        load_dataset_pairs(tmp_path / "otb", results, sequences=["Alpha", "Human", "Jog.1", "Jog.2"])
     message = str(info.value)
     assert "no result for 3 of 4 sequence(s)" in message
     for name in ("Human", "Jog.1", "Jog.2"):

@@ -10,6 +10,7 @@ import typer
 
 from annotator.commands.common import fail
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
+from annotator.wording import plural
 
 def eval_command(
     results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
@@ -19,6 +20,10 @@ def eval_command(
     sequences: Optional[str] = typer.Option(
         None, "--sequences", metavar="NAME,NAME",
         help="Dataset mode: score only these sequences (e.g. those a batch with --stop finished)."),
+    overlap: bool = typer.Option(
+        False, "--overlap",
+        help="Score the frames a run and its ground truth both hold when the ground truth has another length than "
+             "the run's video (refused otherwise)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
@@ -40,12 +45,18 @@ def eval_command(
                 if names == []:
                     raise ToolError(f"--sequences {sequences!r} names no sequence: give names such as "
                                     "--sequences Coke,David", EXIT_VALUE)
-                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names, pairs=pairs)
+                skipped: list[str] = []
+                score = evaluate_results_dir(ground_truth, results, tracker=tracker_name, sequences=names, pairs=pairs,
+                                             overlap=overlap, skipped=skipped)
+                if skipped:
+                    typer.echo(f"scored the {plural(len(score.sequences), 'sequence')} {results} holds; "
+                               f"{plural(len(skipped), 'sequence')} of {ground_truth} without a result left out: "
+                               f"{', '.join(skipped)}", err=True)
             else:
                 if sequences is not None:
                     raise ToolError("--sequences picks sequences of a dataset: give an OTB-layout root as "
                                     "GROUND_TRUTH, or drop --sequences", EXIT_VALUE)
-                sequence = evaluate_result_file(results, ground_truth, pairs=pairs)
+                sequence = evaluate_result_file(results, ground_truth, pairs=pairs, overlap=overlap)
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
             raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None

@@ -118,8 +118,10 @@ def failure_summary(pairs) -> dict[str, float] | None:
     of other tools) are left out, and None is returned when none has one.
     Keys: ``auroc``, ``ece``, ``precision``, ``recall``, ``flagged_share``,
     ``onset_recall``, ``good_flagged_share`` (on sequences tracked with
-    success AUC >= 0.6), ``sequences``, ``frames``. The flag metrics leave
-    out tracks whose flags ask for keyframes.
+    success AUC >= 0.6), NaN where undefined; and the counts ``sequences``,
+    ``frames``, ``flag_sequences``, ``failed_frames``, ``flagged_frames``,
+    ``failure_spans``. The flag metrics leave out tracks whose flags ask
+    for keyframes.
     """
     from annotator.evaluation.flag_quality import flag_quality_dataset
 
@@ -147,7 +149,23 @@ def failure_summary(pairs) -> dict[str, float] | None:
                                if good_frames else float("nan")),
         "sequences": len(scored),
         "frames": int(len(p)),
+        "flag_sequences": len(flagged),
+        "failed_frames": int(y.sum()),
+        "flagged_frames": pooled.n_flagged if pooled else 0,
+        "failure_spans": pooled.n_failure_spans if pooled else 0,
     }
+
+
+def _why_undefined(summary: dict[str, float], key: str) -> str:
+    """Why a metric of :func:`failure_summary` has no value, in the words a reader of the table needs."""
+    if key in ("auroc", "ece"):
+        return "every frame failed (IoU < 0.5)" if summary["failed_frames"] == summary["frames"] else \
+            "no frame failed (IoU < 0.5)"
+    if summary["flag_sequences"] == 0:
+        return "no track with doubtful-frame flags: every track looked lost and its flags ask for keyframes"
+    return {"precision": "no frame flagged", "recall": "no frame failed (IoU < 0.5)", "flagged_share": "no frame",
+            "onset_recall": "no failure span of 5 frames or more",
+            "good_flagged_share": "no sequence tracked with success AUC >= 0.6"}[key]
 
 
 def failure_markdown(summary: dict[str, float]) -> str:
@@ -158,5 +176,6 @@ def failure_markdown(summary: dict[str, float]) -> str:
             ("flagged share on sequences with AUC >= 0.6", "good_flagged_share")]
     lines = [f"## Failure probability and flags ({summary['sequences']} sequences, {summary['frames']} frames)", "",
              "| metric | value |", "|---|---:|"]
-    lines += [f"| {label} | {summary[key]:.3f} |" for label, key in rows]
+    lines += [f"| {label} | {summary[key]:.3f} |" if np.isfinite(summary[key])
+              else f"| {label} | n/a: {_why_undefined(summary, key)} |" for label, key in rows]
     return "\n".join(lines) + "\n"

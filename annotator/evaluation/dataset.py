@@ -55,7 +55,7 @@ from annotator.otb import OTBFormatError, read_otb_boxes
 from annotator.store import STORE_NAME, StoreError, read_store
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import TrackResult
-from annotator.wording import ordinal
+from annotator.wording import ordinal, plural
 
 __all__ = [
     "OUTPUT_FOLDER_RESULT_NAMES",
@@ -220,6 +220,8 @@ class SequencePair:
     #: The track's flags ask for keyframes (it looked lost), so they are not its doubtful frames: ``flagged`` is
     #: then None and the flag metrics leave the sequence out.
     keyframes_asked: bool = False
+    #: Frames of the run past the ground truth's last row, left out under ``overlap``.
+    beyond_gt: int = 0
 
     @property
     def note(self) -> str | None:
@@ -231,14 +233,26 @@ class SequencePair:
             step = f", every {ordinal(int(steps[0]))}" if len(steps) == 1 and steps[0] > 1 else ""
             parts.append(f"{self.name}: scored the {len(f)} frames the run processed (source frames "
                          f"{int(f[0])}-{int(f[-1])}{step}) against those rows of the {self.gt_rows}-row ground truth")
+        if self.beyond_gt:
+            parts.append(f"{self.name}: {plural(self.beyond_gt, 'frame')} of the run past the {self.gt_rows}-row "
+                         "ground truth left out (--overlap)")
         if self.keyframes_asked:
             parts.append(f"{self.name}: the track looked lost and its flags ask for keyframes, not for doubtful "
                          "frames: left out of the flag metrics (its p_fail still counts)")
         return "; ".join(parts) or None
 
 
-def _store_track(path: Path, name: str) -> TrackResult:
-    """The track of sequence ``name`` in a track store."""
+def _run_name(path: Path) -> str | None:
+    """The video name of a track store with one track (the run's own name for its sequence), else None."""
+    try:
+        store = read_store(path)
+    except StoreError:
+        return None  # refused with its reason when the track is read
+    return store.video.name if len(store.tracks) == 1 else None
+
+
+def _store_track(path: Path, name: str) -> tuple[TrackResult, int]:
+    """The track of sequence ``name`` in a track store, and the frame count of the store's video."""
     try:
         store = read_store(path)
     except StoreError as exc:
@@ -252,7 +266,7 @@ def _store_track(path: Path, name: str) -> TrackResult:
             raise EvaluationError(f"{path} holds tracks {ids}: name the sequence <Name>.<track id> (OTB multi-target "
                                   f"naming, e.g. {store.video.name}.{ids[0]}) to pick one")
         track = store.track(int(suffix))
-    return track
+    return track, store.video.frame_count
 
 
 def load_sequence_pair(
@@ -262,8 +276,14 @@ def load_sequence_pair(
     name: str,
     pred_origin: int = 1,
     gt_origin: int = 1,
+    overlap: bool = False,
 ) -> SequencePair:
     """Read a result file and a ground-truth file and check they have one row per frame each.
+
+    A track store's video must have as many frames as the ground truth has
+    rows: another length means another video (or another cut of it), whose
+    rows would be scored against the wrong frames. ``overlap=True`` scores the
+    run's frames that the ground truth also has instead.
 
     Raises
     ------
@@ -278,18 +298,24 @@ def load_sequence_pair(
             raise MissingInputError(f"sequence {name!r}: {role} file {path} does not exist")
     gt = read_otb_boxes(gt_path, origin=gt_origin)
     if pred_path.suffix == ".npz":
-        track = _store_track(pred_path, name)
-        pred, frames = track.boxes_xywh, track.frame_indices
-        if len(frames) == 0 or frames[-1] >= len(gt):
-            last = int(frames[-1]) if len(frames) else None
+        track, video_frames = _store_track(pred_path, name)
+        if video_frames != len(gt) and not overlap:
             raise EvaluationError(
-                f"sequence {name!r}: {pred_path} holds source frames up to {last} but the ground truth {gt_path} has "
-                f"{len(gt)} rows (frames 0-{len(gt) - 1}); evaluate against the ground truth of the same video")
+                f"sequence {name!r}: the run {pred_path} is of a {video_frames}-frame video but the ground truth "
+                f"{gt_path} has {len(gt)} rows: evaluate against the ground truth of the same video, or give "
+                "--overlap to score the frames both hold")
+        keep = track.frame_indices < len(gt)
+        pred, frames = track.boxes_xywh[keep], track.frame_indices[keep]
+        if len(frames) == 0:
+            raise EvaluationError(
+                f"sequence {name!r}: {pred_path} holds no frame below {len(gt)}, the ground truth {gt_path}'s row "
+                "count: evaluate against the ground truth of the same video")
         p_fail = track.signals.get("p_fail")
         asked = bool(keyframe_rows(track.reasons))
         return SequencePair(name=name, pred=np.array(pred), gt=gt[frames], pred_path=pred_path, gt_path=gt_path,
-                            frames=frames, gt_rows=len(gt), p_fail=None if p_fail is None else np.array(p_fail),
-                            flagged=None if asked else np.array(track.flagged), keyframes_asked=asked)
+                            frames=frames, gt_rows=len(gt), p_fail=None if p_fail is None else np.array(p_fail)[keep],
+                            flagged=None if asked else np.array(track.flagged)[keep], keyframes_asked=asked,
+                            beyond_gt=int((~keep).sum()))
     pred = read_otb_boxes(pred_path, origin=pred_origin)
     if len(pred) != len(gt):
         raise EvaluationError(
@@ -318,6 +344,8 @@ def load_dataset_pairs(
     *,
     sequences: Iterable[str] | None = None,
     locate: ResultLocator = default_result_candidates,
+    overlap: bool = False,
+    skipped: list[str] | None = None,
 ) -> dict[str, SequencePair]:
     """Load every sequence's ground truth and result file.
 
@@ -328,9 +356,15 @@ def load_dataset_pairs(
     results_dir : path-like
         Folder with one result per sequence, found by ``locate``.
     sequences : iterable of str, optional
-        Evaluate only these sequences (default: all of ``gt_root``).
+        Evaluate only these sequences, each of which must have a result.
+        Default: the sequences of ``gt_root`` that have a result (a batch
+        that ran part of the root); ``skipped`` receives the others.
     locate : ResultLocator
         ``(results_dir, name) -> candidate paths``; the first existing file wins.
+    overlap : bool
+        Score the frames a run and its ground truth both hold, when their lengths differ.
+    skipped : list, optional
+        Receives the sequences of ``gt_root`` left out for having no result (only without ``sequences``).
 
     Returns
     -------
@@ -340,8 +374,9 @@ def load_dataset_pairs(
     Raises
     ------
     EvaluationError
-        A missing results folder, sequences with no result file (all listed
-        at once, each with the path expected), or a row-count mismatch.
+        A missing results folder, no result for any sequence, a sequence
+        named in ``sequences`` with no result file (all listed at once, each
+        with the path expected), or a row-count mismatch.
     annotator.otb.OTBFormatError
         An unparsable row, naming the file and line.
     """
@@ -358,12 +393,14 @@ def load_dataset_pairs(
             missing.append(f"{name} (expected {candidates[0] if candidates else results_dir / (name + '.txt')})")
         else:
             found[name] = Path(hit)
-    if missing:
+    if missing and (sequences is not None or not found):
         raise EvaluationError(
             f"{results_dir}: no result for {len(missing)} of {len(selected)} sequence(s): {'; '.join(missing)}; "
             "add the files, or score only the sequences that have results with --sequences NAME,NAME"
         )
-    return {name: load_sequence_pair(found[name], selected[name], name=name) for name in selected}
+    if skipped is not None:
+        skipped.extend(name for name in selected if name not in found)
+    return {name: load_sequence_pair(found[name], selected[name], name=name, overlap=overlap) for name in found}
 
 
 def evaluate_result_file(
@@ -372,6 +409,7 @@ def evaluate_result_file(
     *,
     name: str | None = None,
     pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
+    overlap: bool = False,
     **rules,
 ) -> SequenceScore:
     """Score one result file (or output folder) against one ground-truth file.
@@ -384,17 +422,22 @@ def evaluate_result_file(
     ground_truth : path-like
         OTB ground-truth file (1-based), e.g. ``<root>/David/groundtruth_rect.txt``.
     name : str, optional
-        Sequence name; defaults to the ground-truth file's folder name.
+        Sequence name; defaults to the run's video name for an output folder of one track, else to the
+        ground-truth file's folder name (``Name.2`` for a second ground-truth file, which picks track 2).
     pairs : list, optional
         Receives ``(SequencePair, SequenceScore)`` (for the failure-probability metrics); the pair's
         :attr:`SequencePair.note` says when only part of the ground truth was scored.
+    overlap : bool
+        Score the frames a run and its ground truth both hold, when their lengths differ.
     **rules
         ``replace_first`` and ``invalid_pred``, as in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
     """
     ground_truth = Path(ground_truth)
     name = name or _sequence_name(ground_truth)
     result_path = find_result_file(result, name=name)
-    pair = load_sequence_pair(result_path, ground_truth, name=name)
+    if result_path.name == STORE_NAME and "." not in name:
+        name = _run_name(result_path) or name
+    pair = load_sequence_pair(result_path, ground_truth, name=name, overlap=overlap)
     score = evaluate_sequence(pair.pred, pair.gt, name=name, **rules)
     if pairs is not None:
         pairs.append((pair, score))
@@ -409,6 +452,8 @@ def evaluate_results_dir(
     sequences: Iterable[str] | None = None,
     locate: ResultLocator = default_result_candidates,
     pairs: list[tuple[SequencePair, SequenceScore]] | None = None,
+    overlap: bool = False,
+    skipped: list[str] | None = None,
     **rules,
 ) -> DatasetScore:
     """Score a folder of results against an OTB-layout root (one tracker).
@@ -421,7 +466,7 @@ def evaluate_results_dir(
         One result per sequence (see :func:`load_dataset_pairs`).
     tracker : str, optional
         Name for plots and tables; defaults to the results folder's name.
-    sequences, locate
+    sequences, locate, overlap, skipped
         As in :func:`load_dataset_pairs`.
     pairs : list, optional
         Receives ``(SequencePair, SequenceScore)`` of every sequence (:attr:`SequencePair.note`: scored in part).
@@ -433,7 +478,8 @@ def evaluate_results_dir(
     DatasetScore
     """
     results_dir = Path(results_dir)
-    loaded = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate)
+    loaded = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate, overlap=overlap,
+                                skipped=skipped)
     scores = {
         name: evaluate_sequence(pair.pred, pair.gt, name=name, **rules)
         for name, pair in loaded.items()
