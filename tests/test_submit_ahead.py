@@ -238,6 +238,32 @@ def test_a_tracker_is_copied_with_nothing_in_flight_and_refuses_while_frames_are
         tracker.collect()
 
 
+def test_a_lane_is_idle_when_its_last_call_s_future_is_done():
+    """A tracker is copied (a run's checkpoint) right after its frames are collected: its lanes must be idle by
+    then, not a moment later when their thread gets round to the empty queue. The lane's thread is slowed down
+    wherever it takes the lane's lock, so that the waiter runs first whenever it can."""
+    from sptpt._kernels import InOrder
+
+    class SlowInLaneThread:
+        def __init__(self) -> None:
+            self._lock = threading.Lock()
+
+        def __enter__(self):
+            if threading.current_thread() is not threading.main_thread():
+                time.sleep(0.002)
+            self._lock.acquire()
+
+        def __exit__(self, *exc) -> None:
+            self._lock.release()
+
+    lane = InOrder()
+    lane._lock = SlowInLaneThread()
+    for k in range(20):
+        future = lane.submit(lambda k=k: k)
+        assert future.result() == k
+        pickle.dumps(lane)  # refused while the lane still has calls to make
+
+
 @needs_two_threads
 def test_discard_cancels_what_the_runs_have_not_started(clip, monkeypatch):
     calls = []

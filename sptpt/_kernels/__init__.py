@@ -222,11 +222,20 @@ class InOrder:
                 if not future.set_running_or_notify_cancel():
                     continue
                 self._running = future
+            failed: BaseException | None = None
             try:
                 result = call()
             except BaseException as exc:  # handed to whoever waits on the future
-                future.set_exception(exc)
+                failed = exc
+            # Idle before the last call's future is done: whoever waited on it may copy the lane at once.
+            with self._lock:
+                self._running = None
+                idle = not self._queue
+                if idle:
+                    self._busy = False
+            if failed is not None:
+                future.set_exception(failed)
             else:
                 future.set_result(result)
-            finally:
-                self._running = None
+            if idle:
+                return
