@@ -25,9 +25,11 @@ from typing import Sequence
 from annotator import __version__
 from annotator.atomic import ctrl_c_ignored
 from annotator.box_input import parse_box
+from annotator.checkpoint import CHECKPOINT_NAME, Checkpoint, read_checkpoint, remove_checkpoint, run_key
 from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
-from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning, ToolError
+from annotator.errors import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning,
+                              ToolError)
 from annotator.exports import ExportOptions
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
@@ -38,13 +40,14 @@ from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
 from annotator.store import STORE_NAME, RunStore
 from annotator.wording import plural
+import sptpt
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
            "remove_staging_folders", "RESULT_FILES"]
 
-#: Said when the first frame takes long: on the first run after installing, numba compiles the tracker's
-#: kernels (about 15 s on 2 cores) and caches them beside the package.
+#: Said when the first frame takes long and numba's cache lacks the tracker's kernels: on the first run after
+#: installing, numba compiles them (README: the figure measured) and caches them beside the package.
 COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
 # Files whose presence means a folder already holds a run's results.
 RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html", "cvat.xml",
@@ -88,11 +91,20 @@ def default_output_dir(input_path: Path) -> Path:
     return input_path.resolve().parent / f"{stem}_sptpt"
 
 
-def _check_output_dir(out_dir: Path, *, force: bool) -> None:
+def _check_output_dir(out_dir: Path, *, force: bool, resume: bool = False) -> None:
     """The output folder's refusals that need nothing from the input: a file, earlier results, a run in it."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ToolError(f"output folder {out_dir} is a file: give --out a folder path", EXIT_OUTPUT)
     if out_dir.is_dir() and not force:
+        interrupted = _interrupted_at(out_dir)
+        if resume:
+            if interrupted is None and _holds_finished_run(out_dir):
+                raise ToolError(f"output folder {out_dir} holds a finished run: there is nothing to resume; pass "
+                                "--force to start again", EXIT_OUTPUT)
+            return
+        if interrupted is not None:
+            raise ToolError(f"output folder {out_dir} holds a run {interrupted}: --resume to continue, --force to "
+                            "start again", EXIT_OUTPUT)
         existing = [name for name in RESULT_FILES if (out_dir / name).exists()]
         if existing:
             raise ToolError(f"output folder {out_dir} already holds results ({', '.join(existing)}): "
@@ -102,8 +114,27 @@ def _check_output_dir(out_dir: Path, *, force: bool) -> None:
             pass
 
 
-def _prepare_output_dir(out_dir: Path, *, force: bool) -> None:
-    _check_output_dir(out_dir, force=force)
+def _interrupted_at(out_dir: Path) -> str | None:
+    """How far the run in ``out_dir`` went when it was cut short (``"interrupted at frame 48 of 100"``), or None
+    when it holds no cut-short run: one that run.json says was interrupted, or whose checkpoint alone is left (a
+    run killed before it wrote anything else)."""
+    info = _run_info(out_dir)
+    if info.get("interrupted") is True:
+        ranged = info.get("range") or {}
+        frames = info.get("input", {}).get("frame_count")
+        try:
+            total = len(range(int(ranged["start"]), int(ranged["stop"] if ranged.get("stop") is not None else frames),
+                              int(ranged["step"])))
+            return f"interrupted at frame {int(info['frames_processed'])} of {total}"
+        except (KeyError, TypeError, ValueError):
+            return "interrupted"
+    if not info and (out_dir / CHECKPOINT_NAME).is_file():
+        return "stopped before it finished (a checkpoint is left)"
+    return None
+
+
+def _prepare_output_dir(out_dir: Path, *, force: bool, resume: bool = False) -> None:
+    _check_output_dir(out_dir, force=force, resume=resume)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out_dir):
@@ -155,6 +186,7 @@ def annotate(
     show_progress: bool = True,
     corrections: Sequence[Correction] | None = None,
     media_url: str | None = None,
+    resume: bool = False,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
 
@@ -185,6 +217,8 @@ def annotate(
     (``--media-url``; see :class:`annotator.exports.ExportOptions`), kept in
     run.json for the re-tracks.
 
+    ``resume`` (``--resume``): go on from a checkpoint (:mod:`annotator.checkpoint`).
+
     Raises
     ------
     ToolError
@@ -200,7 +234,7 @@ def annotate(
     if input_path.exists():  # (a missing input is open_frames' error to give, first)
         # Before opening the input: opening a video counts its frames, minutes for a long one, and a refusal
         # after that wait would waste it.
-        _check_output_dir(out_dir, force=force)
+        _check_output_dir(out_dir, force=force, resume=resume)
     counting = CountNote(input_path.name, enabled=show_progress)
     try:
         source = open_frames(input_path, start=start, stop=stop, step=step, counting=counting)
@@ -214,10 +248,26 @@ def annotate(
     if corrections is not None:
         resolve_corrections(corrections, frame_indices=source.indices, track_ids=[t.track_id for t in targets],
                             width=source.width, height=source.height)
-    _prepare_output_dir(out_dir, force=force)
+    _prepare_output_dir(out_dir, force=force, resume=resume)
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
-                         ExportOptions(media_url=media_url))
+                         ExportOptions(media_url=media_url), resume)
+
+
+def _checkpoint_to_resume(out_dir: Path, key: dict) -> Checkpoint | None:
+    """The checkpoint ``--resume`` goes on from, checked to be this run's; None when the folder holds none."""
+    checkpoint = read_checkpoint(out_dir)
+    if checkpoint is None:
+        return None
+    differs = [name for name in ("input", "input_files", "range", "targets", "settings", "tool_version")
+               if checkpoint.key.get(name) != key.get(name)]
+    if differs:
+        what = {"input": "input", "input_files": "input file (changed since)", "range": "frame range",
+                "targets": "boxes or labels", "settings": "settings", "tool_version": "tool version"}
+        raise ToolError(f"the checkpoint in {out_dir} is of another run (its {', '.join(what[d] for d in differs)} "
+                        "differs): resume with the run's own input, boxes and options, or pass --force to start "
+                        "again", EXIT_OUTPUT)
+    return checkpoint
 
 
 def _check_request(targets: Sequence[Target], formats: Sequence[str]) -> None:
@@ -242,8 +292,13 @@ def _as_targets(given) -> list[Target]:
 
 
 def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
-              formats: Sequence[str], input_path: Path, show_progress: bool, options: ExportOptions) -> AnnotateResult:
+              formats: Sequence[str], input_path: Path, show_progress: bool, options: ExportOptions,
+              resume: bool) -> AnnotateResult:
     remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
+    key = run_key(input_path, range(source.start, source.stop, source.step), targets, config.to_dict())
+    checkpoint = _checkpoint_to_resume(out_dir, key) if resume else None
+    if not resume:
+        remove_checkpoint(out_dir)  # another run's: this one writes its own
     # The run is written to a staging folder inside out_dir and moved into place when it is written completely,
     # so that an earlier run there stays whole until then, and stays at all if this one is cut short (Ctrl-C).
     staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, suffix=".tmp", dir=out_dir))
@@ -251,9 +306,11 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
     try:
         render = "overlay" in formats
         # Closed here too, so that an error inside the tracking leaves no bar drawn (or cursor hidden).
-        with Progress(len(source), enabled=show_progress, slow_start=COMPILING_NOTE) as progress:
+        # Only when numba will compile: a slow first frame on a busy machine with the kernels cached is no compile.
+        compiling = COMPILING_NOTE if not sptpt.kernels_cached() else None
+        with Progress(len(source), enabled=show_progress, slow_start=compiling) as progress:
             run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
-                               progress=progress)
+                               progress=progress, checkpoints=(out_dir, key), resume=checkpoint)
         result = AnnotateResult(out_dir=staging, run=run)
         if (run.decode_error is not None or run.interrupted) and _holds_finished_run(out_dir):
             destination = out_dir / INCOMPLETE_DIR
@@ -277,6 +334,8 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
                     # A partial run kept beside an earlier finished one is out of date once that one is replaced.
                     shutil.rmtree(out_dir / INCOMPLETE_DIR, ignore_errors=True)
                 _publish(result, destination)
+                if result.exit_code == EXIT_OK:  # every frame tracked and published: nothing left to resume
+                    remove_checkpoint(out_dir)
         except MoveError as failed:
             keep_staging, exc = True, failed.cause
             raise ToolError(f"{exc.filename or destination}: {exc.strerror or exc} while moving the results into "

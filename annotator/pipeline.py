@@ -28,6 +28,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from annotator.checkpoint import CHECKPOINT_EVERY, Checkpoint, write_checkpoint
 from annotator.config import RunConfig
 from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
@@ -274,6 +275,12 @@ class TrackRecords:
                 keyframe_source=KEYFRAME_GIVEN if first else "", signals=signals)
             self._settle(tid, self._flaggers[tid].push(signals, keyframe=first))
 
+    def stop_marking(self) -> None:
+        """Keep no more marks (a resumed run draws its overlay from the finished tracks), and drop those kept."""
+        self.keep_marks = False
+        for marks in self._marks.values():
+            marks.clear()
+
     def finish(self) -> None:
         """Decide the frames the flaggers still hold (the frames ended)."""
         for tid, flagger in self._flaggers.items():
@@ -457,7 +464,8 @@ class FramesAhead:
 
 
 def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker], follow_up, *,
-                 stop_requested=lambda: False, ahead: int = FRAMES_AHEAD) -> FrameLoopEnd:
+                 stop_requested=lambda: False, ahead: int = FRAMES_AHEAD, resumed: FrameLoopEnd | None = None,
+                 checkpoint=None, checkpoint_every: int = 0) -> FrameLoopEnd:
     """The frame loop: track each frame (:class:`FramesAhead`), then hand it to ``follow_up`` on a thread of its
     own.
 
@@ -470,12 +478,19 @@ def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker]
     ``source`` yields ``(frame_index, frame)``; a :class:`~annotator.frames.DecodeError` from it ends the loop,
     as do ``stop_requested()`` (checked between frames) and a Ctrl-C outside the main thread; every frame tracked
     so far is kept (after a Ctrl-C, those in flight are dropped).
+
+    ``resumed`` (a run going on from a checkpoint) holds the frames tracked before, and ``source`` then yields the
+    frames after them; ``trackers`` are already started. With ``checkpoint``, every ``checkpoint_every`` frames
+    the loop waits until no frame is in flight and every follow-up is done, then calls ``checkpoint(end,
+    frame_index)`` with the last frame's source index: the trackers and the follow-up's state are then those of
+    exactly ``end.frames_tracked`` frames.
     """
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sptpt-follow-up") as pool:
         submitted: collections.deque = collections.deque()
         in_flight = FramesAhead({t.track_id: trackers[t.track_id] for t in targets}, ahead)
         try:
-            end = _track_and_submit(iter(source), targets, in_flight, follow_up, pool, submitted, stop_requested)
+            end = _track_and_submit(iter(source), targets, in_flight, follow_up, pool, submitted, stop_requested,
+                                    resumed, checkpoint, checkpoint_every)
             wait(submitted)  # every frame is followed up before the caller finishes the flags
             while submitted:
                 submitted.popleft().result()
@@ -491,8 +506,11 @@ def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker]
 
 
 def _track_and_submit(frames, targets: Sequence[Target], in_flight: FramesAhead, follow_up,
-                      pool: ThreadPoolExecutor, submitted: collections.deque, stop_requested) -> FrameLoopEnd:
-    end = FrameLoopEnd(frames_tracked=0, seconds_tracking=0.0)
+                      pool: ThreadPoolExecutor, submitted: collections.deque, stop_requested,
+                      resumed: FrameLoopEnd | None, checkpoint, checkpoint_every: int) -> FrameLoopEnd:
+    end = FrameLoopEnd(frames_tracked=0, seconds_tracking=0.0) if resumed is None else \
+        FrameLoopEnd(frames_tracked=resumed.frames_tracked, seconds_tracking=resumed.seconds_tracking)
+    taken_from_source = end.frames_tracked
 
     def follow(frame_index, frame, results, seconds) -> None:
         end.seconds_tracking += sum(seconds.values())
@@ -516,8 +534,15 @@ def _track_and_submit(frames, targets: Sequence[Target], in_flight: FramesAhead,
                                                                        first=True))
             else:
                 in_flight.add(frame_index, frame)
+            taken_from_source += 1
             for taken in in_flight.settled():
                 follow(*taken)
+            if checkpoint is not None and taken_from_source % checkpoint_every == 0:
+                for taken in in_flight.settled(final=True):  # nothing in flight: the trackers are idle
+                    follow(*taken)
+                while submitted:  # every frame measured and flagged
+                    submitted.popleft().result()
+                checkpoint(end, frame_index)
         else:
             end.interrupted = True
         for taken in in_flight.settled(final=True):  # the frames decoded before the loop ended
@@ -537,6 +562,8 @@ def track_source(
     *,
     overlay_path: Path | None = None,
     progress: Progress | None = None,
+    checkpoints: tuple[Path, dict] | None = None,
+    resume: Checkpoint | None = None,
 ) -> TrackingRun:
     """Track every target through the source's selected frames.
 
@@ -553,6 +580,14 @@ def track_source(
     overlay_path : Path, optional
         Where to stream the overlay video; ``None`` renders nothing.
     progress : Progress, optional
+    checkpoints : (Path, dict), optional
+        The output folder to write a :class:`~annotator.checkpoint.Checkpoint` into every
+        :data:`~annotator.checkpoint.CHECKPOINT_EVERY` frames, and the run's key
+        (:func:`~annotator.checkpoint.run_key`); None writes none.
+    resume : Checkpoint, optional
+        Go on from this checkpoint of the same run: its frames are decoded and skipped, the trackers and
+        records it holds track the rest. The overlay is then drawn from the finished tracks after tracking
+        (:func:`render_tracks`, as a re-track draws it), since the interrupted run's stream is gone.
 
     Returns
     -------
@@ -564,25 +599,33 @@ def track_source(
     # On a fresh machine: the kernels the trackers' first frame compiles last are compiled meanwhile on the other
     # core (nothing happens once numba's cache holds them).
     compile_kernels(wait=False)
-    trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id)) for t in targets}
     model = load_model(config.failure_model)
-    online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
-                        min_span=config.flags.min_span)
-    records = TrackRecords(targets, model, online, budget=config.flags.review_budget is not None,
-                           keep_marks=overlay_path is not None)
+    if resume is None:
+        trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id))
+                    for t in targets}
+        online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
+                            min_span=config.flags.min_span)
+        records = TrackRecords(targets, model, online, budget=config.flags.review_budget is not None,
+                               keep_marks=overlay_path is not None)
+    else:
+        trackers, records = resume.trackers, resume.records
+        records.stop_marking()  # the overlay is drawn from the finished tracks
+    loop = _FrameLoop(source, targets, trackers, records, progress, checkpoints, resume)
     with _deferred_interrupt() as stop_request:
-        if overlay_path is None:
-            end, thumbnails = _track_into(source, targets, trackers, records, None, progress, stop_request), []
+        if overlay_path is None or resume is not None:
+            end, thumbnails = loop.run(None, stop_request), []
         else:
-            end, thumbnails = _track_with_overlay(source, targets, trackers, records, overlay_path, progress,
-                                                  stop_request)
+            end, thumbnails = _track_with_overlay(loop, source, overlay_path, stop_request)
+    tracks = final_flags(records.tracks(), config.flags, model)
+    if overlay_path is not None and resume is not None and end.frames_tracked:
+        thumbnails = _render_overlay(source, tracks, overlay_path, progress)
     if progress is not None:
         progress.close()
     return TrackingRun(
         video=VideoInfo(path=str(source.path), name=source.name, width=source.width, height=source.height,
                         fps=source.fps, frame_count=source.frame_count,
                         frame_files=getattr(source, "frame_files", None)),  # image folders only
-        tracks=final_flags(records.tracks(), config.flags, model),
+        tracks=tracks,
         frames_processed=end.frames_tracked,
         seconds_tracking=end.seconds_tracking,
         seconds_total=time.perf_counter() - started,
@@ -594,13 +637,13 @@ def track_source(
     )
 
 
-def _track_with_overlay(source, targets, trackers, records: TrackRecords, overlay_path: Path, progress,
+def _track_with_overlay(loop: _FrameLoop, source, overlay_path: Path,
                         stop_request) -> tuple[FrameLoopEnd, list[SpanThumbnail]]:
     try:
         with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
             sink = OverlaySink(writer)
-            held = HeldFrames(records, sink)
-            end = _track_into(source, targets, trackers, records, held, progress, stop_request)
+            held = HeldFrames(loop.records, sink)
+            end = loop.run(held, stop_request)
             if end.frames_tracked == 0:
                 # Not even the first frame decoded: discard the empty video (an MP4 needs a frame) and let the
                 # caller report the unreadable input.
@@ -611,20 +654,53 @@ def _track_with_overlay(source, targets, trackers, records: TrackRecords, overla
         return nothing.end, []
 
 
-def _track_into(source, targets, trackers, records: TrackRecords, held: HeldFrames | None, progress,
-                stop_request) -> FrameLoopEnd:
-    """The frame loop with its follow-up: records each frame, holds it for the overlay, advances the bar."""
+def _render_overlay(source, tracks: Sequence[TrackResult], overlay_path: Path, progress) -> list[SpanThumbnail]:
+    """The overlay of a resumed run, drawn from its finished tracks over the frames they hold."""
+    indices = tracks[0].frame_indices
+    frames = ((position, frame) for position, (_, frame) in zip(range(len(indices)), source))
+    with OverlayWriter(overlay_path, fps=source.fps, width=source.width, height=source.height) as writer:
+        return render_tracks(OverlaySink(writer), frames, indices, tracks)
 
-    def follow_up(position, frame_index, frame, results, seconds) -> None:
-        records.add(frame_index, frame, results, seconds)
-        if held is not None:
-            held.add(position, frame_index, frame, results)
-        if progress is not None:
-            progress.advance()
 
-    end = track_frames(source, targets, trackers, follow_up, stop_requested=lambda: stop_request["requested"])
-    records.finish()
-    return end
+class _FrameLoop:
+    """The frame loop with its follow-up (records each frame, holds it for the overlay, advances the bar), and
+    the checkpoints of its state."""
+
+    def __init__(self, source, targets: Sequence[Target], trackers: dict[int, Tracker], records: TrackRecords,
+                 progress, checkpoints: tuple[Path, dict] | None, resume: Checkpoint | None) -> None:
+        self.source, self.targets, self.trackers, self.records = source, targets, trackers, records
+        self.progress, self.checkpoints, self.resume = progress, checkpoints, resume
+
+    def run(self, held: HeldFrames | None, stop_request) -> FrameLoopEnd:
+        records, progress = self.records, self.progress
+
+        def follow_up(position, frame_index, frame, results, seconds) -> None:
+            records.add(frame_index, frame, results, seconds)
+            if held is not None:
+                held.add(position, frame_index, frame, results)
+            if progress is not None:
+                progress.advance()
+
+        frames, resumed = self.source, None
+        if self.resume is not None:
+            last = self.resume.last_index
+            frames = (item for item in self.source if item[0] > last)  # decoded and skipped up to the checkpoint
+            resumed = FrameLoopEnd(frames_tracked=self.resume.frames_tracked,
+                                   seconds_tracking=self.resume.seconds_tracking)
+            if progress is not None:
+                progress.advance(self.resume.frames_tracked)
+        end = track_frames(frames, self.targets, self.trackers, follow_up,
+                           stop_requested=lambda: stop_request["requested"], resumed=resumed,
+                           checkpoint=self._checkpoint if self.checkpoints is not None else None,
+                           checkpoint_every=CHECKPOINT_EVERY)
+        records.finish()
+        return end
+
+    def _checkpoint(self, end: FrameLoopEnd, frame_index: int) -> None:
+        folder, key = self.checkpoints
+        write_checkpoint(folder, Checkpoint(
+            key=key, frames_tracked=end.frames_tracked, last_index=int(frame_index),
+            seconds_tracking=end.seconds_tracking, trackers=self.trackers, records=self.records))
 
 
 def final_flags(tracks: Sequence[TrackResult], params: FlagParams, model) -> list[TrackResult]:

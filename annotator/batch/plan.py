@@ -66,6 +66,8 @@ class ItemJob:
     #: ``--media-url`` (ends in / or =: each item's labelstudio.json gets its video's file name appended).
     media_url: str | None = None
     threads: int | None = None  # numba threads for this item; None leaves the worker's setting
+    #: Go on from the checkpoint an interrupted run of the item left in its folder (none: from the first frame).
+    resume: bool = False
 
 
 

@@ -131,7 +131,8 @@ def _schedule(planned: list, *, force: bool, n_workers: int, scheduler: str | No
     n_workers = min(n_workers, max(len(todo), 1))
     threads = None if scheduler else threads_per_worker(n_workers)
     for plan in todo:
-        plan.job = dataclasses.replace(plan.job, threads=threads)
+        # An item cut short goes on from its checkpoint, unless --force asks for every item afresh.
+        plan.job = dataclasses.replace(plan.job, threads=threads, resume=not force)
     settings = {"workers": None if scheduler else n_workers, "scheduler": scheduler,
                 "start_method": None if scheduler else worker_context().get_start_method(),
                 "numba_threads_per_worker": threads}

@@ -39,6 +39,7 @@ from typing import Any, Callable
 from annotator.allocator import keep_freed_memory
 from annotator.job import previous_outputs, remove_staging_folders
 from annotator.batch.plan import ItemJob
+from annotator.checkpoint import CHECKPOINT_NAME
 from annotator.exports.otb import otb_result_globs
 from annotator.manifest import output_stem
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
@@ -181,9 +182,10 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
         try:
             if folder.is_dir():
                 _clear_item_folder(folder, output_stem(Path(job.input_path)))
+            resume = job.resume and (folder / CHECKPOINT_NAME).is_file()
             result = annotate(job.input_path, job.targets, job.config, out_dir=folder, start=job.start,
                               stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False,
-                              media_url=job.media_url)
+                              media_url=job.media_url, resume=resume)
             outcome.frames = result.run.frames_processed
             if result.exit_code == EXIT_OK:
                 outcome.status = "done"

@@ -11,7 +11,7 @@ from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
 from sptpt.params import PRESETS
-from annotator.errors import EXIT_OK, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
 from annotator.wording import plural
 
 def track_command(
@@ -40,6 +40,7 @@ def track_command(
              "ending in / or = gets the video's file name. Default: the video's path, which a server cannot play."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
     force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
+    resume: bool = typer.Option(False, "--resume", help="Go on with a run that was cut short (Ctrl-C, kill) from its last checkpoint, with the same boxes as a run never interrupted."),
     corrections: Optional[Path] = typer.Option(
         None, "--corrections",
         help="CSV frame,x,y,w,h[,track_id] or COCO file of human boxes, applied right after tracking "
@@ -58,6 +59,9 @@ def track_command(
     from annotator.job import annotate
 
     try:
+        if resume and force:
+            raise ToolError("--resume goes on with the run in the output folder and --force discards it: give one of "
+                            "them", EXIT_USAGE)
         targets = _targets(box, label, box_origin)
         config = _config(config_file, preset, seed, review_budget, failure_model)
         chosen = [f.strip() for f in formats.split(",") if f.strip()]
@@ -70,7 +74,7 @@ def track_command(
             fixes = read_corrections(corrections)  # a malformed file, or one that does not fit, fails before tracking
         with one_line_warnings():
             result = annotate(video, targets, config, out_dir=out, start=start, stop=stop, step=step,
-                              formats=chosen, force=force, show_progress=not quiet, corrections=fixes,
+                              formats=chosen, force=force, resume=resume, show_progress=not quiet, corrections=fixes,
                               media_url=media_url)
         review = _apply_given_corrections(result, corrections, quiet) if corrections is not None else None
     except ToolError as error:
