@@ -19,7 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__all__ = ["FrameResult", "Tracker", "TrackerParams", "compile_kernels", "preset"]
+__all__ = ["FrameResult", "Tracker", "TrackerParams", "compile_kernels", "kernels_cached", "preset"]
 
 # Where each public name lives, as (module, name there). Imported on first use: ``import sptpt.boxes`` (the tool
 # does, at start-up) should not load the tracker and numba.
@@ -28,6 +28,7 @@ _HOMES = {
     "Tracker": ("sptpt.tracker", "Tracker"),
     "TrackerParams": ("sptpt.params", "TrackerParams"),
     "compile_kernels": ("sptpt._kernels.warmup", "compile_kernels"),
+    "kernels_cached": ("sptpt._kernels.warmup", "kernels_cached"),
     "preset": ("sptpt.params", "get_preset"),
 }
 
@@ -44,7 +45,7 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
-    from sptpt._kernels.warmup import compile_kernels
+    from sptpt._kernels.warmup import compile_kernels, kernels_cached
     from sptpt.params import TrackerParams
     from sptpt.params import get_preset as preset
     from sptpt.results import FrameResult

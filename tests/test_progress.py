@@ -251,3 +251,33 @@ def test_count_note_speaks_only_once_the_count_is_slow(tty, clock, terminal):
         assert text.endswith("\n")
     else:  # a log gets one line that says what the wait is
         assert stream.getvalue() == "counting the frames of long.mp4 (once, for exact frame numbers)...\n"
+
+
+@pytest.mark.parametrize("cached", [True, False])
+def test_a_run_says_it_compiles_only_when_the_kernels_are_not_cached(tmp_path, monkeypatch, cached):
+    """A slow first frame with the kernels cached (a busy machine) is no compile: the note is not armed."""
+    import cv2
+    import sptpt
+    from annotator import job
+    from annotator.pipeline import Target
+    from sptpt_dev.synthetic import make_clip
+
+    clip = make_clip(3, size=(64, 48), object_size=(16, 12))
+    (tmp_path / "seq").mkdir()
+    for k, frame in enumerate(clip.frames):
+        cv2.imwrite(str(tmp_path / "seq" / f"{k}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    armed = []
+    real = job.Progress
+
+    def recording(*args, **kwargs):
+        armed.append(kwargs.get("slow_start"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(job, "Progress", recording)
+    monkeypatch.setattr(sptpt, "kernels_cached", lambda: cached)
+    from annotator.config import resolve_config
+
+    config = resolve_config(tracker_overrides={"n_particles": 40, "n_negatives": 10})
+    job.annotate(tmp_path / "seq", [Target(tuple(clip.boxes_xywh[0]), track_id=1)], config, out_dir=tmp_path / "out",
+                 formats=["otb"], show_progress=False)
+    assert armed == [None if cached else job.COMPILING_NOTE]

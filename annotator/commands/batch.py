@@ -45,11 +45,7 @@ def batch_command(
             raise ToolError("give either a MANIFEST file or --otb-root DIR (one of them)", EXIT_USAGE)
         if scheduler is not None:
             require_extra("--scheduler")  # before the manifest is read: a missing install is the first thing to fix
-        if box_origin not in (0, 1):
-            raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
-        if otb_root is not None and box_origin:
-            raise ToolError("--box-origin applies to a manifest's boxes: --otb-root reads OTB's 1-based ground "
-                            "truth as such already; drop --box-origin", EXIT_USAGE)
+        _check_box_origin(box_origin, otb_root)
         try:
             items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest,
                                                                                               box_origin=box_origin)
@@ -96,3 +92,11 @@ def batch_command(
         typer.echo(message, err=True)
         if lost_note:
             typer.echo(lost_note, err=True)
+
+
+def _check_box_origin(box_origin: int, otb_root: Path | None) -> None:
+    if box_origin not in (0, 1):
+        raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)
+    if otb_root is not None and box_origin:
+        raise ToolError("--box-origin applies to a manifest's boxes: --otb-root reads OTB's 1-based ground "
+                        "truth as such already; drop --box-origin", EXIT_USAGE)
