@@ -1,0 +1,36 @@
+"""The frame-size and long-video benchmarks' own parts: the resized sequence's ground truth, the memory probe."""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+
+from _benchmark_scripts import load_script
+
+
+def test_a_resized_sequence_keeps_its_ground_truth_on_the_object(tmp_path, monkeypatch):
+    sizes = load_script("video_sizes")
+    source = tmp_path / "otb" / "Seq"
+    (source / "img").mkdir(parents=True)
+    for k in range(3):
+        frame = np.zeros((60, 80, 3), np.uint8)
+        frame[20 + k:30 + k, 10:30] = 255  # a white box at 1-based x 11, y 21 + k, 20 x 10
+        cv2.imwrite(str(source / "img" / f"{k + 1:04d}.png"), frame)
+    (source / "groundtruth_rect.txt").write_text("".join(f"11,{21 + k},20,10\n" for k in range(3)))
+    monkeypatch.setattr(sizes, "SHARED", tmp_path / "otb")
+    folder, box = sizes.make_sized("Seq", 2, (160, 90), tmp_path / "work")
+    assert box == [20.0, 30.0, 40.0, 15.0]  # 0-based, x doubled, y 1.5 times
+    assert len(list((folder / "img").iterdir())) == 2
+    rows = (folder / "groundtruth_rect.txt").read_text().splitlines()
+    assert rows == ["21.000,31.000,40.000,15.000", "21.000,32.500,40.000,15.000"]
+    image = cv2.imread(str(folder / "img" / "0002.jpg"), cv2.IMREAD_GRAYSCALE)
+    assert image.shape == (90, 160)
+    x, y, w, h = 20, int(round(31.5)), 40, 15  # the second frame's box, 0-based
+    assert image[y + 2:y + h - 2, x + 2:x + w - 2].mean() > 200 and image[:y - 3].mean() < 30
+
+
+def test_the_memory_probe_reads_this_process():
+    long_video = load_script("long_video")
+    assert 10 < long_video._tree_rss_mib(os.getpid()) < 100_000
