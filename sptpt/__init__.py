@@ -11,7 +11,9 @@ What a Python user imports::
     result = tracker.init(first_frame, (136, 129, 48, 40))   # (H, W, 3) uint8 RGB; box x, y, w, h, 0-based
     result = tracker.update(next_frame)                     # a FrameResult: box_xywh, confidence, ...
 
-``TrackerParams`` holds every parameter (build one with :func:`dataclasses.replace` on a preset).
+``TrackerParams`` holds every parameter (build one with :func:`dataclasses.replace` on a preset). The ``fused``
+preset also takes a learned tracker beside SPTPT, a :class:`Guide` (``Tracker(preset("fused"), guide=...)``; the
+tool's is ``annotator.NanoTrackGuide``).
 """
 
 from __future__ import annotations
@@ -19,12 +21,13 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__all__ = ["FrameResult", "Tracker", "TrackerParams", "compile_kernels", "kernels_cached", "preset"]
+__all__ = ["FrameResult", "Guide", "Tracker", "TrackerParams", "compile_kernels", "kernels_cached", "preset"]
 
 # Where each public name lives, as (module, name there). Imported on first use: ``import sptpt.boxes`` (the tool
 # does, at start-up) should not load the tracker and numba.
 _HOMES = {
     "FrameResult": ("sptpt.results", "FrameResult"),
+    "Guide": ("sptpt.tracker", "Guide"),
     "Tracker": ("sptpt.tracker", "Tracker"),
     "TrackerParams": ("sptpt.params", "TrackerParams"),
     "compile_kernels": ("sptpt._kernels.warmup", "compile_kernels"),
@@ -49,4 +52,4 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from sptpt.params import TrackerParams
     from sptpt.params import get_preset as preset
     from sptpt.results import FrameResult
-    from sptpt.tracker import Tracker
+    from sptpt.tracker import Guide, Tracker

@@ -144,6 +144,30 @@ class TrackerParams:
     it, higher in every seed, for about 4 ms a frame. True in ``robust``.
     [ours, benchmarks/RESULTS.md "robust development"]"""
 
+    guide_particles: int = 0
+    """Candidates drawn each frame around the box of a learned tracker (the :class:`~sptpt.tracker.Tracker`'s
+    ``guide``, e.g. NanoTrack), in a round of their own beside SPTPT's: its box itself and this many more, spread
+    as the refine round's, with the first round's shortlist in proportion (5 of them with ``robust``'s 25 of 150).
+    They are scored by the run's own models, as every other candidate: the learned tracker proposes, SPTPT's model
+    decides. Alone (with the vote, no ``guide_prior``) it did not keep Skiing's skier (0.094, first 150 frames):
+    a run that has drifted scores its own drift higher. 0: no such round (every preset without a guide); 30 in
+    ``fused``. [ours, benchmarks/HISTORY.md, 2026-12-05]"""
+
+    guide_vote: bool = False
+    """When True, the learned tracker's box votes in the consensus as one more box, as ``filter_vote``'s does (never
+    reported alone). Needs a ``guide``; without ``run_choice="consensus"`` and two runs or more it has no effect.
+    Screened on 8 ``../shared/otb`` sequences (seed 0) with ``fused``'s other values: 0.668 with it, 0.656
+    without. True in ``fused``. [ours, benchmarks/HISTORY.md, 2026-12-05]"""
+
+    guide_prior: float = 0.0
+    """Where the guide has a box, each run ranks its candidates by their score plus this many of its usual spreads
+    of scores (the running level's) times their IoU with the guide's box: the guide's box as an observation
+    beside SPTPT's. The score reported, and judged for learning, stays the model's own, so a winner the models
+    find unlike the object is not learned from. Screened on 8 ``../shared/otb`` sequences (seed 0; ``robust``
+    0.527 over 6 seeds there, NanoTrack 0.622): 2 gave 0.650, 5 gave 0.668, 10 gave 0.670; applied only where the
+    run's own best would not be accepted, 5 gave 0.610 (Skiing lost). 0: no bonus; 5 in ``fused``.
+    [ours, benchmarks/HISTORY.md, 2026-12-05]"""
+
     contrast_candidates: int = 0
     """Of this many best candidates by log-likelihood, those whose box overlaps the best one's by an IoU of at
     least 0.5, each run takes as its estimate (reported, and learned from) the one whose box stands out most from
@@ -302,6 +326,8 @@ class TrackerParams:
         _check(self.independent_runs >= 1, "independent_runs", self.independent_runs, "an integer >= 1")
         _check(self.run_choice in RUN_CHOICES, "run_choice", self.run_choice,
                " or ".join(repr(c) for c in RUN_CHOICES))
+        _check(self.guide_prior >= 0, "guide_prior", self.guide_prior, "a number >= 0")
+        _check(self.guide_particles >= 0, "guide_particles", self.guide_particles, "an integer >= 0")
         _check(self.contrast_candidates >= 0, "contrast_candidates", self.contrast_candidates, "an integer >= 0")
         _check(0 < self.prescreen_share <= 1, "prescreen_share", self.prescreen_share, "a number in (0, 1]")
         _check(self.shortlist >= 0, "shortlist", self.shortlist, "an integer >= 0")
@@ -323,6 +349,11 @@ class TrackerParams:
         _check(self.re_mode in RE_MODES, "re_mode", self.re_mode, f"one of {', '.join(RE_MODES)}")
         _check(math.isfinite(self.accept_threshold), "accept_threshold", self.accept_threshold, "a finite number")
         _check(self.confidence_scale > 0, "confidence_scale", self.confidence_scale, "a number > 0")
+
+    @property
+    def uses_guide(self) -> bool:
+        """Whether these parameters need a learned tracker beside SPTPT (the Tracker's ``guide``)."""
+        return self.guide_particles > 0 or self.guide_vote or self.guide_prior > 0
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping of every field (tuples as lists), for provenance files."""
@@ -359,6 +390,12 @@ PRESETS: dict[str, TrackerParams] = {
         shortlist=25,
     ),
 }
+# The default of the tool (issue #71): robust with a learned tracker beside it. Each run also draws candidates
+# around the learned tracker's box and ranks its candidates with a bonus for overlapping that box; SPTPT's models
+# still score every candidate, and only a winner they accept is learned. Needs a ``guide`` (the tool's is NanoTrack
+# v2, annotator/nanotrack.py). Chosen on ../shared/otb, scored once on ../shared/otb_extra: benchmarks/RESULTS.md,
+# "The fused default".
+PRESETS["fused"] = dataclasses.replace(PRESETS["robust"], guide_particles=30, guide_prior=5.0, guide_vote=True)
 
 
 def get_preset(name: str) -> TrackerParams:

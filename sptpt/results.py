@@ -87,6 +87,11 @@ class FrameResult:
         the mean of those that agree, with ``filter_vote`` perhaps with the
         correlation-filter tracker's box, which is not listed here). Where the
         runs disagree, one has likely lost the target. None for a single run.
+    guide_box_xywh : (4,) float64 ndarray or None
+        With a ``guide`` (a learned tracker, :class:`sptpt.tracker.Guide`): its own box this frame, all NaN where it
+        has none. None without a guide.
+    guide_score : float
+        The guide's own score of its box (NaN without a guide).
     """
 
     box_xywh: np.ndarray
@@ -99,6 +104,8 @@ class FrameResult:
     superpixel_labels: np.ndarray | None = None
     superpixel_origin_xy: np.ndarray | None = None
     run_boxes_xywh: np.ndarray | None = None
+    guide_box_xywh: np.ndarray | None = None
+    guide_score: float = float("nan")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "box_xywh", checked_box(self.box_xywh))
@@ -116,3 +123,5 @@ class FrameResult:
             if runs.ndim != 2 or runs.shape[1] != 4 or len(runs) < 2:
                 raise ValueError(f"run_boxes_xywh must be (R, 4) with R >= 2, got {runs.shape}")
             object.__setattr__(self, "run_boxes_xywh", runs)
+        if self.guide_box_xywh is not None:
+            object.__setattr__(self, "guide_box_xywh", checked_box(self.guide_box_xywh, "guide_"))

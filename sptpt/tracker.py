@@ -12,7 +12,9 @@ the negative model is refitted from samples drawn around it. (``robust``
 also reports a box sized by a scale filter and centred by a translation
 filter beside the run, which leave the run itself untouched; and it tracks
 three independent runs, lets a correlation-filter tracker vote with them, and
-reports the mean box of those that agree.)
+reports the mean box of those that agree. ``fused`` adds a learned tracker, the
+``guide``: each run also draws candidates around its box and ranks candidates
+higher the more they overlap it, and it votes too.)
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import functools
 import os
 import threading
 from concurrent.futures import Future, wait
-from typing import Callable, ContextManager
+from typing import Callable, ContextManager, Protocol
 
 import numba
 import numpy as np
@@ -46,16 +48,34 @@ from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
 from sptpt.translation import TranslationFilter
 
-__all__ = ["STAGES", "Tracker", "TrackerInspection"]
+__all__ = ["STAGES", "Guide", "Tracker", "TrackerInspection"]
 
 #: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``shortlist`` only
 #: with ``shortlist`` > 0 (the first pass over every candidate, its warp apart), ``scale`` only with
 #: ``scale_filter`` or ``reported_scale_filter``, ``translation`` only with ``reported_translation_filter``,
-#: ``filter_vote`` only where the correlation-filter tracker votes: ``run_choice="consensus"`` and two runs or more).
+#: ``filter_vote`` only where the correlation-filter tracker votes: ``run_choice="consensus"`` and two runs or more;
+#: ``guide`` only with a ``guide``).
 STAGES = ("warp", "prescreen", "shortlist", "snic", "features", "coding", "scoring", "positive_update",
-          "negative_update", "scale", "translation", "filter_vote")
+          "negative_update", "scale", "translation", "filter_vote", "guide")
 
 StageTimer = Callable[[str], ContextManager]
+
+
+class Guide(Protocol):
+    """A learned tracker that proposes a box each frame (``TrackerParams.guide_particles``, ``guide_vote``).
+
+    It follows the object on its own, from the first box: it never sees SPTPT's boxes, so its boxes depend on the
+    frames alone. ``update`` returns its box (0-based ``x, y, w, h``) and its own score of it, higher when surer;
+    a box with a non-finite value or no area means it has no box this frame.
+    """
+
+    def init(self, rgb: np.ndarray, box_xywh: np.ndarray) -> None: ...
+
+    def update(self, rgb: np.ndarray) -> tuple[np.ndarray, float]: ...
+
+
+#: A frame's guide box (None where it has none) and the guide's score: what :meth:`Tracker._follow_guide` gives.
+Guided = tuple[np.ndarray | None, float]
 
 # The nine one-pixel shifts of the first-frame state that train the dictionary (TPT).
 _INIT_SHIFTS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)], dtype=np.float64)
@@ -222,6 +242,11 @@ class Tracker:
         tracker measuring anything itself. With several runs it is entered
         from their threads at the same time, so what it records must be
         thread-safe; the stages of the runs then overlap in time.
+    guide : Guide, optional
+        A learned tracker beside SPTPT, needed by (and only by) parameters that use one
+        (``guide_particles``, ``guide_prior``, ``guide_vote``: the ``fused`` preset). It is given the first frame
+        and box, then each frame before the runs; its box is where each run draws more candidates and which
+        candidates it favours, and, with ``guide_vote``, one more vote. ``FrameResult.guide_box_xywh`` reports it.
 
     With ``params.independent_runs`` R > 1 the tracker follows the object with R
     independent runs and reports, each frame, what ``params.run_choice``
@@ -244,10 +269,16 @@ class Tracker:
         *,
         seed: int | np.random.Generator | None = None,
         stage_timer: StageTimer | None = None,
+        guide: Guide | None = None,
     ) -> None:
         self.params = get_preset("paper") if params is None else params
         if not isinstance(self.params, TrackerParams):
             raise TypeError(f"params must be a TrackerParams, got {type(self.params).__name__}")
+        if self.params.uses_guide != (guide is not None):
+            raise ValueError("guide_particles, guide_prior and guide_vote need a guide (Tracker(params, guide=...)), "
+                             "and a guide needs one of them: " + ("pass a guide" if guide is None
+                                                                  else "set one, or drop the guide"))
+        self._guide = guide
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         p, timer = self.params, stage_timer or _no_timer
         if p.independent_runs == 1:
@@ -260,7 +291,7 @@ class Tracker:
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
             self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
         # Draws no random numbers, so the runs are the same with it and without it.
-        voting = p.filter_vote and p.run_choice == "consensus" and p.independent_runs > 1
+        voting = p.filter_vote and voting_allowed(p)
         self._filter_voter = FilterTracker(p.template_size) if voting else None
         self._time = timer
         self._agreed = 0  # frames in a row on which the runs agreed (``easy_after``)
@@ -268,6 +299,12 @@ class Tracker:
         self._submitted: collections.deque = collections.deque()
         # Each run's frames, and the voter's, one after another on a thread of their own (only once submitted).
         self._lanes = [InOrder() for _ in range(len(self._runs) + (self._filter_voter is not None))]
+        self._guide_votes = p.guide_vote and voting_allowed(p)
+
+    @property
+    def guide(self) -> Guide | None:
+        """The learned tracker beside SPTPT (``guide=``), or None."""
+        return self._guide
 
     def init(self, frame: np.ndarray, box_xywh) -> FrameResult:
         """Start tracking the object in ``box_xywh`` of ``frame``.
@@ -292,6 +329,10 @@ class Tracker:
         if self._filter_voter is not None:  # after the runs, which have checked the frame and the box
             with self._time("filter_vote"):
                 self._filter_voter.init(_as_rgb(frame), results[0].box_xywh)
+        if self._guide is not None:
+            with self._time("guide"):
+                self._guide.init(_as_rgb(frame), results[0].box_xywh)
+            return dataclasses.replace(_reported(results, 0), guide_box_xywh=results[0].box_xywh, guide_score=1.0)
         return _reported(results, 0)
 
     def update(self, frame: np.ndarray, *, details: bool = False) -> FrameResult:
@@ -314,13 +355,14 @@ class Tracker:
 
     def _track_now(self, frame: np.ndarray, details: bool) -> FrameResult:
         with _single_threaded_blas():
-            if len(self._runs) == 1:
+            if len(self._runs) == 1 and self._guide is None:
                 return self._runs[0].update(frame, details=details)  # the run checks the frame itself
             # Checked before any run or the voter moves on: a frame they would refuse leaves them all as they were.
             rgb = self._runs[0].sequence_rgb(frame, "update")
+            guided = self._follow_guide(rgb)
             share = self.params.easy_share if 0 < self.params.easy_after <= self._agreed else 1.0
-            results, voter_box = self._update_runs(rgb, details, share)
-        return self._report(rgb, results, voter_box)
+            results, voter_box = self._update_runs(rgb, details, share, guided)
+        return self._report(rgb, results, voter_box, guided)
 
     def submit(self, frame: np.ndarray, *, details: bool = False) -> None:
         """Start tracking the next frame and return without waiting for it; :meth:`collect` gives its result.
@@ -348,7 +390,8 @@ class Tracker:
             self._submitted.append(self._track_now(frame, details))
             return
         rgb = self._runs[0].sequence_rgb(frame, "update")
-        tasks = self._tasks(rgb, details, 1.0)
+        guided = self._follow_guide(rgb)  # here, in frame order: every run's task of this frame needs its box
+        tasks = self._tasks(rgb, details, 1.0, guided)
         # Held until the frame's last task ends, not until it is collected: a tracker dropped with frames in
         # flight must not leave the process's BLAS on one thread.
         _BLAS_ON_ONE_THREAD.acquire()
@@ -362,7 +405,7 @@ class Tracker:
             for _ in range(len(tasks) - len(futures)):  # interrupted part-way: those never submitted let go now
                 release()
             if futures:  # recorded even then, so that collect or discard waits for what did start
-                self._submitted.append(_InFlight(rgb, futures, complete=len(futures) == len(tasks)))
+                self._submitted.append(_InFlight(rgb, futures, guided, complete=len(futures) == len(tasks)))
 
     def collect(self) -> FrameResult:
         """The result of the oldest frame submitted and not yet collected, once it is tracked.
@@ -405,9 +448,12 @@ class Tracker:
             future.cancel()  # a call not started yet never starts (its done-callbacks still run)
         wait(futures)
 
-    def _tasks(self, rgb: np.ndarray, details: bool, share: float) -> list[Callable[[], object]]:
+    def _tasks(self, rgb: np.ndarray, details: bool, share: float,
+               guided: Guided | None) -> list[Callable[[], object]]:
         """Each run's update of the frame and, with the voter, its vote (last)."""
-        tasks: list[Callable[[], object]] = [functools.partial(run.update, rgb, details=details, share=share)
+        # Only with a guide does a run hear of it.
+        extra = {} if guided is None else {"guide_box": guided[0]}
+        tasks: list[Callable[[], object]] = [functools.partial(run.update, rgb, details=details, share=share, **extra)
                                              for run in self._runs]
         if self._filter_voter is not None:
             tasks.append(functools.partial(self._vote, rgb))
@@ -417,6 +463,16 @@ class Tracker:
         if self._submitted:
             raise RuntimeError(f"{method}() with {len(self._submitted)} submitted frame(s) not collected: "
                                f"collect() them first, or discard() them")
+
+    def _follow_guide(self, rgb: np.ndarray) -> Guided | None:
+        """The guide's box and score for this frame (the box None where it has none); None without a guide."""
+        if self._guide is None:
+            return None
+        with self._time("guide"):
+            box, score = self._guide.update(rgb)
+        box = np.asarray(box, dtype=np.float64).reshape(4)
+        found = bool(np.isfinite(box).all() and box[2] > 0 and box[3] > 0)
+        return (box if found else None), float(score)
 
     def _vote(self, rgb: np.ndarray) -> np.ndarray:
         with self._time("filter_vote"):
@@ -441,22 +497,31 @@ class Tracker:
             raise failed
         done = [future.result() for future in entry.futures]
         runs = len(self._runs)
-        self._submitted[index] = self._report(entry.rgb, done[:runs], done[runs] if len(done) > runs else None)
+        self._submitted[index] = self._report(entry.rgb, done[:runs], done[runs] if len(done) > runs else None,
+                                              entry.guided)
 
-    def _report(self, rgb: np.ndarray, results: list[FrameResult], voter_box: np.ndarray | None) -> FrameResult:
-        """The frame's reported result from every run's (and the voter's box): what ``run_choice`` picks."""
+    def _report(self, rgb: np.ndarray, results: list[FrameResult], voter_box: np.ndarray | None,
+                guided: Guided | None = None) -> FrameResult:
+        """The frame's reported result from every run's (and the voters' boxes): what ``run_choice`` picks."""
         p = self.params
         chosen = _more_confident(results)
         if p.run_choice == "contrast":
             chosen = _most_contrasted(results, rgb, chosen)
-        if p.run_choice == "consensus":
-            boxes = np.stack([r.box_xywh for r in results] + ([] if voter_box is None else [voter_box]))
+        if p.run_choice == "consensus" and len(results) > 1:
+            voters = [] if voter_box is None else [voter_box]
+            if self._guide_votes and guided is not None and guided[0] is not None:
+                voters.append(guided[0])
+            boxes = np.stack([r.box_xywh for r in results] + voters)
             chosen, agreeing = _consensus(boxes, len(results), rgb, chosen)
             reported = dataclasses.replace(_reported(results, chosen), box_xywh=mean_box(boxes[sorted(agreeing)]))
         else:
             reported = _reported(results, chosen)
         if p.easy_after > 0:
             self._agreed = self._agreed + 1 if _runs_agree(reported, results) else 0
+        if guided is not None:
+            no_box = np.full(4, np.nan)
+            reported = dataclasses.replace(reported, guide_box_xywh=no_box if guided[0] is None else guided[0],
+                                           guide_score=guided[1])
         return reported
 
     def inspect(self, frame: np.ndarray, boxes_xywh=None) -> TrackerInspection:
@@ -493,8 +558,9 @@ class Tracker:
             rows = [run.inspect(frame, boxes) for run in self._runs]
         return TrackerInspection(**{name: np.stack([row[name] for row in rows]) for name in rows[0]})
 
-    def _update_runs(self, rgb: np.ndarray, details: bool,
-                     share: float = 1.0) -> tuple[list[FrameResult], np.ndarray | None]:
+    def _update_runs(self, rgb: np.ndarray, details: bool, share: float = 1.0,
+                     guided: Guided | None = None
+                     ) -> tuple[list[FrameResult], np.ndarray | None]:
         """Every run's update with ``share`` of its candidates, and the voter's box (None without a voter); with
         more than one kernel thread, side by side, one kernel thread each.
 
@@ -510,7 +576,7 @@ class Tracker:
         the runs that go all at once go on to later frames too.)
         """
         threads, runs = numba.get_num_threads(), len(self._runs)
-        tasks = self._tasks(rgb, details, share)
+        tasks = self._tasks(rgb, details, share, guided)
         if _all_at_once(threads, runs):
             done = on_own_threads(_on_one_kernel_thread, tasks)
         elif threads > 1 and runs > 1:
@@ -520,6 +586,12 @@ class Tracker:
         else:
             done = [task() for task in tasks]
         return done[:runs], done[runs] if len(done) > runs else None
+
+
+def voting_allowed(p: TrackerParams) -> bool:
+    """Whether boxes other than the runs' can vote (``filter_vote``, ``guide_vote``): a consensus of two runs or
+    more."""
+    return p.run_choice == "consensus" and p.independent_runs > 1
 
 
 def _all_at_once(threads: int, runs: int) -> bool:
@@ -534,6 +606,7 @@ class _InFlight:
 
     rgb: np.ndarray
     futures: list[Future]
+    guided: Guided | None  # the guide's box and score (Tracker._follow_guide)
     complete: bool = True  # False: submit was interrupted before every run had the frame
 
 
@@ -641,10 +714,12 @@ class _Run:
             box_xywh=box, log_likelihood=self._first_mass, confidence=1.0, accepted=True, scoring="init"
         )
 
-    def update(self, frame: np.ndarray, *, details: bool, share: float = 1.0) -> FrameResult:
+    def update(self, frame: np.ndarray, *, details: bool, share: float = 1.0,
+               guide_box: np.ndarray | None = None) -> FrameResult:
         """Track one frame drawing ``share`` of each round's candidates and of the shortlist (an easy frame: the
         tracker's ``easy_after``). The re-detection round keeps its own counts: it follows missed frames, which
-        an easy frame never does."""
+        an easy frame never does. ``guide_box``: the guide's box this frame, around which ``guide_particles``
+        more candidates are drawn (None: no guide, or it has no box)."""
         rgb = self.sequence_rgb(frame, "update")
         p = self.params
         self._frame_number += 1
@@ -664,12 +739,21 @@ class _Run:
             # The target has been missing for a while: also search wide around where it was last accepted.
             rounds.append(self._round(rgb, self._anchor, p.redetect_particles, self._redetect_sigma(self._anchor),
                                       self._estimate, p.shortlist)[:4])
+        if guide_box is not None and p.guide_particles > 0:
+            rounds.append(self._guide_round(rgb, guide_box, sigma, shortlist))
         if len(rounds) > 1:
             states, codes, labels, scores = (np.concatenate(parts) for parts in zip(*rounds))
-        best = int(np.argmax(scores))
+        ranked = scores
+        if guide_box is not None and p.guide_prior > 0 and level is not None:
+            # The guide's box as an observation: candidates are ranked by their score plus a bonus growing with
+            # their overlap of it, in units of the run's usual spread of scores; the score itself (reported, and
+            # judged for learning) stays the model's.
+            overlap = np.nan_to_num(iou_xywh(box_xywh_from_states(states, p.template_size), guide_box), nan=0.0)
+            ranked = scores + p.guide_prior * level[1] * overlap
+        best = int(np.argmax(ranked))
         if p.contrast_candidates > 1:
             with self._time("scoring"):  # choosing among the candidates is part of scoring them
-                best = _most_contrasted_candidate(rgb, states, scores, best, p.contrast_candidates,
+                best = _most_contrasted_candidate(rgb, states, ranked, best, p.contrast_candidates,
                                                   p.template_size)
         self._state = states[best].copy()
         self._estimate = (labels[best].copy(), codes[best].copy())  # not views that keep the round's arrays
@@ -780,6 +864,15 @@ class _Run:
         return rgb
 
     # ------------------------------------------------------------------ stages
+    def _guide_round(self, rgb: np.ndarray, guide_box: np.ndarray, sigma: np.ndarray, shortlist: int):
+        """The guide's box and ``guide_particles`` candidates around it, spread as the refine round's, with the
+        first round's shortlist in proportion to their number: states, codes, labels, scores."""
+        p = self.params
+        centre = state_from_box_xywh(guide_box, p.template_size)
+        share = min(1.0, p.guide_particles / p.n_particles)
+        return self._round(rgb, centre, p.guide_particles, sigma * p.refine_sigma_scale, self._estimate,
+                           _shared(shortlist, share) if shortlist else 0, with_centre=True)[:4]
+
     def _draw(self, state: np.ndarray, n: int, sigma: np.ndarray) -> np.ndarray:
         p = self.params
         states = draw_candidates(state, n, sigma, self._rng, min_scale=1.0 / p.template_size)
@@ -816,15 +909,18 @@ class _Run:
         return median, max(spread, p.level_min_spread)
 
     def _round(self, rgb: np.ndarray, centre: np.ndarray, n: int, sigma: np.ndarray,
-               estimate: tuple[np.ndarray, np.ndarray], shortlist: int):
+               estimate: tuple[np.ndarray, np.ndarray], shortlist: int, *, with_centre: bool = False):
         """Draw ``n`` candidates around ``centre`` and score them: states, codes, labels, scores, scoring.
 
         With the prescreen or a ``shortlist`` (its size, 0 for none), only the candidates they keep are scored and
         returned; ``estimate`` is the ``(T, T)`` superpixel map a shortlist's first pass cuts every candidate into,
-        and its ``(z, s)`` codes.
+        and its ``(z, s)`` codes. ``with_centre``: ``centre`` itself is a candidate too, the first, and never
+        left out by the shortlist.
         """
         p = self.params
         states = self._draw(centre, n, sigma)
+        if with_centre:
+            states = np.concatenate([self._draw(centre, 1, np.zeros(6)), states])
         templates = None
         if self._reference is not None or 0 < shortlist < len(states):
             with self._time("warp"):
@@ -835,6 +931,8 @@ class _Run:
             else:
                 with self._time("shortlist"):
                     kept = self._shortlisted(templates, *estimate, shortlist)
+                    if with_centre:
+                        kept = np.union1d([0], kept)
             states, templates = states[kept], templates[kept]
         return (states, *self._evaluate(rgb, states, templates))
 

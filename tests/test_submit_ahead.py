@@ -70,7 +70,7 @@ def scripted_runs(clip, monkeypatch, act) -> Tracker:
     tracker = Tracker(dataclasses.replace(get_preset("fast"), independent_runs=3), seed=1)
     tracker.init(clip.frames[0], clip.boxes_xywh[0])
 
-    def update(self, frame, *, details, share=1.0):
+    def update(self, frame, *, details, share=1.0, guide_box=None):
         act(tracker._runs.index(self), int(frame[0, 0, 0]))
         return FrameResult(box_xywh=np.array([10.0, 10.0, 20.0, 20.0]), log_likelihood=1.0, confidence=0.5,
                            accepted=True, scoring="subspace")
