@@ -8,7 +8,8 @@ What a Python user imports::
     result.store.track(1).boxes_xywh                    # (F, 4): a box for every processed frame
 
 ``annotate`` is what ``sptpt-annotate VIDEO --box ...`` runs; ``apply_corrections`` what ``sptpt-annotate retrack``
-runs; ``resolve_config`` builds their settings; ``read_store`` reads a run's ``tracks.npz`` back. docs/python-api.md
+runs; ``resolve_config`` builds their settings; ``read_store`` reads a run's ``tracks.npz`` back; ``NanoTrackGuide``
+is the learned tracker the ``fused`` preset's ``sptpt.Tracker`` takes as its ``guide``. docs/python-api.md
 has the details. Everything else is the tool's inside and may change.
 """
 
@@ -19,12 +20,14 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.2.0"
 
-__all__ = ["AnnotateResult", "Target", "ToolError", "annotate", "apply_corrections", "read_store", "resolve_config"]
+__all__ = ["AnnotateResult", "NanoTrackGuide", "Target", "ToolError", "annotate", "apply_corrections", "read_store",
+           "resolve_config"]
 
 # Where each public name lives. Imported on first use: ``import annotator.errors`` (every command, every batch
 # worker) should not load the tracker, numba and the whole tool.
 _HOMES = {
     "AnnotateResult": "annotator.job",
+    "NanoTrackGuide": "annotator.nanotrack",
     "Target": "annotator.pipeline",
     "ToolError": "annotator.errors",
     "annotate": "annotator.job",
@@ -48,6 +51,7 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from annotator.config import resolve_config
     from annotator.errors import ToolError
     from annotator.job import AnnotateResult, annotate
+    from annotator.nanotrack import NanoTrackGuide
     from annotator.pipeline import Target
     from annotator.review import apply_corrections
     from annotator.store import read_store

@@ -23,7 +23,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -33,6 +33,7 @@ from annotator.config import RunConfig
 from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frames import DecodeError, FrameSource
+from annotator.nanotrack import guide_for
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
 from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoInfo
@@ -267,7 +268,8 @@ class TrackRecords:
                 signals = self._meters[tid].next(
                     frame, result.box_xywh, log_likelihood=result.log_likelihood, scoring=result.scoring,
                     accepted=result.accepted, particles_xywh=result.particles_xywh,
-                    particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
+                    particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh,
+                    guide_box_xywh=result.guide_box_xywh)
             self._confidence[tid].append(result.confidence)
             self._recorders[tid].append(
                 frame_index, result.box_xywh, confidence=result.confidence, log_likelihood=result.log_likelihood,
@@ -601,8 +603,8 @@ def track_source(
     compile_kernels(wait=False)
     model = load_model(config.failure_model)
     if resume is None:
-        trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id))
-                    for t in targets}
+        trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id),
+                                        guide=guide_for(config.tracker)) for t in targets}
         online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
                             min_span=config.flags.min_span)
         records = TrackRecords(targets, model, online, budget=config.flags.review_budget is not None,
@@ -684,7 +686,7 @@ class _FrameLoop:
         frames, resumed = self.source, None
         if self.resume is not None:
             last = self.resume.last_index
-            frames = (item for item in self.source if item[0] > last)  # decoded and skipped up to the checkpoint
+            frames = _skipped_to(self.source, last, self.trackers.values())  # decoded and skipped up to it
             resumed = FrameLoopEnd(frames_tracked=self.resume.frames_tracked,
                                    seconds_tracking=self.resume.seconds_tracking)
             if progress is not None:
@@ -701,6 +703,23 @@ class _FrameLoop:
         write_checkpoint(folder, Checkpoint(
             key=key, frames_tracked=end.frames_tracked, last_index=int(frame_index),
             seconds_tracking=end.seconds_tracking, trackers=self.trackers, records=self.records))
+
+
+def _skipped_to(source, last: int, trackers) -> Iterator[tuple[int, np.ndarray]]:
+    """The frames of ``source`` after frame index ``last``; those before it go to the guides of resumed trackers
+    (a NanoTrack guide is brought back by its frames: :meth:`annotator.nanotrack.NanoTrackGuide.catch_up`)."""
+    behind = [t.guide for t in trackers if t.guide is not None and getattr(t.guide, "behind", 0)]
+    for index, frame in source:
+        if index > last:
+            if any(guide.behind for guide in behind):
+                raise RuntimeError(f"the checkpoint's learned tracker needs more frames than the {index} before "
+                                   f"frame {last + 1}: start again with --force")
+            behind = []
+            yield index, frame
+        else:
+            for guide in behind:
+                if guide.behind:
+                    guide.catch_up(frame)
 
 
 def final_flags(tracks: Sequence[TrackResult], params: FlagParams, model) -> list[TrackResult]:

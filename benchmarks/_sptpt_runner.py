@@ -21,6 +21,7 @@ from benchmarks._stage_clock import StageClock
 from annotator.allocator import keep_freed_memory
 from annotator.atomic import atomic_path
 from annotator.frames import open_frames
+from annotator.nanotrack import guide_for
 from annotator.otb import read_otb_boxes, write_otb_boxes, write_otb_times
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
@@ -40,8 +41,8 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
                         else seq_dir / "groundtruth_rect.txt")
     clock = StageClock()
     tracker = Tracker(tracker_params, seed=np.random.default_rng(np.random.SeedSequence([seed, stable_id(name)])),
-                      stage_timer=clock)
-    boxes, seconds, loglik, conf, accepted, scoring, run_boxes = [], [], [], [], [], [], []
+                      stage_timer=clock, guide=guide_for(tracker_params))
+    boxes, seconds, loglik, conf, accepted, scoring, run_boxes, guide_boxes = [], [], [], [], [], [], [], []
     source = open_frames(seq_dir, stop=stop)
     for position, (_, frame) in enumerate(source):
         tic = time.perf_counter()
@@ -53,6 +54,7 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
         accepted.append(result.accepted)
         scoring.append(result.scoring)
         run_boxes.append(result.run_boxes_xywh)
+        guide_boxes.append(result.guide_box_xywh)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "times").mkdir(exist_ok=True)
     write_otb_boxes(out_dir / f"{name}.txt", np.array(boxes), origin=1)
@@ -60,6 +62,8 @@ def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str,
     with atomic_path(out_dir / f"{name}.frames.npz") as tmp:
         with open(tmp, "wb") as handle:
             per_run = {} if run_boxes[0] is None else {"run_boxes": np.stack(run_boxes)}
+            if guide_boxes[0] is not None:
+                per_run["guide_boxes"] = np.stack(guide_boxes)
             np.savez(handle, log_likelihood=np.array(loglik), confidence=np.array(conf),
                      accepted=np.array(accepted), scoring=np.array(scoring), **per_run)
     return {

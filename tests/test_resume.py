@@ -21,6 +21,7 @@ from annotator.checkpoint import CHECKPOINT_NAME, read_checkpoint
 from annotator.cli import _with_default_command, app
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
+from annotator.nanotrack import NanoTrackGuide
 from annotator.pipeline import Target
 from annotator.store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
@@ -103,6 +104,9 @@ def test_a_run_resumed_after_an_interruption_at_any_frame_has_the_boxes_of_one_n
     assert (checkpoint is None) == (stop < EVERY)
     if checkpoint is not None:
         assert checkpoint.frames_tracked == stop // EVERY * EVERY
+        # The default's NanoTrack comes back behind: the resumed run replays the frames before the checkpoint to it.
+        (tracker,) = checkpoint.trackers.values()
+        assert isinstance(tracker.guide, NanoTrackGuide) and tracker.guide.behind == checkpoint.frames_tracked
     with pytest.raises(ToolError) as refused:
         job.annotate(seq, [target], CONFIG, out_dir=out, formats=FORMATS, show_progress=False)
     assert str(refused.value) == (f"output folder {out} holds a run interrupted at frame {stop} of {N}: --resume to "

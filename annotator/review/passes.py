@@ -14,6 +14,7 @@ from typing import Iterator, Protocol, Sequence
 import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
+from annotator.nanotrack import guide_for
 from annotator.pipeline import FramesAhead, seed_for_track
 from annotator.pass_cache import PassResult
 from annotator.pass_cache import CachedPass, PassKey, pass_key
@@ -140,7 +141,7 @@ class SegmentRun:
     def _tracker_for(self, position: int, direction: int) -> Tracker:
         first = position == 0
         rng = pass_seed(self.seed, self.segment.track_id, int(self.frame_indices[position]), direction, first=first)
-        return Tracker(self.params, seed=rng)
+        return Tracker(self.params, seed=rng, guide=guide_for(self.params))
 
     def feed(self, position: int, frame: np.ndarray) -> None:
         s = self.segment
@@ -220,6 +221,7 @@ class SegmentRun:
         target.seconds[row] = seconds
         signals = meter.next(frame, result.box_xywh, log_likelihood=result.log_likelihood, scoring=result.scoring,
                              accepted=result.accepted, particles_xywh=result.particles_xywh,
-                             particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh)
+                             particle_scores=result.particle_scores, run_boxes_xywh=result.run_boxes_xywh,
+                             guide_box_xywh=result.guide_box_xywh)
         target.signals[row] = [signals[name] for name in SIGNALS]
         self.calls += 1
