@@ -45,6 +45,8 @@ REASONS: Mapping[str, str] = {
                         "runs parts from the box)",
     "doubt:contrast": "the box's colours hardly differ from those around it: it may sit on background",
     "doubt:runs": "the tracker's independent runs put the box in different places: one has likely lost the object",
+    "doubt:guide": "the learned tracker beside SPTPT (NanoTrack, in the fused preset) puts the object elsewhere, or "
+                   "sees it at another size",
     "doubt:passes": "between two human boxes, the re-tracks forward from the earlier and backward from the later "
                     "one put the box in different places: one has likely lost the object (only with a failure model "
                     "that has a between_anchors section; the shipped one has none)",

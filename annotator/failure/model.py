@@ -110,7 +110,7 @@ MODEL_PATH = "data/failure_model.json"
 LOOKAHEAD = 2  # frames after a frame that its features read
 LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
 TRUSTED_MARGIN = 2.0  # a subspace score above this is "trusted" for the running level
-_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "run_support", "contrast", "ncc_memory")
+_SMOOTHED = ("flow_iou", "ncc_first", "ll_subspace", "run_iou", "run_support", "contrast", "ncc_memory", "guide_iou")
 
 #: Appearance where a run parts, per frame and from the 5-frame means (module docstring).
 _PARTED = ("ncc_memory_parted", "ncc_memory_parted_w5")
@@ -131,6 +131,7 @@ FEATURE_GROUPS: Mapping[str, str] = {
     "run_iou": "runs", "run_iou_w5": "runs", "run_support": "runs", "run_support_w5": "runs",
     "contrast": "contrast", "contrast_w5": "contrast",
     "flow_drift": "flow", "flow_scale_drift": "extent", "ring_with_box": "extent", "box_with_background": "extent",
+    "guide_iou": "guide", "guide_iou_w5": "guide", "guide_scale": "guide",
 }
 
 

@@ -114,6 +114,10 @@ SIGNALS: Mapping[str, str] = {
     "box_with_background": "share of the flow points in the box that move with the background rather than as the "
                            "box moved, over the pass's last 10 frames: high when the box holds background (NaN "
                            "where the box moved as the background did)",
+    "guide_iou": "IoU of the box with the learned tracker's box (the fused preset's NanoTrack; 0 where it has "
+                 "none; NaN without one: not measured)",
+    "guide_scale": "log of the learned tracker's box area over the box's: positive when it sees the object larger "
+                   "(0 where it has no box; NaN without one: not measured)",
 }
 
 #: The signals :class:`MotionMeter` measures from the frames and the boxes alone.
@@ -132,6 +136,8 @@ NEUTRAL: Mapping[str, float] = {
     "flow_drift": 0.0, "flow_scale_drift": 0.0,
     # Not measured where nothing moves apart from the background (and on a box a person gave).
     "ring_with_box": math.nan, "box_with_background": math.nan,
+    # Not measured without a learned tracker beside SPTPT, nor on a box a person gave.
+    "guide_iou": math.nan, "guide_scale": math.nan,
 }
 #: Signals newer than some stores, each with the measured signal a stored row that lacks it reads in its place
 #: (``annotator.review.merge.filled_signals``) instead of its neutral value. ``ncc_memory``'s neutral 1, a perfect
@@ -276,7 +282,8 @@ class SignalMeter:
 
     def next(self, frame_rgb: np.ndarray, box_xywh, *, log_likelihood: float, scoring: str, accepted: bool,
              particles_xywh: np.ndarray | None = None, particle_scores: np.ndarray | None = None,
-             run_boxes_xywh: np.ndarray | None = None) -> dict[str, float]:
+             run_boxes_xywh: np.ndarray | None = None, guide_box_xywh: np.ndarray | None = None
+             ) -> dict[str, float]:
         if self._prev_box is None:
             raise RuntimeError("SignalMeter.next() before first(): start the pass with first(frame, box)")
         grey = grey_of(frame_rgb)
@@ -310,10 +317,23 @@ class SignalMeter:
             "run_iou": math.nan if runs is None else float(runs[-1]),
             "run_support": math.nan if runs is None else float(runs[1]),
             "contrast": colour_contrast(frame_rgb, box),
+            **_guide_signals(guide_box_xywh, box),
         }
         self._prev_box, self._prev_patch = box, patch
         self._memory.add(patch)
         return signals
+
+
+def _guide_signals(guide_box: np.ndarray | None, box: np.ndarray) -> dict[str, float]:
+    """``guide_iou`` and ``guide_scale`` of ``box`` against the learned tracker's box (see :data:`SIGNALS`)."""
+    if guide_box is None:
+        return {"guide_iou": math.nan, "guide_scale": math.nan}
+    guide = np.asarray(guide_box, dtype=np.float64)
+    if not (np.isfinite(guide).all() and guide[2] > 0 and guide[3] > 0):
+        return {"guide_iou": 0.0, "guide_scale": 0.0}
+    ratio = guide[2] * guide[3] / max(box[2] * box[3], 1e-9)
+    return {"guide_iou": float(np.nan_to_num(iou_xywh(guide[None], box)[0], nan=0.0)),
+            "guide_scale": float(np.clip(math.log(ratio), -5.0, 5.0))}
 
 
 def _grid_points(box: np.ndarray, width: int, height: int) -> np.ndarray:
