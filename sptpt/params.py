@@ -390,11 +390,11 @@ PRESETS: dict[str, TrackerParams] = {
         shortlist=25,
     ),
 }
-# The default of the tool (issue #71): robust with a learned tracker beside it. Each run also draws candidates
+# robust with a learned tracker beside it (issue #71). Each run also draws candidates
 # around the learned tracker's box and ranks its candidates with a bonus for overlapping that box; SPTPT's models
 # still score every candidate, and only a winner they accept is learned. Needs a ``guide`` (the tool's is NanoTrack
 # v2, annotator/nanotrack.py). Chosen on ../shared/otb, scored once on ../shared/otb_extra: benchmarks/RESULTS.md,
-# "The fused default".
+# "The fused preset" (not the default: its flags and re-tracks are not tuned for it yet).
 PRESETS["fused"] = dataclasses.replace(PRESETS["robust"], guide_particles=30, guide_prior=5.0, guide_vote=True)
 
 

@@ -56,3 +56,9 @@ def test_a_copy_caught_up_on_the_same_frames_goes_on_to_the_bit():
 def test_only_presets_that_use_a_guide_get_one():
     assert guide_for(get_preset("robust")) is None and guide_for(get_preset("paper")) is None
     assert isinstance(guide_for(get_preset("fused")), NanoTrackGuide)
+
+
+def test_the_fused_preset_is_a_valid_configuration():
+    from annotator.config import resolve_config
+
+    assert resolve_config(preset="fused").tracker.uses_guide  # its check builds a tracker with a guide

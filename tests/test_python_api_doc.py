@@ -88,9 +88,9 @@ def test_each_package_names_its_public_api():
     import sptpt
 
     for package, names in [(annotator, {"annotate", "AnnotateResult", "Target", "resolve_config",
-                                        "apply_corrections", "read_store", "ToolError"}),
+                                        "apply_corrections", "read_store", "ToolError", "NanoTrackGuide"}),
                            (sptpt, {"Tracker", "TrackerParams", "FrameResult", "preset", "compile_kernels",
-                                    "kernels_cached"})]:
+                                    "kernels_cached", "Guide"})]:
         assert set(package.__all__) == names
         for name in names:
             assert getattr(package, name) is not None

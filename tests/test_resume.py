@@ -53,7 +53,8 @@ def clip_dir(tmp_path_factory) -> tuple[Path, Target]:
     return root / "seq", Target(tuple(float(v) for v in clip.boxes_xywh[0]), track_id=1)
 
 
-CONFIG = resolve_config(tracker_overrides={"n_particles": 60, "n_negatives": 20}, seed=3)
+# fused: its NanoTrack guide must come back from a checkpoint too (it is replayed the frames before it).
+CONFIG = resolve_config(preset="fused", tracker_overrides={"n_particles": 60, "n_negatives": 20}, seed=3)
 
 
 @pytest.fixture(autouse=True)
@@ -104,7 +105,7 @@ def test_a_run_resumed_after_an_interruption_at_any_frame_has_the_boxes_of_one_n
     assert (checkpoint is None) == (stop < EVERY)
     if checkpoint is not None:
         assert checkpoint.frames_tracked == stop // EVERY * EVERY
-        # The default's NanoTrack comes back behind: the resumed run replays the frames before the checkpoint to it.
+        # fused's NanoTrack comes back behind: the resumed run replays the frames before the checkpoint to it.
         (tracker,) = checkpoint.trackers.values()
         assert isinstance(tracker.guide, NanoTrackGuide) and tracker.guide.behind == checkpoint.frames_tracked
     with pytest.raises(ToolError) as refused:
