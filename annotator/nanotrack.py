@@ -84,12 +84,16 @@ def _new_tracker():
     params = cv2.TrackerNano_Params()
     params.backbone, params.neckhead = nanotrack_weights()
     # OpenCV's DNN warns, on every load, that its new graph engine ignores the target it is given: noise to a user.
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    # (OpenCV 4.x has no cv2.utils.logging, nor that warning.)
+    logging = getattr(cv2.utils, "logging", None)
+    if logging is None:
+        return cv2.TrackerNano_create(params)
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_ERROR)
     try:
         return cv2.TrackerNano_create(params)
     finally:
-        cv2.utils.logging.setLogLevel(level)
+        logging.setLogLevel(level)
 
 
 def _bgr(rgb: np.ndarray) -> np.ndarray:
