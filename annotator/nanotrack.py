@@ -1,4 +1,4 @@
-"""NanoTrack v2, a small learned tracker, as the guide of the fused default (:class:`sptpt.tracker.Guide`).
+"""NanoTrack v2, a small learned tracker, as the guide of the ``fused`` preset (:class:`sptpt.tracker.Guide`).
 
 OpenCV's ``TrackerNano`` runs the weights shipped in ``annotator/data/nanotrack_v2`` (Apache-2.0, see the NOTICE
 and LICENSE there), loaded by path, never downloaded. It follows the object from the first box on its own; SPTPT
@@ -12,6 +12,7 @@ the replayed guide is the one that was saved, to the bit.
 from __future__ import annotations
 
 from importlib import resources
+
 import cv2
 import numpy as np
 

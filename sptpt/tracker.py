@@ -871,7 +871,7 @@ class _Run:
         centre = state_from_box_xywh(guide_box, p.template_size)
         share = min(1.0, p.guide_particles / p.n_particles)
         return self._round(rgb, centre, p.guide_particles, sigma * p.refine_sigma_scale, self._estimate,
-                           _shared(shortlist, share) if shortlist else 0, with_centre=True)[:4]
+                           _shared(shortlist, share), with_centre=True)[:4]
 
     def _draw(self, state: np.ndarray, n: int, sigma: np.ndarray) -> np.ndarray:
         p = self.params
