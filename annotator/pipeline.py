@@ -30,6 +30,7 @@ import numpy as np
 
 from annotator.checkpoint import CHECKPOINT_EVERY, Checkpoint, write_checkpoint
 from annotator.config import RunConfig
+from annotator.errors import EXIT_INPUT, ToolError
 from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frames import DecodeError, FrameSource
@@ -707,19 +708,28 @@ class _FrameLoop:
 
 def _skipped_to(source, last: int, trackers) -> Iterator[tuple[int, np.ndarray]]:
     """The frames of ``source`` after frame index ``last``; those before it go to the guides of resumed trackers
-    (a NanoTrack guide is brought back by its frames: :meth:`annotator.nanotrack.NanoTrackGuide.catch_up`)."""
+    (a NanoTrack guide is brought back by its frames: :meth:`annotator.nanotrack.NanoTrackGuide.catch_up`).
+
+    The checkpoint's run key names the input, so these refusals mean the video now decodes to other frames than
+    when the checkpoint was written (a damaged or re-encoded file under the same name)."""
     behind = [t.guide for t in trackers if t.guide is not None and getattr(t.guide, "behind", 0)]
+    reached = False  # whether the source got as far as the checkpoint's frame
     for index, frame in source:
+        reached = reached or index >= last
         if index > last:
             if any(guide.behind for guide in behind):
-                raise RuntimeError(f"the checkpoint's learned tracker needs more frames than the {index} before "
-                                   f"frame {last + 1}: start again with --force")
+                raise ToolError(f"{source.path}: the checkpoint's learned tracker saw more frames before frame "
+                                f"{last + 1} than the video now has ({index}): it changed since the run; start "
+                                "again with --force", EXIT_INPUT)
             behind = []
             yield index, frame
         else:
             for guide in behind:
                 if guide.behind:
                     guide.catch_up(frame)
+    if not reached:
+        raise ToolError(f"{source.path}: the video ends before frame {last}, where the checkpoint stopped: it "
+                        "changed since the run; start again with --force", EXIT_INPUT)
 
 
 def final_flags(tracks: Sequence[TrackResult], params: FlagParams, model) -> list[TrackResult]:

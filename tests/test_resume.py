@@ -20,7 +20,7 @@ from annotator import job, pipeline
 from annotator.checkpoint import CHECKPOINT_NAME, read_checkpoint
 from annotator.cli import _with_default_command, app
 from annotator.config import resolve_config
-from annotator.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
+from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from annotator.nanotrack import NanoTrackGuide
 from annotator.pipeline import Target
 from annotator.store import STORE_NAME, read_store
@@ -234,3 +234,50 @@ def test_an_interrupted_batch_item_resumes_on_the_rerun(clip_dir, tmp_path, monk
     asked.clear()
     assert run_item(dataclasses.replace(job_, resume=False)).status == "done" and asked == [False]
     assert not (Path(job_.folder) / CHECKPOINT_NAME).exists()
+
+
+class _Frames:
+    """A frame source of blank frames with the given indices."""
+
+    path = Path("walk.mp4")
+
+    def __init__(self, indices) -> None:
+        self.indices = list(indices)
+
+    def __iter__(self):
+        return ((i, np.zeros((4, 4, 3), np.uint8)) for i in self.indices)
+
+
+class _BehindGuide:
+    """A restored guide that needs ``behind`` more frames (NanoTrackGuide's catch-up protocol)."""
+
+    def __init__(self, behind: int) -> None:
+        self.behind, self.caught = behind, []
+
+    def catch_up(self, frame) -> None:
+        self.caught.append(frame)
+        self.behind -= 1
+
+
+def _trackers(*guides):
+    return [type("T", (), {"guide": g})() for g in guides]
+
+
+def test_resuming_replays_the_frames_before_the_checkpoint_to_a_guide_and_yields_the_rest():
+    guide = _BehindGuide(5)
+    out = [i for i, _ in pipeline._skipped_to(_Frames(range(10)), 5, _trackers(guide, None))]
+    assert out == [6, 7, 8, 9] and guide.behind == 0 and len(guide.caught) == 5
+    # A checkpoint on the last frame leaves nothing to track, and that is no error.
+    assert list(pipeline._skipped_to(_Frames(range(6)), 5, _trackers(None))) == []
+
+
+@pytest.mark.parametrize("indices, last, guide, fragment", [
+    (range(4), 5, None, "walk.mp4: the video ends before frame 5, where the checkpoint stopped"),
+    (range(10), 5, 8, "walk.mp4: the checkpoint's learned tracker saw more frames before frame 6"),
+])
+def test_a_video_that_changed_since_the_checkpoint_is_refused_in_one_line(indices, last, guide, fragment):
+    trackers = _trackers(None if guide is None else _BehindGuide(guide))
+    with pytest.raises(ToolError) as err:
+        list(pipeline._skipped_to(_Frames(indices), last, trackers))
+    assert err.value.exit_code == EXIT_INPUT and fragment in str(err.value) and "--force" in str(err.value)
+    assert "\n" not in str(err.value)
