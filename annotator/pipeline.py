@@ -602,7 +602,7 @@ def track_source(
     # On a fresh machine: the kernels the trackers' first frame compiles last are compiled meanwhile on the other
     # core (nothing happens once numba's cache holds them).
     compile_kernels(wait=False)
-    model = load_model(config.failure_model)
+    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
     if resume is None:
         trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id),
                                         guide=guide_for(config.tracker)) for t in targets}

@@ -92,12 +92,14 @@ from annotator.failure import SIGNALS, feature_matrix
 from sptpt_dev.failure_fit import (
     APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
     fit_fold, fit_model, group_features, l1_fit, platt, video)
-from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, sigmoid
+from annotator.failure.model import (FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, shipped_model_path,
+                                     sigmoid)
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
 from benchmarks._results import machine_line, update_section
 from benchmarks._sequences import ground_truth_file
+from sptpt.params import get_preset
 from benchmarks._right_tracks import (RIGHT_CAP, load_segments, right_medians, right_tracks_summary, right_tracks_table,
                                       segments_flagged, sequence_of, truth_flagged, truth_look)
 
@@ -105,7 +107,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Regularisation values the nested cross-validation chooses from (inverse L1 strength).
 C_GRID = "1,0.1,0.01,0.003,0.001,0.0003,0.0001"
-MODEL_FILE = ROOT / "annotator" / "data" / "failure_model.json"
+
+
+def model_file(preset: str) -> Path:
+    """The package's model file for runs of ``preset``: with a learned tracker beside SPTPT, the guided model."""
+    return ROOT / "annotator" / shipped_model_path(guided=get_preset(preset).uses_guide)
 tracking_seconds: list[float] = []  # mean tracker seconds per frame of every run, filled by load_samples
 PLOTS = ROOT / "benchmarks" / "failure_plots"
 #: The main model of each held-out fold, one file per sequence (``--write``), for benchmarks/pass_choice.py.
@@ -499,7 +505,8 @@ def score_unseen(args, samples: list[Sample], C, drop: list[str], started: float
     if seen:
         raise SystemExit(f"--test-runs: {', '.join(seen)} also in --runs: a test must be of videos never fitted on")
     if args.shipped:
-        model = load_model()  # the package's model: fitted by this procedure on earlier runs of the same videos
+        # The package's model for the runs' preset: fitted by this procedure on earlier runs of the same videos.
+        model = load_model(guided=get_preset(run_preset(args.test_runs)).uses_guide)
         chosen_C = model.info.get("C")
     else:
         chosen_C = C if np.ndim(C) == 0 else choose_C(samples, C)
@@ -710,7 +717,7 @@ def main() -> int:
     model = fit_model(samples, C=chosen_C, info=info, drop=[*drop, *group_features(dropped)])
     from annotator.atomic import write_text_atomic
 
-    write_text_atomic(MODEL_FILE, json.dumps(model.to_json(), indent=1) + "\n")
+    write_text_atomic(model_file(preset), json.dumps(model.to_json(), indent=1) + "\n")
     # Each sequence's fold model, fitted without its video: benchmarks/pass_choice.py --write adds its own fold
     # section to it, so that the simulated reviewer's flags are held out too.
     FOLDS.mkdir(parents=True, exist_ok=True)
@@ -721,7 +728,7 @@ def main() -> int:
         fold_file = dataclasses.replace(fold, info={**fold.info, "held_out": name, "fold": video(name)})
         write_text_atomic(FOLDS / f"{name}.json", json.dumps(fold_file.to_json(), indent=1) + "\n")
     # The pass_choice section reads each pass's probability under the main model: refitted with it, not kept.
-    print(f"wrote {MODEL_FILE.relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
+    print(f"wrote {model_file(preset).relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
           "until it is refitted): run python -m benchmarks.pass_choice --generate --write (the rows it stored hold "
           "the old model's per-pass probabilities, so they are tracked again)", file=sys.stderr)
     PLOTS.mkdir(exist_ok=True)
@@ -831,7 +838,7 @@ def main() -> int:
         *right_tracks_markdown(right),
     ])
     update_section("failure-model", markdown)
-    print(f"wrote {MODEL_FILE}, {PLOTS / 'calibration.png'} and the RESULTS.md section")
+    print(f"wrote {model_file(preset)}, {PLOTS / 'calibration.png'} and the RESULTS.md section")
     return 0
 
 

@@ -56,22 +56,26 @@ from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored
 from benchmarks._results import machine_line, update_section
 
 from annotator.atomic import write_text_atomic
-from annotator.config import RunConfig
+from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FailureModelError, load_model
 from sptpt_dev.failure_fit import fit_pass_choice
-from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS
+from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, shipped_model_path
 from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail
 from sptpt.boxes import iou_xywh
+from sptpt.params import get_preset
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-PRESET = "robust"
+PRESET = DEFAULT_PRESET
+#: Whether PRESET runs a learned tracker beside SPTPT: its passes are scored, and its section written, by the
+#: shipped model of such runs.
+GUIDED = get_preset(PRESET).uses_guide
 #: Rows whose passes' IoU is below this are chosen for (the failure model's own line between right and wrong).
 DISAGREE_BELOW = 0.5
 
@@ -79,8 +83,6 @@ DISAGREE_BELOW = 0.5
 def generate(job: dict) -> str:
     """Re-track one sequence from ground-truth anchors every ``every`` frames; store the rows between anchors."""
     import numba
-
-    from sptpt.params import get_preset
 
     if job.get("threads"):
         numba.set_num_threads(job["threads"])
@@ -92,7 +94,7 @@ def generate(job: dict) -> str:
     config = RunConfig(preset=PRESET, tracker=get_preset(PRESET), flags=FlagParams(), seed=job["seed"],
                        failure_model=None)
     result = retrack_tracks(ArrayFrames(frames), np.arange(n), {1: anchors}, config, merge="anchored")
-    model = load_model(None)
+    model = load_model(guided=GUIDED)
     parts = []
     for (_, start, stop), (fwd, bwd) in sorted(result.passes.items()):
         if bwd is None or stop - start < 2:
@@ -123,7 +125,7 @@ def main_model_digest(model) -> str:
 def load_data(folder: Path, sequences: set[str], seeds, everies, stop: int) -> dict[str, np.ndarray]:
     """The stored rows of the given sequences, seeds and intervals, tracked with ``stop`` and scored by the
     installed main failure model."""
-    digest = main_model_digest(load_model(None))
+    digest = main_model_digest(load_model(guided=GUIDED))
 
     def check(path: Path, d) -> None:
         if int(d["stop"]) != stop or tuple(d["feature_names"]) != PASS_CHOICE_FEATURES or "gap" not in d:
@@ -187,7 +189,7 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
     names = sorted(set(data["sequence"]))
     disagree = data["features"][:, PASS_CHOICE_FEATURES.index("pass_iou")] < DISAGREE_BELOW
     anchored = data["anchored"]
-    threshold = load_model(None).threshold
+    threshold = load_model(guided=GUIDED).threshold
 
     def share(right, rows):
         return [right[rows & (data["seed"] == s)].mean() for s in seeds]
@@ -277,8 +279,8 @@ def main() -> None:
     text = markdown(data, chosen, command.strip(), time.perf_counter() - started, shipped, args.generate, doubt)
     print(text)
     if args.write:
-        model = load_model(None)
-        package_file = Path(str(resources.files("annotator").joinpath(MODEL_PATH)))
+        model = load_model(guided=GUIDED)
+        package_file = Path(str(resources.files("annotator").joinpath(shipped_model_path(guided=GUIDED))))
         write_text_atomic(package_file, json.dumps(dataclasses.replace(model, pass_choice=shipped).to_json(),
                                                    indent=1) + "\n")
         fold_dir = args.data / "folds"

@@ -93,7 +93,7 @@ from benchmarks._sequences import SequenceError, select_sequences
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.failure import FailureModelError, load_model
 from sptpt_dev.failure_fit import video
-from annotator.failure.model import MODEL_PATH
+from annotator.failure.model import shipped_model_path
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
@@ -163,7 +163,7 @@ def merge_study(frames, gt, config: RunConfig, every: int, threshold: float) -> 
     if n - 1 not in anchors:
         anchors[n - 1] = tuple(gt[n - 1])
     result = retrack_tracks(ArrayFrames(frames), np.arange(n), {1: anchors}, config)
-    model = load_model(config.failure_model)
+    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
     hits: dict[str, list[np.ndarray]] = {m: [] for m in (*MERGES, "forward only", "backward only")}
     for (_, start, stop), (fwd, bwd) in result.passes.items():
         if bwd is None or stop - start < 2:
@@ -569,11 +569,12 @@ def main() -> None:
         parser.error(f"--seeds {args.seeds!r} must name at least one seed, each once")
     model_path = None if args.failure_model is None else str(args.failure_model.resolve())
     try:
-        model = load_model(model_path)
+        guided = get_preset(args.preset).uses_guide
+        model = load_model(model_path, guided=guided)
         FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold, keyframe_every=args.keyframe_every)
     except (FailureModelError, ValueError) as exc:
         parser.error(str(exc))
-    model_record = {"path": model_path or f"annotator/{MODEL_PATH}", "info": dict(model.info),
+    model_record = {"path": model_path or f"annotator/{shipped_model_path(guided=guided)}", "info": dict(model.info),
                     "threshold": model.threshold, "flag_threshold": args.flag_threshold,
                     "sha256": hashlib.sha256(json.dumps(model.to_json(), sort_keys=True).encode()).hexdigest()}
     threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None

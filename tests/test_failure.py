@@ -35,6 +35,7 @@ from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from sptpt_dev.synthetic import changing_object, make_clip
 from annotator.failure.signals import MOTION_SIGNALS
 from sptpt.contrast import colour_contrast
+from sptpt.params import get_preset
 
 FAIL_AT = 12
 
@@ -366,14 +367,25 @@ def test_track_doubt_equals_score_track_then_flags():
     assert p_fail[0] == 0 and p_fail[50] == 0
 
 
-def test_the_shipped_model_loads_with_its_fields_and_versions():
-    model = load_model()
+@pytest.mark.parametrize("guided", [False, True])
+def test_the_shipped_model_loads_with_its_fields_and_versions(guided):
+    model = load_model(guided=guided)
     assert model.features == FEATURES and model.mean.shape == model.coef.shape == (len(FEATURES),)
     assert 0 < model.threshold < 1 and np.all(model.scale > 0)
     data = json.loads(json.dumps(model.to_json()))
     assert data["format"] == MODEL_FORMAT and data["version"] == MODEL_VERSION
     assert "fitted_by" in model.info or "note" in model.info  # says how it was made
     assert model.info["calibration"]["slope"] > 0  # recalibrated on held-out sequences (fit_model)
+
+
+def test_runs_with_and_without_a_learned_tracker_each_get_the_model_fitted_on_their_kind():
+    # The guided model leans on where SPTPT parts from the learned tracker; a run without one never measures that
+    # (NaN sits at the training mean), so it must keep the model fitted on runs like it.
+    plain, guided = load_model(), load_model(guided=True)
+    guide_features = [FEATURES.index(name) for name in FEATURES if name.startswith("guide_")]
+    assert not plain.coef[guide_features].any() and guided.coef[guide_features].any()
+    assert get_preset(plain.info["data"]["preset"]).uses_guide is False
+    assert get_preset(guided.info["data"]["preset"]).uses_guide is True
 
 
 @pytest.mark.parametrize("edit, fragment", [

@@ -259,6 +259,28 @@ class _Source:
         return 16
 
 
+@pytest.mark.parametrize("preset", ["robust", "fused"])
+def test_a_run_and_a_retrack_score_with_the_failure_model_of_their_preset(preset, monkeypatch):
+    # A preset with a learned tracker gets the model fitted on such runs (annotator.failure.model.GUIDED_MODEL_PATH).
+    import annotator.pipeline
+    import annotator.review.merge
+    import annotator.review.retrack
+
+    asked = []
+
+    def spy(path=None, *, guided=False):
+        asked.append(guided)
+        return load_model(path, guided=guided)
+
+    for module in (annotator.pipeline, annotator.review.retrack, annotator.review.merge):
+        monkeypatch.setattr(module, "load_model", spy)
+    config = resolve_config(preset=preset)
+    track_source(_Source(), [Target(tuple(CLIP.boxes_xywh[0]), 1)], config)
+    retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {0: tuple(CLIP.boxes_xywh[0]),
+                                                           10: tuple(CLIP.boxes_xywh[10])}}, config)
+    assert len(asked) >= 2 and set(asked) == {config.tracker.uses_guide}
+
+
 def test_forward_from_the_first_frame_reproduces_the_main_command(first):
     run = track_source(_Source(), [Target(tuple(CLIP.boxes_xywh[0]), 1)], CONFIG)
     ours, theirs = first.tracks[0], run.tracks[0]

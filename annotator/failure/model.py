@@ -100,12 +100,17 @@ __all__ = [
     "PassChoice",
     "feature_matrix",
     "load_model",
+    "shipped_model_path",
 ]
 
 MODEL_FORMAT = "sptpt-annotate failure model"
 MODEL_VERSION = 1
-#: The shipped model, inside the package.
+#: The shipped model of runs without a learned tracker, inside the package.
 MODEL_PATH = "data/failure_model.json"
+#: The shipped model of runs with a learned tracker beside SPTPT (``TrackerParams.uses_guide``), fitted on such runs:
+#: its strongest evidence is where SPTPT's box parts from the learned tracker's, which a run without one lacks (a
+#: NaN feature sits at its training mean), so each kind of run gets the model fitted on its own kind.
+GUIDED_MODEL_PATH = "data/failure_model_guided.json"
 
 LOOKAHEAD = 2  # frames after a frame that its features read
 LEVEL_WINDOW = 100  # trusted frames in the running level of the log-likelihood
@@ -440,12 +445,19 @@ class FailureModel:
                    between_anchors=between, pass_choice=choice, **arrays)
 
 
-def load_model(path: str | os.PathLike | None = None) -> FailureModel:
-    """The failure model in ``path``, or the one shipped with the package."""
+def shipped_model_path(*, guided: bool = False) -> str:
+    """The package-relative path of the shipped model for runs with (``guided``) or without a learned tracker."""
+    return GUIDED_MODEL_PATH if guided else MODEL_PATH
+
+
+def load_model(path: str | os.PathLike | None = None, *, guided: bool = False) -> FailureModel:
+    """The failure model in ``path``, or the one shipped with the package for runs with (``guided``) or without a
+    learned tracker beside SPTPT."""
     if path is None:
-        where = f"the package's {MODEL_PATH}"
+        shipped = shipped_model_path(guided=guided)
+        where = f"the package's {shipped}"
         try:
-            text = resources.files("annotator").joinpath(MODEL_PATH).read_text(encoding="utf-8")
+            text = resources.files("annotator").joinpath(shipped).read_text(encoding="utf-8")
         except OSError as exc:
             raise FailureModelError(f"{where} cannot be read ({exc}); reinstall sptpt-annotate") from None
     else:

@@ -208,7 +208,7 @@ def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.
     model, where the caller has it loaded already.
     """
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
-    model = load_model(config.failure_model) if model is None else model
+    model = load_model(config.failure_model, guided=config.tracker.uses_guide) if model is None else model
     p_fail, groups = track_p_fail(signals, keyframe, outside, model, pass_iou=pass_iou)
     threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
     result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)

@@ -203,7 +203,7 @@ def _assemble_tracks(track_ids: list[int], plans: dict[int, dict[int, Box | None
                      ) -> tuple[list[TrackResult], dict[int, np.ndarray], list[SegmentChange]]:
     """The new tracks: the previous rows with the re-tracked segments written over them, flagged again."""
     n = len(frame_indices)
-    model = load_model(config.failure_model)
+    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
     results: list[TrackResult] = []
     scorings: dict[int, np.ndarray] = {}
     changes: list[SegmentChange] = []
