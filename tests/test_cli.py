@@ -254,7 +254,7 @@ def test_main_run_json(main_run, clip):
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
     assert config["flags"]["threshold"] == 1e-9 and config["flags"]["review_budget"] == FlagParams().review_budget  # file, then defaults
-    assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "robust"  # full parameters
+    assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "fused"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}
 
@@ -674,7 +674,7 @@ def test_a_good_box_gets_no_warning(clip, config_file, tmp_path):
 def test_help_names_the_box_layout_and_the_default_preset():
     text = CliRunner().invoke(app, ["track", "--help"], terminal_width=200).stdout
     assert "--box X,Y,W,H" in text and "list[str]" not in text
-    assert "[default: robust" in text
+    assert "[default: fused" in text
 
 
 def test_a_folder_that_holds_results_is_refused_before_the_video_is_counted(clip, config_file, work, monkeypatch):

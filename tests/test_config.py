@@ -28,7 +28,7 @@ def write_yaml(tmp_path, text: str, name: str = "run.yaml"):
 
 def test_defaults():
     config = resolve_config()
-    assert config == RunConfig(preset="robust", tracker=get_preset("robust"), flags=FlagParams(), seed=0)
+    assert config == RunConfig(preset="fused", tracker=get_preset("fused"), flags=FlagParams(), seed=0)
 
 
 PRECEDENCE = [

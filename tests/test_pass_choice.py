@@ -335,13 +335,15 @@ def test_the_benchmark_refuses_rows_scored_by_another_main_model(tmp_path):
     from _benchmark_scripts import load_script
 
     script = load_script("pass_choice")
+    installed = load_model(guided=script.GUIDED)  # the model of the benchmark's runs' kind
     rows = dict(stop=200, feature_names=np.array(PASS_CHOICE_FEATURES), features=np.zeros((2, K)),
                 anchored=np.ones(2, bool), options=np.ones((2, 3), bool), gap=np.full(2, 10))
-    np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(load_model()), **rows)
+    np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(installed), **rows)
     assert len(script.load_data(tmp_path, {"Seq"}, [0], [10], 200)["gap"]) == 2
     # The installed main part with its pass_choice section is the same main part; another threshold is not.
-    assert script.main_model_digest(model_with(section())) == script.main_model_digest(load_model())
-    other = dataclasses.replace(load_model(), threshold=0.5)
+    with_section = dataclasses.replace(installed, pass_choice=section())
+    assert script.main_model_digest(with_section) == script.main_model_digest(installed)
+    other = dataclasses.replace(installed, threshold=0.5)
     np.savez(tmp_path / "Seq__s0__m10.npz", main_model=script.main_model_digest(other), **rows)
     with pytest.raises(SystemExit, match="another main failure model than the installed one"):
         script.load_data(tmp_path, {"Seq"}, [0], [10], 200)

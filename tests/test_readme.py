@@ -61,10 +61,10 @@ def sample(tmp_path_factory) -> Path:
 
 
 def test_readme_retrack_example_improves_the_sample(sample):
-    label = _command("sptpt-annotate samples/clip.mp4")
+    label = _command("sptpt-annotate samples/clip.mp4 --box 136,129,48,40 --preset robust")
     done = _run(label, sample)
     assert done.returncode == 0, done.stderr
-    out = sample / "samples" / "clip_sptpt"
+    out = sample / "samples" / "clip_robust"
     truth = sample / "samples" / "clip_groundtruth.txt"
     before = evaluate_result_file(out, truth).auc
 
@@ -72,7 +72,7 @@ def test_readme_retrack_example_improves_the_sample(sample):
     done = _run(_command("sptpt-annotate retrack"), sample)
     assert done.returncode == 0, done.stderr
     assert "1 new or changed correction" in done.stdout + done.stderr
-    done = _run(_command("sptpt-annotate eval samples/clip_sptpt samples/clip_groundtruth.txt"), sample)
+    done = _run(_command("sptpt-annotate eval samples/clip_robust samples/clip_groundtruth.txt"), sample)
     assert done.returncode == 0, done.stderr
     after = evaluate_result_file(out, truth).auc
 
@@ -82,3 +82,13 @@ def test_readme_retrack_example_improves_the_sample(sample):
     digits = len(quoted[2])  # as many decimals as the README quotes (4 where 3 would not show the change)
     assert (float(quoted[1]), float(quoted[3])) == (round(before, digits), round(after, digits))
     assert f"{after:.3f}" in done.stdout
+
+
+def test_readme_quick_start_scores_and_flags_the_sample_as_it_says(sample):
+    done = _run(_command("sptpt-annotate samples/clip.mp4"), sample)
+    assert done.returncode == 0, done.stderr
+    result = evaluate_result_file(sample / "samples" / "clip_sptpt", sample / "samples" / "clip_groundtruth.txt")
+    quoted = re.search(r"follows the sample's object to the end \(success AUC (\d\.\d{3}) ", README)
+    assert quoted, "the README quotes the default's figure on the sample"
+    assert float(quoted[1]) == round(result.auc, 3)
+    assert "0 of 100 frame boxes flagged" in done.stdout + done.stderr  # "its report flags no frame"

@@ -351,7 +351,7 @@ def test_rows_between_two_anchors_carry_the_passes_agreement_and_are_scored_with
     assert np.isnan(pass_iou[~between]).all()  # anchors, and the frames after the last one (forward only)
     # The shipped model has no between_anchors section (RESULTS.md "anchored-failure": it cost the simulated
     # reviewer time), so the rows between are scored as the track's own signals say.
-    shipped = load_model()
+    shipped = load_model(guided=CONFIG.tracker.uses_guide)  # the model of the run's kind
     assert shipped.between_anchors is None
     p_track, _ = track_p_fail(track.signals, track.keyframe, track.outside, shipped)
     np.testing.assert_array_equal(track.p_fail, p_track)

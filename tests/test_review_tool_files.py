@@ -47,8 +47,10 @@ def _run(*args) -> tuple[int, str]:
 def sample_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sample") / "run"
     box = (ROOT / "samples" / "clip_box.txt").read_text().strip()
-    code, output = _run(ROOT / "samples" / "clip.mp4", "--box", box, "--formats", FORMATS, "--no-render",
-                        "--out", out, "-q")
+    # robust: the run of the README's review round, which loses the object to a look-alike and so has a flagged
+    # span (its bounds must be CVAT keyframes); the FiftyOne file below was exported from this run.
+    code, output = _run(ROOT / "samples" / "clip.mp4", "--box", box, "--preset", "robust", "--formats", FORMATS,
+                        "--no-render", "--out", out, "-q")
     assert code == 0, output
     return out
 
