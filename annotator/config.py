@@ -24,7 +24,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from annotator.errors import EXIT_INPUT, EXIT_VALUE
+from annotator.errors import EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.text import read_given_file
 from sptpt.params import TrackerParams, get_preset, params_from_mapping

@@ -45,7 +45,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from annotator.box_input import Box, BoxError, parse_box
-from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_VALUE, ToolError
 from annotator.text import read_given_file
 from sptpt.boxes import lies_outside
 

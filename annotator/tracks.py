@@ -12,8 +12,8 @@ and calls :meth:`TrackRecorder.to_result` at the end, or after a
 
 from __future__ import annotations
 
-import math
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping, Sequence, TypeVar

@@ -89,17 +89,39 @@ import numpy as np
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
-from sptpt_dev.failure_fit import (
-    APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
-    fit_fold, fit_model, group_features, l1_fit, platt, video)
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, sigmoid
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
 from benchmarks._results import machine_line, update_section
+from benchmarks._right_tracks import (
+    RIGHT_CAP,
+    load_segments,
+    right_medians,
+    right_tracks_summary,
+    right_tracks_table,
+    segments_flagged,
+    sequence_of,
+    truth_flagged,
+    truth_look,
+)
 from benchmarks._sequences import ground_truth_file
-from benchmarks._right_tracks import (RIGHT_CAP, load_segments, right_medians, right_tracks_summary, right_tracks_table,
-                                      segments_flagged, sequence_of, truth_flagged, truth_look)
+from sptpt_dev.failure_fit import (
+    APPEARANCE_LEVELS,
+    MIN_GROUP_GAIN,
+    TARGET_PRECISION,
+    TARGET_RECALL,
+    Regression,
+    Sample,
+    choose_C,
+    choose_groups,
+    fit_fold,
+    fit_model,
+    group_features,
+    l1_fit,
+    platt,
+    video,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

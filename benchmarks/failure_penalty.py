@@ -22,10 +22,18 @@ from pathlib import Path
 import numpy as np
 
 import sptpt_dev.failure_fit as fit
-from benchmarks._results import machine_line, update_section
-from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,
-                                      load_samples, mean_std, per_seed_probability, run_preset)
 from annotator.flagging import FlagParams
+from benchmarks._results import machine_line, update_section
+from benchmarks.failure_model import (
+    checked_C_and_workers,
+    flag_metrics,
+    fmt,
+    held_out,
+    load_samples,
+    mean_std,
+    per_seed_probability,
+    run_preset,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

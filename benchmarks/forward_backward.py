@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._sequences import SequenceError, select_sequences
 from annotator.evaluation.metrics import evaluate_sequence
 from annotator.otb import read_otb_boxes
 from annotator.review.merge import MERGES, PassResult, merge_passes
+from benchmarks._sequences import SequenceError, select_sequences
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,8 +69,8 @@ def track_sequence(job: dict) -> dict:
     import numba
 
     numba.set_num_threads(job["threads"])
-    from benchmarks._sptpt_runner import stable_id
     from annotator.frames import open_frames
+    from benchmarks._sptpt_runner import stable_id
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker
 

@@ -54,13 +54,11 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 
-from benchmarks._results import machine_line, update_section  # noqa: E402
-from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
-
 from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.report import plot_success  # noqa: E402
-from annotator.evaluation.metrics import iou_xywh  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
+from benchmarks._results import machine_line, update_section  # noqa: E402
+from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
 from sptpt.tracker import STAGES  # noqa: E402
 
@@ -103,6 +101,7 @@ def _peer_job(args: dict) -> dict:
 def parse_variant(text: str) -> tuple[str, dict]:
     """``NAME=PRESET:key=value,key=value`` -> (NAME, the preset's parameters with the overrides)."""
     import yaml
+
     from sptpt.params import params_from_mapping
 
     name, _, spec = text.partition("=")

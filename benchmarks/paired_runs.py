@@ -33,11 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._sequences import SequenceError, select_sequences
-
 from annotator.evaluation.metrics import evaluate_sequence
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
+from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.contrast import most_contrasted
 
 HERE = Path(__file__).resolve().parent

@@ -52,21 +52,20 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
-from benchmarks._results import machine_line, update_section
-
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FailureModelError, load_model
-from sptpt_dev.failure_fit import fit_pass_choice
 from annotator.failure.model import MODEL_PATH, PASS_CHOICE_FEATURES, PASS_OPTIONS
 from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail
+from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
+from benchmarks._results import machine_line, update_section
 from sptpt.boxes import iou_xywh
+from sptpt_dev.failure_fit import fit_pass_choice
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -27,7 +26,6 @@ import imageio_ffmpeg
 import numpy as np
 
 from benchmarks._results import machine_line, update_section
-
 from sptpt_dev.synthetic import make_clip
 
 HERE = Path(__file__).resolve().parent

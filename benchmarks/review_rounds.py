@@ -34,11 +34,10 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
-from benchmarks._results import machine_line, update_section
-
 from annotator.frames import open_frames
-from annotator.review import SourceFrames
 from annotator.pass_cache import PASSES_NAME
+from annotator.review import SourceFrames
+from benchmarks._results import machine_line, update_section
 
 HERE = Path(__file__).resolve().parent
 

@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._stage_clock import StageClock
-
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
+from benchmarks._stage_clock import StageClock
 from sptpt.params import get_preset
 from sptpt.tracker import STAGES, Tracker
 

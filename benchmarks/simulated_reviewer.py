@@ -87,12 +87,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._results import machine_line, update_section
-from benchmarks._sequences import SequenceError, select_sequences
-
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.failure import FailureModelError, load_model
-from sptpt_dev.failure_fit import video
 from annotator.failure.model import MODEL_PATH
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask
 from annotator.frames import open_frames
@@ -106,7 +102,10 @@ from annotator.review import (
     retrack_tracks,
 )
 from annotator.wording import ordinal
+from benchmarks._results import machine_line, update_section
+from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.params import get_preset, params_from_mapping
+from sptpt_dev.failure_fit import video
 
 HERE = Path(__file__).resolve().parent
 

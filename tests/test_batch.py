@@ -11,8 +11,8 @@ import contextlib
 import csv
 import dataclasses
 import json
-import re
 import os
+import re
 import signal
 import subprocess
 import sys

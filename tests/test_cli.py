@@ -20,6 +20,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 from pycocotools.coco import COCO
+from test_report import parse, seek_seconds, shows_frame
 from typer.testing import CliRunner
 
 import annotator
@@ -29,8 +30,6 @@ from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from sptpt_dev.synthetic import make_clip
-
-from test_report import parse, seek_seconds, shows_frame
 
 N_FRAMES, SIZE, FPS = 16, (96, 72), 25.0
 TRACKER_YAML = "seed: 1\ntracker:\n  n_particles: 60\n  n_negatives: 20\n"

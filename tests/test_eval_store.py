@@ -7,7 +7,6 @@ Issue #14 item 2: a run made with ``--start``/``--stop`` (or a batch with
 from __future__ import annotations
 
 import dataclasses
-
 import shutil
 from pathlib import Path
 
@@ -20,8 +19,8 @@ from annotator.cli import _with_default_command, app
 from annotator.evaluation import EvaluationError, evaluate_result_file, evaluate_results_dir, evaluate_sequence
 from annotator.otb import write_otb_boxes
 from annotator.store import STORE_NAME, RunStore, write_store
-from sptpt_dev.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt_dev.synthetic import make_clip
 
 VIDEO = VideoInfo(path="Alpha", name="Alpha", width=96, height=72, fps=30.0, frame_count=20)
 

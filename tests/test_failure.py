@@ -26,15 +26,29 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from sptpt_dev.failure_fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
-                                   UNCHOSEN_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups,
-                                   choose_threshold, fit_model, fit_pass_agreement, group_features,
-                                   leave_one_video_out, platt, video)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
-from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from sptpt_dev.synthetic import changing_object, make_clip
 from annotator.failure.signals import MOTION_SIGNALS
+from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from sptpt.contrast import colour_contrast
+from sptpt_dev.failure_fit import (
+    TARGET_PRECISION,
+    TARGET_RECALL,
+    THRESHOLD_FLAGS,
+    THRESHOLD_GRID,
+    UNCHOSEN_THRESHOLD,
+    Sample,
+    backward_elimination,
+    choose_C,
+    choose_groups,
+    choose_threshold,
+    fit_model,
+    fit_pass_agreement,
+    group_features,
+    leave_one_video_out,
+    platt,
+    video,
+)
+from sptpt_dev.synthetic import changing_object, make_clip
 
 FAIL_AT = 12
 
@@ -698,6 +712,7 @@ def test_failure_model_script_describes_a_model_without_recalibration_too():
 
 def test_calibration_bounds_undo_one_shifted_base_rate_and_a_level_of_each_video_only_per_video():
     from _benchmark_scripts import load_script
+
     from sptpt_dev.failure_fit import Sample
 
     fm = load_script("failure_model")

@@ -19,8 +19,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from annotator.flagging import (REASONS, FlagParams, FlagResult, SpanFlagger, budget_flags, flag_p_fail,
-                                keyframe_request, span_flags, spans_from_mask, with_keyframe_request)
+from annotator.flagging import (
+    REASONS,
+    FlagParams,
+    FlagResult,
+    SpanFlagger,
+    budget_flags,
+    flag_p_fail,
+    keyframe_request,
+    span_flags,
+    spans_from_mask,
+    with_keyframe_request,
+)
 
 
 def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tuple[list[bool], list[str]]:

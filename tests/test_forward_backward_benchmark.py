@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from _benchmark_scripts import load_script, run_benchmark
 
 

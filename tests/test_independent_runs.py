@@ -8,14 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import make_clip
-from sptpt.params import get_preset
-from sptpt.results import FrameResult
-from sptpt.contrast import colour_contrast
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
 from sptpt.boxes import iou_xywh, mean_box
+from sptpt.contrast import colour_contrast
 from sptpt.filter_tracker import FilterTracker
+from sptpt.params import get_preset
+from sptpt.results import FrameResult
 from sptpt.tracker import Tracker, _consensus, _more_confident, _most_contrasted, _most_contrasted_candidate
+from sptpt_dev.synthetic import make_clip
 
 
 def _result(ll: float, scoring: str = "subspace", x: float = 0.0) -> FrameResult:

@@ -22,13 +22,13 @@ import urllib.request
 import cv2
 import numpy as np
 import pytest
+from _labelstudio_env import LABELSTUDIO
+from test_retrack import snapshot
 from typer.testing import CliRunner
 
-from _labelstudio_env import LABELSTUDIO
 from annotator.cli import _with_default_command, app
 from annotator.store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
-from test_retrack import snapshot
 
 USER, PASSWORD, TOKEN = "reviewer@example.com", "sptpt-review-47", "sptpt47token0123456789"
 STARTUP_SECONDS = 300  # migrations on a fresh data folder; the test machine may be busy

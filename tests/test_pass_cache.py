@@ -6,9 +6,15 @@ import numpy as np
 import pytest
 
 from annotator.failure import SIGNALS
-from annotator.pass_cache import PassResult
-from annotator.pass_cache import (CachedPass, keep_anchored, pass_fingerprint, pass_key, read_pass_cache,
-                                         write_pass_cache)
+from annotator.pass_cache import (
+    CachedPass,
+    PassResult,
+    keep_anchored,
+    pass_fingerprint,
+    pass_key,
+    read_pass_cache,
+    write_pass_cache,
+)
 from annotator.tracks import TrackResult
 
 FINGERPRINT_ARGS = ({"preset": "robust", "seed": 0}, "sha256:abc", {"start": 0, "stop": 9, "step": 1})

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from annotator.render import (
-    DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, _text_colour, items_from_tracks, label_text,
+    DEFAULT_PALETTE,
+    OverlayItem,
+    OverlayRenderer,
+    OverlayWriter,
+    _text_colour,
+    items_from_tracks,
+    label_text,
 )  # fmt: skip
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.results import FrameResult

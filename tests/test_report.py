@@ -23,10 +23,18 @@ import pytest
 
 from annotator.flagging import REASONS
 from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
-from annotator.report import (_tick_step, by_expected_errors, flagged_spans, keyframe_note, keyframes_asked,
-                              reason_legend, render_report, track_summary)
-from annotator.wording import plural
+from annotator.report import (
+    _tick_step,
+    by_expected_errors,
+    flagged_spans,
+    keyframe_note,
+    keyframes_asked,
+    reason_legend,
+    render_report,
+    track_summary,
+)
 from annotator.tracks import TrackResult, VideoInfo
+from annotator.wording import plural
 
 GOLDEN = Path(__file__).parent / "golden" / "annotate"
 UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
@@ -195,6 +203,7 @@ def test_worst_frame_thumbnail_is_the_highest_p_fail_of_each_span():
     assert [(t.position, t.frame_index) for t in thumbs] == [(2, 102), (8, 108), (11, 111)]
     assert [(s.worst, s.worst_frame) for s in flagged_spans(track)] == [(t.position, t.frame_index) for t in thumbs]
     import base64
+
     import cv2
     for t in thumbs:
         image = cv2.imdecode(np.frombuffer(base64.b64decode(t.jpeg_base64), np.uint8), cv2.IMREAD_COLOR)

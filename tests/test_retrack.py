@@ -23,15 +23,15 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from annotator.job import annotate
 from annotator.commands.retrack import retrack_command
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
 from annotator.failure import LOOKAHEAD, load_model
 from annotator.failure.model import PassAgreement
-from annotator.frames import open_frames
 from annotator.flagging import FlagParams
+from annotator.frames import open_frames
+from annotator.job import annotate
 from annotator.otb import read_otb_boxes
 from annotator.pipeline import Target, track_source
 from annotator.review import (

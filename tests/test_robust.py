@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import _texture, make_clip
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import _texture, make_clip
 
 GOLDEN = Path(__file__).parent / "golden" / "tracker"
 # Covered or away for this many frames; the target must be found within REFIND frames of its return.

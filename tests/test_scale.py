@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import _texture
 from sptpt.affine import state_from_box_xywh, warp_candidates
 from sptpt.gradients import GREY
 from sptpt.params import get_preset
 from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histograms
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import _texture
 
 
 def slow_orientation_split(grey: np.ndarray, bins: int) -> np.ndarray:

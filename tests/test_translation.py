@@ -13,8 +13,14 @@ from sptpt.affine import state_from_box_xywh
 from sptpt.gradients import GREY, orientation_channels
 from sptpt.params import get_preset
 from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
-from tests.test_scale import (_background_and_object, _paste, edge_templates, numpy_orientation_split,
-                              slow_orientation_split, track_results)
+from tests.test_scale import (
+    _background_and_object,
+    _paste,
+    edge_templates,
+    numpy_orientation_split,
+    slow_orientation_split,
+    track_results,
+)
 
 
 def slow_translation_features(patch: np.ndarray) -> np.ndarray:

@@ -17,8 +17,13 @@ import time
 from pathlib import Path
 from typing import Sequence, TextIO
 
-from annotator.batch.executors import (check_scheduler_address, default_workers, execute_items, threads_per_worker,
-                                       worker_context)
+from annotator.batch.executors import (
+    check_scheduler_address,
+    default_workers,
+    execute_items,
+    threads_per_worker,
+    worker_context,
+)
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
 from annotator.batch.plan import BatchRequest, PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.workers import ItemOutcome

@@ -37,12 +37,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 from annotator.allocator import keep_freed_memory
-from annotator.job import previous_outputs, remove_staging_folders
 from annotator.batch.plan import ItemJob
 from annotator.checkpoint import CHECKPOINT_NAME
-from annotator.exports.otb import otb_result_globs
-from annotator.manifest import output_stem
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
+from annotator.exports.otb import otb_result_globs
+from annotator.job import previous_outputs, remove_staging_folders
+from annotator.manifest import output_stem
 from annotator.progress import Progress
 
 _EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item

@@ -7,12 +7,13 @@ from typing import List, Optional
 
 import typer
 
-from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
-from sptpt.params import PRESETS
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
+from annotator.formats import DEFAULT_FORMATS
 from annotator.wording import plural
+from sptpt.params import PRESETS
+
 
 def track_command(
     video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),

@@ -64,9 +64,9 @@ from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions
 from annotator.frames import DecodeError
-from annotator.progress import Progress
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
 from annotator.pipeline import OverlaySink, SpanThumbnail, render_tracks
+from annotator.progress import Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, run_fingerprint, write_run_files
 from annotator.render import OverlayWriter

@@ -15,9 +15,8 @@ import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
 from annotator.nanotrack import guide_for
+from annotator.pass_cache import CachedPass, PassKey, PassResult, pass_key
 from annotator.pipeline import FramesAhead, seed_for_track
-from annotator.pass_cache import PassResult
-from annotator.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
