@@ -97,7 +97,10 @@ def generate(job: dict) -> str:
         if bwd is None or stop - start < 2:
             continue
         truth = gt[start + 1: stop]
-        right = lambda boxes: np.nan_to_num(iou_xywh(boxes, truth), nan=0.0) >= 0.5  # noqa: E731
+
+        def right(boxes, truth=truth):
+            return np.nan_to_num(iou_xywh(boxes, truth), nan=0.0) >= 0.5
+
         features, interpolation = pass_choice_features(
             pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True), fwd.boxes_xywh,
             bwd.boxes_xywh, (gt[start], gt[stop]))
@@ -208,7 +211,7 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
              "| merge | all frames between anchors | where the passes disagree |", "|---|---:|---:|"]
     for label, right in (("`anchored` (before)", anchored), ("`chosen` (held out)", chosen)):
         lines.append(f"| {label} | {mean_std(share(right, everywhere))} | {mean_std(share(right, disagree))} |")
-    for k, option in enumerate(PASS_OPTIONS):
+    for k in range(len(PASS_OPTIONS)):
         taken[:, k] = data["options"][:, k]
     lines.append("| always forward / backward / interpolation, where they disagree | | "
                  + " / ".join(mean_std(share(taken[:, k], disagree)) for k in range(3)) + " |")

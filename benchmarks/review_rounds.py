@@ -63,7 +63,7 @@ def reading(clip: Path, n: int) -> list[tuple[str, float]]:
     for label, kwargs in ((f"iterate start={n - 10} (10 frames)", dict(start=n - 10)),
                           (f"iterate step=10 ({len(range(0, n, 10))} frames)", dict(step=10))):
         selected = open_frames(clip, **kwargs)
-        rows.append((label, timed(lambda: sum(1 for _ in selected))[0]))
+        rows.append((label, timed(lambda selected=selected: sum(1 for _ in selected))[0]))
     reader = SourceFrames(source, source.indices)
     rows.append((f"retrack's reader: frames {n - 100}..{n - 91}",
                  timed(lambda: sum(1 for _ in reader.frames(n - 100, n - 90)))[0]))

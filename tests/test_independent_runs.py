@@ -261,7 +261,7 @@ def test_with_filter_vote_the_filter_tracker_votes_and_the_runs_are_those_alone(
         boxes = [a.box_xywh for a in alone] + [voter]
         confident = _more_confident(alone)
 
-        def choose(candidates):
+        def choose(candidates, boxes=boxes, frame=frame, confident=confident):
             votes = {i: sum(iou_xywh(boxes[i], boxes[j]) >= 0.5 for j in candidates if j != i) for i in candidates}
             tied = [i for i in candidates if votes[i] == max(votes.values())]
             contrast = {i: colour_contrast(frame, boxes[i]) for i in tied}

@@ -151,7 +151,10 @@ def moving_clip(n_frames: int = 40):
 def test_the_reported_translation_filter_moves_only_the_reported_centre_and_brings_it_nearer():
     frames, boxes = moving_clip()
     one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_translation_filter=False)
-    track = lambda params: track_results(params, frames, boxes[0])
+
+    def track(params):
+        return track_results(params, frames, boxes[0])
+
     plain = track(one_run)
     moved = track(dataclasses.replace(one_run, reported_translation_filter=True))
     # SPTPT's own run is untouched: the same scores and acceptance, and the same size, frame by frame.

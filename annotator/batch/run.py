@@ -32,6 +32,8 @@ from annotator.manifest import BatchItem
 from annotator.progress import BatchProgress
 
 LOCK_NAME = ".batch.lock"
+#: run_batch's request when none is given: the command line's defaults (frozen, so one instance serves every call).
+_DEFAULT_REQUEST = BatchRequest()
 
 
 @contextlib.contextmanager
@@ -164,7 +166,7 @@ def _run_items(planned: list, out_dir: Path, *, force: bool, scheduler: str | No
 
 def run_batch(
     items: Sequence[BatchItem],
-    request: BatchRequest = BatchRequest(),
+    request: BatchRequest = _DEFAULT_REQUEST,
     *,
     out_dir: str | os.PathLike,
     force: bool = False,

@@ -101,7 +101,7 @@ def _targets(box: list[str], label: list[str], box_origin: int) -> list:
         raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
                         EXIT_VALUE)
     labels = (label * len(boxes) if len(label) == 1 else label) or ["object"] * len(boxes)
-    return [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
+    return [Target(box, track_id=i + 1, label=name) for i, (box, name) in enumerate(zip(boxes, labels))]
 
 
 def _config(config_file: Path | None, preset: str | None, seed: int | None, review_budget: float | None,
