@@ -86,7 +86,8 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got {type(data).__name__}")
+        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got "
+                          f"{type(data).__name__}")
     return data
 
 
@@ -172,7 +173,8 @@ def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got {type(value).__name__}")
+        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got "
+                          f"{type(value).__name__}")
     return value
 
 

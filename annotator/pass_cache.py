@@ -73,7 +73,8 @@ class PassResult:
     def take(self, index) -> PassResult:
         """Copies of the rows at ``index`` (a slice or indices), as a pass of their own (no ``pass_iou``)."""
         return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
-                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
+                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds",
+                             "signals")))
 
 
 #: File name of the kept passes in a run folder.

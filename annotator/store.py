@@ -179,7 +179,8 @@ def read_store(path: str | os.PathLike) -> RunStore:
     except (KeyError, ValueError, TypeError, IndexError):
         raise StoreError(f"{path} has no readable header: it is not a {STORE_FORMAT}; {redo}") from None
     if not isinstance(header, dict) or header.get("format") != STORE_FORMAT:
-        raise StoreError(f"{path} is not a {STORE_FORMAT} (format {header.get('format') if isinstance(header, dict) else None!r}); {redo}")
+        raise StoreError(f"{path} is not a {STORE_FORMAT} (format "
+                         f"{header.get('format') if isinstance(header, dict) else None!r}); {redo}")
     version = header.get("schema_version")
     if version != SCHEMA_VERSION:
         raise StoreError(f"{path} has schema version {version!r}, this sptpt-annotate reads version "

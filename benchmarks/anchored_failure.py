@@ -161,8 +161,8 @@ def markdown(data, p_alone, p_held, threshold, command, seconds, shipped, C) -> 
              f"Data: {len(names)} sequences of `../shared/otb` ({', '.join(names)}), preset `{PRESET}`, seeds "
              f"{', '.join(map(str, seeds))}, ground-truth anchors every {' and every '.join(map(str, everies))} "
              f"frames, re-tracked by the tool (`retrack_tracks`, merge `anchored`); {len(p_held)} frames strictly "
-             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Held out by video (Jogging.1 "
-             "and Jogging.2 one fold): each fold is scored by a main model (C = "
+             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Held out by video "
+             "(Jogging.1 and Jogging.2 one fold): each fold is scored by a main model (C = "
              f"{C:g}, recalibrated, `fit_model` on the runs of `benchmarks/failure_model.py`) and a section fitted "
              "without it. Flags here are frames above the fold model's threshold "
              f"({', '.join(f'{t:.2f}' for t in sorted(set(np.round(threshold, 2))))}), before span merging.", "",

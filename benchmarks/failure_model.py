@@ -206,7 +206,8 @@ def signal_cost(otb: list[Path], sequences: list[str], tracking_ms: float, frame
 
 
 def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1,
-             regression: Regression = l1_fit) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
+             regression: Regression = l1_fit
+             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
     """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold's
     model by held-out video, every fit by ``regression``. Folds run in ``workers`` processes."""
     names = sorted({video(s.sequence) for s in samples})
@@ -708,8 +709,10 @@ def main() -> int:
     thresholds = {name: info["flag_threshold"] for name, info in fold_info.items()}
     for t, m in sweep.items():
         print(f"threshold {t:g}: precision {fmt(mean_std(m, 'precision'))}, recall {fmt(mean_std(m, 'recall'))}, "
-              f"flagged share {fmt(mean_std(m, 'flagged_share'))}, on AUC >= 0.6 {fmt(mean_std(m, 'good_flagged_share'))}")
-    print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}, ECE {expected_calibration_error(pooled_p, pooled_y):.3f}; "
+              f"flagged share {fmt(mean_std(m, 'flagged_share'))}, "
+              f"on AUC >= 0.6 {fmt(mean_std(m, 'good_flagged_share'))}")
+    print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}, "
+          f"ECE {expected_calibration_error(pooled_p, pooled_y):.3f}; "
           f"tracker confidence alone AUROC {base_auroc:.3f}; fold thresholds {thresholds}")
     print("AUROC without each group:", {g: round(v, 3) for g, v in worth.items()})
     tracking_ms = 1000 * float(np.nanmean(tracking_seconds))

@@ -73,7 +73,8 @@ def main() -> int:
             zeros = np.mean([np.sum(m.coef == 0.0) for m in models.values()])
             rows.append(f"| {penalty} | {C:g} | {fmt(mean_std(prob, 'auroc'))} | {fmt(mean_std(prob, 'ece'))} | "
                         f"{fmt(mean_std(flags, 'precision'))} | {fmt(mean_std(flags, 'recall'))} | "
-                        f"{fmt(mean_std(flags, 'good_flagged_share'))} | {zeros:.1f} of {len(models[next(iter(models))].coef)} |")
+                        f"{fmt(mean_std(flags, 'good_flagged_share'))} | "
+                        f"{zeros:.1f} of {len(models[next(iter(models))].coef)} |")
             print(rows[-1], flush=True)
     if args.no_record:
         return 0

@@ -3,7 +3,7 @@
     python -m benchmarks.otb_benchmark                       # all trackers, ../shared/otb, records RESULTS.md
     python -m benchmarks.otb_benchmark --trackers paper,csrt --stop 100 --no-record
     python -m benchmarks.otb_benchmark --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
-    python -m benchmarks.otb_benchmark --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
+    python -m benchmarks.otb_benchmark --variant 'flow=robust:flow_prior=true' --trackers robust,flow --no-record
     python -m benchmarks.otb_benchmark --replot /tmp/runs --trackers paper,robust,csrt   # attribute plots, no tracking
 
 For each tracker it runs one-pass evaluation on the same frames (the
@@ -203,8 +203,8 @@ def main() -> None:
         if tracker in configs:
             # Review flags are measured by benchmarks/failure_model.py: they need the tool's failure signals,
             # which this direct tracker run does not compute.
-            row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs) / sum(r["frames"] - 1 for r in recs)
-                                for st in STAGES}
+            row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs)
+                                / sum(r["frames"] - 1 for r in recs) for st in STAGES}
             row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in recs)
         rows.append(row)
 

@@ -68,7 +68,8 @@ def reading(clip: Path, n: int) -> list[tuple[str, float]]:
     rows.append((f"retrack's reader: frames {n - 100}..{n - 91}",
                  timed(lambda: sum(1 for _ in reader.frames(n - 100, n - 90)))[0]))
     back = n * 5 // 6 - 100
-    rows.append((f"then back to frames {back}..{back + 9}", timed(lambda: sum(1 for _ in reader.frames(back, back + 10)))[0]))
+    rows.append((f"then back to frames {back}..{back + 9}",
+                 timed(lambda: sum(1 for _ in reader.frames(back, back + 10)))[0]))
     reader.close()
     return rows
 

@@ -439,10 +439,12 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         pooled = pooled_by_seed(records, args)
         ps = [pooled[s] for s in seeds]
         ratio = [p["reviewer"] / p["baseline"] if p["baseline"] else math.nan for p in ps]
+        asked = mean_std(sum(r['reviewer'].get('keyframes_requested', 0) for r in records if r['seed'] == s)
+                         for s in seeds)
         lines.append(f"| **pooled** | {ps[0]['frames']} | | "
                      f"{mean_std(sum(r['reviewer']['inspected'] for r in records if r['seed'] == s) for s in seeds)} | "
                      f"{mean_std(sum(r['reviewer']['corrections'] for r in records if r['seed'] == s) for s in seeds)}"
-                     f" | {mean_std(sum(r['reviewer'].get('keyframes_requested', 0) for r in records if r['seed'] == s) for s in seeds)}"
+                     f" | {asked}"
                      f" | | | **{mean_std(per100(p['reviewer'], p['frames']) for p in ps)}** | | "
                      f"{sum(r['baseline']['keyframes'] for r in records if r['seed'] == seeds[0])} | "
                      f"**{per100(ps[0]['baseline'], ps[0]['frames']):.1f}** | **{mean_std(ratio, 2)}** |")
@@ -545,7 +547,8 @@ def main() -> None:
                         help="mean p_fail above which the tool asks for keyframes instead of flagging spans "
                              f"(default {FlagParams.lost_threshold}, the run default; 'none': never)")
     parser.add_argument("--keyframe-every", type=int, default=FlagParams.keyframe_every,
-                        help=f"frames between the keyframes a lost track asks for (default {FlagParams.keyframe_every})")
+                        help="frames between the keyframes a lost track asks for "
+                             f"(default {FlagParams.keyframe_every})")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None,
                         help="JSON of every record (default: benchmarks/_runs/simulated_reviewer[-POLICY].json)")
@@ -553,8 +556,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.policy in ("spans", "worst-wrong") and args.fallback == "lowest-confidence":
         # Its fallback starts when every flagged box was seen to be right, and would pick one of those again.
-        parser.error(f"--policy {args.policy} needs --fallback first-wrong: the least confident frame is then a flagged "
-                     "frame the reviewer has just seen to be right")
+        parser.error(f"--policy {args.policy} needs --fallback first-wrong: the least confident frame is then a "
+                     "flagged frame the reviewer has just seen to be right")
     # Each way of running records its own JSON and RESULTS.md section.
     variant = "".join([("" if args.policy == "worst" else "-" + args.policy), ("-accept" if args.accept else ""),
                        ("-folds" if args.fold_models is not None else "")])
@@ -569,7 +572,8 @@ def main() -> None:
     model_path = None if args.failure_model is None else str(args.failure_model.resolve())
     try:
         model = load_model(model_path)
-        FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold, keyframe_every=args.keyframe_every)
+        FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold,
+                   keyframe_every=args.keyframe_every)
     except (FailureModelError, ValueError) as exc:
         parser.error(str(exc))
     model_record = {"path": model_path or f"annotator/{MODEL_PATH}", "info": dict(model.info),
@@ -578,8 +582,8 @@ def main() -> None:
     threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None
                       else f"{model.threshold:g} (the model's)")
     keyframe_text = ("never a keyframe request" if args.lost_threshold is None else
-                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every {ordinal(args.keyframe_every)} "
-                     "frame and the last instead (reason `keyframe`)")
+                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every "
+                     f"{ordinal(args.keyframe_every)} frame and the last instead (reason `keyframe`)")
     model_text = (f"failure model `{model_record['path']}`{'' if model_path else ' (installed)'}, info "
                   f"`{json.dumps(model_record['info'])}`, sha256 of its canonical JSON "
                   f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, {keyframe_text}, other flag "

@@ -1141,7 +1141,8 @@ def _as_rgb(frame: np.ndarray) -> np.ndarray:
     if not isinstance(frame, np.ndarray):
         raise TypeError(f"frame must be a numpy array of uint8, got {type(frame).__name__}")
     if frame.dtype != np.uint8:
-        raise TypeError(f"frame must have dtype uint8 (RGB 0-255), got {frame.dtype}; convert with frame.astype(np.uint8)")
+        raise TypeError(f"frame must have dtype uint8 (RGB 0-255), got {frame.dtype}; convert with "
+                        "frame.astype(np.uint8)")
     if frame.ndim == 2:
         frame = np.repeat(frame[:, :, None], 3, axis=2)
     elif frame.ndim != 3 or frame.shape[2] != 3:

@@ -252,7 +252,8 @@ def test_main_run_json(main_run, clip):
     config = info["config"]
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
-    assert config["flags"]["threshold"] == 1e-9 and config["flags"]["review_budget"] == FlagParams().review_budget  # file, then defaults
+    # From the file, then the defaults.
+    assert config["flags"]["threshold"] == 1e-9 and config["flags"]["review_budget"] == FlagParams().review_budget
     assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "robust"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}

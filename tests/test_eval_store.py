@@ -50,8 +50,8 @@ def test_a_store_of_part_of_the_video_scores_exactly_its_frames(tmp_path):
     score = evaluate_result_file(out, tmp_path / "gt.txt", name="Alpha", pairs=pairs)
     expected = evaluate_sequence(pred, gt[frames], name="Alpha")
     assert score.auc == expected.auc and score.precision_20 == expected.precision_20
-    assert [pair.note for pair, _ in pairs] == ["Alpha: scored the 6 frames the run processed (source frames 4-14, every 2nd) against those "
-                     "rows of the 20-row ground truth"]
+    assert [pair.note for pair, _ in pairs] == ["Alpha: scored the 6 frames the run processed (source frames 4-14, "
+                                                "every 2nd) against those rows of the 20-row ground truth"]
 
 
 def test_a_whole_run_needs_no_note_and_a_longer_store_is_refused(tmp_path):

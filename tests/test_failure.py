@@ -285,7 +285,8 @@ def slow_contrast(frame_rgb: np.ndarray, box) -> float:
     for r in range(height):
         for c in range(width):
             in_box = round(x) <= c < round(x + w) and round(y) <= r < round(y + h)
-            in_ring = round(cx - w * s / 2) <= c < round(cx + w * s / 2) and round(cy - h * s / 2) <= r < round(cy + h * s / 2)
+            in_ring = (round(cx - w * s / 2) <= c < round(cx + w * s / 2)
+                       and round(cy - h * s / 2) <= r < round(cy + h * s / 2))
             b = (hsv[r, c, 0] * 8 // 180) * 16 + (hsv[r, c, 1] * 4 // 256) * 4 + hsv[r, c, 2] * 4 // 256
             if in_box:
                 inside[b] += 1

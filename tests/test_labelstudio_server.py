@@ -97,9 +97,9 @@ def server(root):
     (root / "media").mkdir(exist_ok=True)
     log = open(root / "server.log", "wb")
     process = subprocess.Popen(
-        [str(LABELSTUDIO.require("label-studio")), "start", "--no-browser", "--internal-host", "127.0.0.1", "--port", str(port),
-         "--data-dir", str(root / "data"), "--username", USER, "--password", PASSWORD, "--user-token", TOKEN,
-         "--enable-legacy-api-token"],
+        [str(LABELSTUDIO.require("label-studio")), "start", "--no-browser", "--internal-host", "127.0.0.1",
+         "--port", str(port), "--data-dir", str(root / "data"), "--username", USER, "--password", PASSWORD,
+         "--user-token", TOKEN, "--enable-legacy-api-token"],
         stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
     try:
         api = Server(f"http://127.0.0.1:{port}")

@@ -40,7 +40,8 @@ def retracked(track: TrackResult) -> TrackResult:
     sources = list(track.keyframe_source)
     sources[1] = "reviewed.xml:40"
     sources[3] = ""
-    return TrackResult(**{**track.__dict__, "boxes_xywh": boxes, "keyframe": keyframe, "keyframe_source": tuple(sources)})
+    return TrackResult(**{**track.__dict__, "boxes_xywh": boxes, "keyframe": keyframe,
+                          "keyframe_source": tuple(sources)})
 
 
 # --------------------------------------------------------------------------- CVAT
@@ -386,7 +387,8 @@ def test_batch_media_url_gives_each_video_its_url_and_is_part_of_what_a_rerun_ke
         with pytest.raises(SystemExit) as info:
             main(["batch", str(manifest), "--out", str(out), "--workers", "1", "--config", str(tmp_path / "fast.yaml"),
                   "--formats", "otb,labelstudio", "--no-render", "--quiet", *extra])
-        return info.value.code, json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else None
+        summary_json = out / "summary.json"
+        return info.value.code, json.loads(summary_json.read_text()) if summary_json.exists() else None
 
     code, summary = batch("--media-url", "/data/local-files/?d=videos/")
     assert code == 0

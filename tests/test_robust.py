@@ -118,7 +118,8 @@ def reappearing_clip(n_frames: int = 55, start: int = 20):
     return _render(boxes, visible.astype(np.float32)), boxes, start + GAP
 
 
-@pytest.mark.parametrize("make", [covered_clip, leaving_clip, reappearing_clip], ids=["covered", "leaves_frame", "reappears"])
+@pytest.mark.parametrize("make", [covered_clip, leaving_clip, reappearing_clip],
+                         ids=["covered", "leaves_frame", "reappears"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_robust_finds_the_target_again_within_ten_frames(make, seed):
     frames, boxes, back = make()

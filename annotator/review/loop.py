@@ -103,8 +103,10 @@ class ReviewResult:
     def summary(self) -> str:
         if not self.changed:
             if self.written:
-                why = "; overlay.mp4 rendered again (a --no-render round had removed it)" if self.overlay_restored else ""
-                return f"every correction is already applied; nothing re-tracked; outputs rewritten in {self.out_dir}{why}"
+                why = ("; overlay.mp4 rendered again (a --no-render round had removed it)" if self.overlay_restored
+                       else "")
+                return (f"every correction is already applied; nothing re-tracked; outputs rewritten in "
+                        f"{self.out_dir}{why}")
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)

@@ -54,7 +54,8 @@ class ArrayFrames:
         for position in range(lo, hi):
             yield position, self._frames[position]
 
-def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, first: bool = False) -> np.random.Generator:
+def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *,
+              first: bool = False) -> np.random.Generator:
     """Generator of one pass: from the run seed, track id, anchor source frame and direction (0 fwd, 1 back).
 
     The forward pass from the first processed frame (``first=True``) uses the
