@@ -57,7 +57,7 @@ def clip_xywh(box_xywh: Sequence[float], width: float, height: float, *,
     return (x0, y0, round(x1 - x0, decimals), round(y1 - y0, decimals))
 
 
-def lies_outside(box_xywh: Sequence[float], width: float, height: float) -> bool:
+def lies_outside(box_xywh: Sequence[float] | np.ndarray, width: float, height: float) -> bool:
     """Whether no part of one ``xywh`` box (with a positive width and height) lies inside the frame."""
     x0, y0, x1, y1 = xywh_to_xyxy(box_xywh).tolist()
     return x0 >= width or y0 >= height or x1 <= 0 or y1 <= 0
