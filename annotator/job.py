@@ -429,7 +429,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
                         EXIT_INPUT)
     # Every output is a view of the store, whatever --formats says.
     result.store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step,
-                            tracks=run.tracks)
+                            tracks=tuple(run.tracks))
     # Each track as the forward pass from its first frame, for the first re-track to reuse.
     first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
     info = _first_run_info(result, source, targets, config, formats, input_path, options)

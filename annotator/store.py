@@ -150,7 +150,7 @@ def write_store(path: str | os.PathLike, store: RunStore) -> Path:
             arrays[f"{p}signal.{name}"] = values
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, **arrays)
+            np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]  # array names, never allow_pickle
             handle.flush()
             os.fsync(handle.fileno())
     return path

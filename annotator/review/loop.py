@@ -343,7 +343,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                    *, merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     tracks = retrack.tracks
-    store = RunStore(video=run.video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
+    store = RunStore(video=run.video, start=run.store.start, stop=run.store.stop, step=run.store.step,
+                     tracks=tuple(tracks))
     rendered = "overlay" in run.formats and render
     thumbnails = _render_overlay(tmp / OVERLAY_NAME, run, tracks, provider, show_progress) if rendered else []
     info = {**run.info, "review": _review_section(run, retrack, corrections_path, merge, rendered)}
