@@ -14,42 +14,28 @@ from annotator.wording import plural
 
 
 def batch_command(
-    manifest: Optional[Path] = typer.Argument(None, help="Manifest: .csv, .jsonl or .yaml; each item a video and its "
-                                                         "first-frame box."),
-    out: Path = typer.Option(..., "--out", help="Output folder: one subfolder per item, plus annotations.json, "
-                                                "summary.json, failures.jsonl, report.html."),
-    otb_root: Optional[Path] = typer.Option(None, "--otb-root", help="Use an OTB-layout root as the manifest (boxes "
-                                                                     "from each ground truth's first line)."),
-    workers: Optional[int] = typer.Option(None, "--workers", help="Parallel worker processes on this machine (default: "
-                                                                  "the number of cores)."),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a Dask distributed scheduler to run "
-                                                                      "the items on instead."),
-    box_origin: int = typer.Option(0, "--box-origin", help="1 to read the boxes of items without a box_origin field as "
-                                                           "OTB-style 1-based coordinates."),
-    start: Optional[int] = typer.Option(None, "--start", help="First frame of items whose manifest row gives none "
-                                                              "(default 0)."),
-    stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this frame in items whose row gives none "
-                                                            "(default: the end)."),
+    manifest: Optional[Path] = typer.Argument(None, help="Manifest: .csv, .jsonl or .yaml; each item a video and its first-frame box."),
+    out: Path = typer.Option(..., "--out", help="Output folder: one subfolder per item, plus annotations.json, summary.json, failures.jsonl, report.html."),
+    otb_root: Optional[Path] = typer.Option(None, "--otb-root", help="Use an OTB-layout root as the manifest (boxes from each ground truth's first line)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Parallel worker processes on this machine (default: the number of cores)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of a Dask distributed scheduler to run the items on instead."),
+    box_origin: int = typer.Option(0, "--box-origin", help="1 to read the boxes of items without a box_origin field as OTB-style 1-based coordinates."),
+    start: Optional[int] = typer.Option(None, "--start", help="First frame of items whose manifest row gives none (default 0)."),
+    stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this frame in items whose row gives none (default: the end)."),
     preset: Optional[str] = typer.Option(None, "--preset", help="Tracker preset for all items (item params override)."),
-    config_file: Optional[Path] = typer.Option(None, "--config",
-                                               help="YAML file with preset, seed, tracker and flags keys."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Base seed (default 0); each item's seed derives from it "
-                                                            "and the item id."),
-    formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats",
-                                help="Comma-separated outputs per item, as for a single video (otb, coco, flags, "
-                                     "overlay, report, cvat, mot, labelstudio, yolo)."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Base seed (default 0); each item's seed derives from it and the item id."),
+    formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats", help="Comma-separated outputs per item, as for a single video (otb, coco, flags, overlay, report, cvat, mot, labelstudio, yolo)."),
     media_url: Optional[str] = typer.Option(
         None, "--media-url", metavar="URL", help="Where a Label Studio server finds the videos, ending in / or = "
                                                  "(e.g. /data/local-files/?d=videos/): each task's data.video is it "
                                                  "followed by the video's file name (docs/review-tools.md)."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay videos (faster)."),
     force: bool = typer.Option(False, "--force", help="Redo every item, finished ones included."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line and no summary (errors and warnings "
-                                                            "still show)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress line and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
-    """Label a dataset: every manifest item in parallel; finished items are skipped on a rerun; failures stay
-    isolated."""
+    """Label a dataset: every manifest item in parallel; finished items are skipped on a rerun; failures stay isolated."""
     from annotator.batch import BatchRequest, run_batch
     from annotator.config import ConfigError, load_config_file
     from annotator.manifest import InvalidManifestError, items_from_otb_root, read_manifest

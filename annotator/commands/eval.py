@@ -14,12 +14,9 @@ from annotator.wording import plural
 
 
 def eval_command(
-    results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt "
-                                             "/ <Seq>/ results (dataset)."),
-    ground_truth: Path = typer.Argument(..., help="A ground-truth file (one sequence) or an OTB-layout root "
-                                                  "(dataset)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Folder for plots and tables (default: print the table "
-                                                           "only)."),
+    results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
+    ground_truth: Path = typer.Argument(..., help="A ground-truth file (one sequence) or an OTB-layout root (dataset)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for plots and tables (default: print the table only)."),
     tracker_name: str = typer.Option("sptpt", "--name", help="Tracker name in tables and plots."),
     sequences: Optional[str] = typer.Option(
         None, "--sequences", metavar="NAME,NAME",
@@ -69,8 +66,7 @@ def eval_command(
                 sequence = evaluate_result_file(results, ground_truth, pairs=pairs, overlap=overlap)
                 score = DatasetScore.from_sequences(tracker_name, [sequence])
         except FileNotFoundError as exc:
-            raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth",
-                            EXIT_INPUT) from None
+            raise ToolError(f"{exc.filename or exc}: not found: give an existing results path and ground truth", EXIT_INPUT) from None
         except MissingInputError as exc:
             raise ToolError(str(exc), EXIT_INPUT) from None
         except (EvaluationError, OTBFormatError) as exc:

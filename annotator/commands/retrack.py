@@ -12,8 +12,7 @@ from annotator.errors import EXIT_INTERRUPTED, EXIT_VALUE, ToolError
 
 
 def retrack_command(
-    output_dir: Path = typer.Argument(..., help="Output folder of an sptpt-annotate run (holds run.json and "
-                                                "tracks.npz)."),
+    output_dir: Path = typer.Argument(..., help="Output folder of an sptpt-annotate run (holds run.json and tracks.npz)."),
     corrections: Path = typer.Option(..., "--corrections", help="CSV frame,x,y,w,h[,track_id] (source frame index, "
                                      "0-based pixels; empty x,y,w,h = absent until the next correction), a COCO "
                                      "file whose corrected annotations have attributes.keyframe = true, or the run's "
@@ -23,8 +22,7 @@ def retrack_command(
                               "human boxes, as the failure model's pass_choice section finds most probably right; "
                               "elsewhere as anchored), anchored (the pass still near its human box, else the more "
                               "confident), confidence, blend or handover."),
-    no_verify: bool = typer.Option(False, "--no-verify",
-                                   help="Skip checking the input's content hash against run.json."),
+    no_verify: bool = typer.Option(False, "--no-verify", help="Skip checking the input's content hash against run.json."),
     input_path: Optional[Path] = typer.Option(
         None, "--input", help="Where the video or image folder is now, if it moved since the run (checked against "
                               "the content hash in run.json, then recorded there)."),
@@ -36,8 +34,7 @@ def retrack_command(
                                    "round). It is removed, as it would show the old boxes, and the report has no "
                                    "video or thumbnails; a later retrack without --no-render (with the same "
                                    "corrections file if nothing is new) renders them again."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still "
-                                                            "show)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Apply corrections to a run: human boxes become anchors, the spans they affect are re-tracked forward and

@@ -16,12 +16,10 @@ from sptpt.params import PRESETS
 
 
 def track_command(
-    video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or "
-                                           "any)."),
+    video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),
     box: List[str] = typer.Option(..., "--box", metavar="X,Y,W,H",
                                   help="First-frame box x,y,w,h in pixels (0-based). Repeat for several objects."),
-    label: List[str] = typer.Option([], "--label", metavar="NAME", help="Label of each --box (one per box, or one for "
-                                                                        "all). Default 'object'."),
+    label: List[str] = typer.Option([], "--label", metavar="NAME", help="Label of each --box (one per box, or one for all). Default 'object'."),
     box_origin: int = typer.Option(0, "--box-origin", help="1 to read --box as OTB-style 1-based coordinates."),
     start: int = typer.Option(0, "--start", help="First frame to process (0-based source index)."),
     stop: Optional[int] = typer.Option(None, "--stop", help="Stop before this source frame (default: the end)."),
@@ -29,8 +27,7 @@ def track_command(
     preset: Optional[str] = typer.Option(
         None, "--preset", help=f"Tracker preset: {', '.join(PRESETS)}. [default: {DEFAULT_PRESET}, or the --config "
                                "file's preset]"),
-    config_file: Optional[Path] = typer.Option(None, "--config",
-                                               help="YAML file with preset, seed, tracker and flags keys."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML file with preset, seed, tracker and flags keys."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0): same seed, same boxes."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <input>_sptpt beside the input)."),
     formats: str = typer.Option(",".join(DEFAULT_FORMATS), "--formats",
@@ -44,9 +41,7 @@ def track_command(
              "ending in / or = gets the video's file name. Default: the video's path, which a server cannot play."),
     no_render: bool = typer.Option(False, "--no-render", help="Skip the overlay video (faster)."),
     force: bool = typer.Option(False, "--force", help="Overwrite results already in the output folder."),
-    resume: bool = typer.Option(False, "--resume", help="Go on with a run that was cut short (Ctrl-C, kill) from its "
-                                                        "last checkpoint, with the same boxes as a run never "
-                                                        "interrupted."),
+    resume: bool = typer.Option(False, "--resume", help="Go on with a run that was cut short (Ctrl-C, kill) from its last checkpoint, with the same boxes as a run never interrupted."),
     corrections: Optional[Path] = typer.Option(
         None, "--corrections",
         help="CSV frame,x,y,w,h[,track_id] or COCO file of human boxes, applied right after tracking "
@@ -58,8 +53,7 @@ def track_command(
     failure_model: Optional[Path] = typer.Option(
         None, "--failure-model", help="A failure-model JSON refitted with benchmarks/failure_model.py "
                                       "(default: the one shipped)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still "
-                                                            "show)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary (errors and warnings still show)."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
