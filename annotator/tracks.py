@@ -16,12 +16,15 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Mapping, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
 
 if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
+    class DataclassInstance(Protocol):
+        """What dataclasses.fields and dataclasses.replace accept: an instance of a dataclass."""
+
+        __dataclass_fields__: ClassVar[dict[str, Any]]
 
 __all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder", "select_rows"]
 
