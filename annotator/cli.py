@@ -96,22 +96,22 @@ def main(argv: list[str] | None = None) -> None:
         code = app(args=_with_default_command(argv), prog_name="sptpt-annotate", standalone_mode=False)
     except no_args_is_help as exc:
         exc.show()
-        raise SystemExit(exc.exit_code)
+        raise SystemExit(exc.exit_code) from None
     except click_errors.UsageError as exc:
         where = exc.ctx.command_path if exc.ctx is not None else "sptpt-annotate"
         print(f"sptpt-annotate: error: {exc.format_message().rstrip('.')} (see '{where} --help')", file=sys.stderr)
-        raise SystemExit(exc.exit_code)
+        raise SystemExit(exc.exit_code) from None
     except click_errors.ClickException as exc:
         print(f"sptpt-annotate: error: {exc.format_message()}", file=sys.stderr)
-        raise SystemExit(exc.exit_code)
+        raise SystemExit(exc.exit_code) from None
     except (KeyboardInterrupt, typer.Abort):
         print("sptpt-annotate: interrupted", file=sys.stderr)
-        raise SystemExit(EXIT_INTERRUPTED)
+        raise SystemExit(EXIT_INTERRUPTED) from None
     except SystemExit:
         raise
     except ToolError as exc:  # re-raised by the command under --debug: the traceback, and still its exit code
         traceback.print_exc()
-        raise SystemExit(exc.exit_code)
+        raise SystemExit(exc.exit_code) from None
     except OSError as exc:
         if debug:
             raise
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> None:
             where = f" while writing {exc.filename}" if exc.filename else ""
             print(f"sptpt-annotate: error: no space left on the disk{where} ({exc.strerror}): free space, or write "
                   "the results elsewhere with --out", file=sys.stderr)
-            raise SystemExit(EXIT_OUTPUT)
+            raise SystemExit(EXIT_OUTPUT) from None
         _internal_error(exc)
     except Exception as exc:  # a bug: one line unless --debug
         if debug:

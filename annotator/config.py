@@ -24,7 +24,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from annotator.errors import EXIT_INPUT, EXIT_VALUE
+from annotator.errors import EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.text import read_given_file
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
@@ -86,7 +86,8 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got {type(data).__name__}")
+        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got "
+                          f"{type(data).__name__}")
     return data
 
 
@@ -172,7 +173,8 @@ def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got {type(value).__name__}")
+        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got "
+                          f"{type(value).__name__}")
     return value
 
 

@@ -45,7 +45,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from annotator.box_input import Box, BoxError, parse_box
-from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.errors import EXIT_VALUE, ToolError
 from annotator.text import read_given_file
 from sptpt.boxes import lies_outside
 
@@ -130,7 +130,8 @@ def _integer(text: str, where: str, column: str, minimum: int) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise ToolError(f"{where}: column {column!r} must be an integer >= {minimum}, got {text!r}", EXIT_VALUE) from None
+        raise ToolError(f"{where}: column {column!r} must be an integer >= {minimum}, got {text!r}",
+                        EXIT_VALUE) from None
     if value < minimum:
         raise ToolError(f"{where}: column {column!r} must be an integer >= {minimum}, got {value}", EXIT_VALUE)
     return value
@@ -160,7 +161,8 @@ def _read_csv(path: Path, text: str) -> list[Correction]:
             continue
         if not seen_data and _is_header(fields):
             names = [f.lower() for f in fields]
-            if names[:5] != list(CSV_HEADER[:5]) or len(names) > 6 or (len(names) == 6 and names[5] not in _TRACK_NAMES):
+            if (names[:5] != list(CSV_HEADER[:5]) or len(names) > 6
+                    or (len(names) == 6 and names[5] not in _TRACK_NAMES)):
                 raise ToolError(f"{where}: expected the header 'frame,x,y,w,h' or 'frame,x,y,w,h,track_id' "
                                 f"(or no header), got {','.join(row)!r}", EXIT_VALUE)
             seen_data = True

@@ -15,8 +15,8 @@
 
 from __future__ import annotations
 
-__all__ = ["InputWarning", "ToolError", "require_extra", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT", "EXIT_VALUE", "EXIT_OUTPUT",
-           "EXIT_PARTIAL", "EXIT_BATCH_FAILURES", "EXIT_INTERRUPTED"]
+__all__ = ["InputWarning", "ToolError", "require_extra", "EXIT_OK", "EXIT_INTERNAL", "EXIT_USAGE", "EXIT_INPUT",
+           "EXIT_VALUE", "EXIT_OUTPUT", "EXIT_PARTIAL", "EXIT_BATCH_FAILURES", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1

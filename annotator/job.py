@@ -22,25 +22,33 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+import sptpt
 from annotator import __version__
 from annotator.atomic import ctrl_c_ignored
 from annotator.box_input import parse_box
 from annotator.checkpoint import CHECKPOINT_NAME, Checkpoint, read_checkpoint, remove_checkpoint, run_key
 from annotator.config import RunConfig, resolve_config
 from annotator.corrections import Correction, resolve_corrections
-from annotator.errors import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_PARTIAL, EXIT_VALUE, InputWarning,
-                              ToolError)
+from annotator.errors import (
+    EXIT_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_OUTPUT,
+    EXIT_PARTIAL,
+    EXIT_VALUE,
+    InputWarning,
+    ToolError,
+)
 from annotator.exports import ExportOptions
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
+from annotator.pass_cache import first_pass
 from annotator.pipeline import Target, TrackingRun, track_source
 from annotator.progress import CountNote, Progress
-from annotator.pass_cache import first_pass
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
 from annotator.store import STORE_NAME, RunStore
 from annotator.wording import plural
-import sptpt
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
 __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
@@ -421,7 +429,7 @@ def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequenc
                         EXIT_INPUT)
     # Every output is a view of the store, whatever --formats says.
     result.store = RunStore(video=run.video, start=source.start, stop=source.stop, step=source.step,
-                            tracks=run.tracks)
+                            tracks=tuple(run.tracks))
     # Each track as the forward pass from its first frame, for the first re-track to reuse.
     first_passes = dict(first_pass(t, run.tracker_confidence[t.track_id]) for t in run.tracks)
     info = _first_run_info(result, source, targets, config, formats, input_path, options)

@@ -24,7 +24,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, cast
 
 import numpy as np
 
@@ -50,12 +50,14 @@ class PassResult:
     accepted: np.ndarray
     scoring: np.ndarray
     seconds: np.ndarray
+    # The last three are optional when built: None asks for the NaN default, which __post_init__ puts in its
+    # place, so a pass's attribute is never None (the type system cannot say "None in, array out" of a field).
     #: (n, len(SIGNALS)) failure signals of the pass's rows (annotator.failure.SIGNALS order), NaN where not run.
-    signals: np.ndarray | None = None
+    signals: np.ndarray = None  # type: ignore[assignment]
     #: (n,) IoU of the forward and the backward pass's boxes on a merged row; NaN for a single pass.
-    pass_iou: np.ndarray | None = None
+    pass_iou: np.ndarray = None  # type: ignore[assignment]
     #: (n,) index in PASS_OPTIONS of the box the ``chosen`` merge took where the passes disagreed; NaN elsewhere.
-    choice: np.ndarray | None = None
+    choice: np.ndarray = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         if self.signals is None:
@@ -73,7 +75,8 @@ class PassResult:
     def take(self, index) -> PassResult:
         """Copies of the rows at ``index`` (a slice or indices), as a pass of their own (no ``pass_iou``)."""
         return PassResult(*(np.asarray(getattr(self, f))[index].copy() for f in
-                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds", "signals")))
+                            ("boxes_xywh", "confidence", "log_likelihood", "accepted", "scoring", "seconds",
+                             "signals")))
 
 
 #: File name of the kept passes in a run folder.
@@ -153,7 +156,8 @@ def code_identity() -> dict[str, str]:
     digest = hashlib.sha256()
     package = Path(sptpt.__file__).parent
     files = [(f"sptpt/{f.relative_to(package).as_posix()}", f) for f in sorted(package.rglob("*.py"))]
-    files += [(name, Path(importlib.import_module(name).__file__)) for name in _PASS_MODULES]
+    # Modules of this package, imported from their source files: each has a __file__.
+    files += [(name, Path(cast(str, importlib.import_module(name).__file__))) for name in _PASS_MODULES]
     for name, file in files:
         digest.update(name.encode() + b"\0" + file.read_bytes() + b"\0")
     try:
@@ -210,7 +214,7 @@ def write_pass_cache(path: str | os.PathLike, cache: Mapping[PassKey, CachedPass
     }
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, **arrays)
+            np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]  # array names, never allow_pickle
     return path
 
 

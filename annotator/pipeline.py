@@ -14,9 +14,9 @@ frame tracked so far is still written, validly.
 from __future__ import annotations
 
 import base64
-import dataclasses
 import collections
 import contextlib
+import dataclasses
 import signal
 import threading
 import time

@@ -163,7 +163,8 @@ def items_from_tracks(tracks: Sequence[TrackResult], frame_index: int) -> list[O
 
 
 def label_text(item: OverlayItem) -> str:
-    """The text of an item's box label: ``id 1 0.87`` for a tracker box, ``id 1 given`` / ``id 1 corrected`` for a human one.
+    """The text of an item's box label: ``id 1 0.87`` for a tracker box, ``id 1 given`` / ``id 1 corrected`` for a
+    human one.
 
     A human box has no tracker confidence worth showing (it is 1 by
     definition), so its label names who gave it instead; short labels also

@@ -150,7 +150,7 @@ def write_store(path: str | os.PathLike, store: RunStore) -> Path:
             arrays[f"{p}signal.{name}"] = values
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as handle:
-            np.savez_compressed(handle, **arrays)
+            np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]  # array names, never allow_pickle
             handle.flush()
             os.fsync(handle.fileno())
     return path
@@ -179,7 +179,8 @@ def read_store(path: str | os.PathLike) -> RunStore:
     except (KeyError, ValueError, TypeError, IndexError):
         raise StoreError(f"{path} has no readable header: it is not a {STORE_FORMAT}; {redo}") from None
     if not isinstance(header, dict) or header.get("format") != STORE_FORMAT:
-        raise StoreError(f"{path} is not a {STORE_FORMAT} (format {header.get('format') if isinstance(header, dict) else None!r}); {redo}")
+        raise StoreError(f"{path} is not a {STORE_FORMAT} (format "
+                         f"{header.get('format') if isinstance(header, dict) else None!r}); {redo}")
     version = header.get("schema_version")
     if version != SCHEMA_VERSION:
         raise StoreError(f"{path} has schema version {version!r}, this sptpt-annotate reads version "

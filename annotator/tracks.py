@@ -12,13 +12,19 @@ and calls :meth:`TrackRecorder.to_result` at the end, or after a
 
 from __future__ import annotations
 
-import math
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
+
+if TYPE_CHECKING:
+    class DataclassInstance(Protocol):
+        """What dataclasses.fields and dataclasses.replace accept: an instance of a dataclass."""
+
+        __dataclass_fields__: ClassVar[dict[str, Any]]
 
 __all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder", "select_rows"]
 
@@ -87,7 +93,7 @@ def _frozen(values: np.ndarray) -> np.ndarray:
     return values
 
 
-Rows = TypeVar("Rows")
+Rows = TypeVar("Rows", bound="DataclassInstance")
 
 
 def select_rows(record: Rows, picked: np.ndarray) -> Rows:
@@ -170,10 +176,13 @@ class TrackResult:
     keyframe: np.ndarray
     outside: np.ndarray
     seconds: np.ndarray
-    occluded: np.ndarray | None = field(default=None)
-    scoring: tuple[str, ...] | None = field(default=None)
-    keyframe_source: tuple[str, ...] | None = field(default=None)
-    signals: Mapping[str, np.ndarray] | None = field(default=None)
+    # Optional when built: None asks for the default, which __post_init__ puts in its place, so a track's
+    # attribute is never None. The annotations are the attributes'; the type system cannot say "None in, array
+    # out" of a dataclass field.
+    occluded: np.ndarray = field(default=None)  # type: ignore[arg-type]
+    scoring: tuple[str, ...] = field(default=None)  # type: ignore[arg-type]
+    keyframe_source: tuple[str, ...] = field(default=None)  # type: ignore[arg-type]
+    signals: Mapping[str, np.ndarray] = field(default=None)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         name = f"TrackResult(track_id={self.track_id!r})"

@@ -52,7 +52,8 @@ def run(tracker: str, seq_dir: str, out_dir: str, name: str, stop: int | None = 
     seq_dir, out_dir = Path(seq_dir), Path(out_dir)
     cv2.setNumThreads(1)
     img_dir = seq_dir / "img" if (seq_dir / "img").is_dir() else seq_dir
-    files = sorted((p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: natural_key(p.name))
+    files = sorted((p for p in img_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                   key=lambda p: natural_key(p.name))
     files = files[:stop]
     x, y, w, h = read_gt_first(seq_dir / "groundtruth_rect.txt")
     box = (x - 1.0, y - 1.0, w, h)  # OTB is 1-based; OpenCV is 0-based

@@ -16,21 +16,21 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._stage_clock import StageClock
-
 from annotator.allocator import keep_freed_memory
 from annotator.atomic import atomic_path
 from annotator.frames import open_frames
 from annotator.nanotrack import guide_for
 from annotator.otb import read_otb_boxes, write_otb_boxes, write_otb_times
+from benchmarks._stage_clock import StageClock
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
 
 
 def run_sequence(seq_dir: str, out_dir: str, params: dict, seed: int, name: str, stop: int | None = None) -> dict:
     """Track one sequence; return its timing record (per-stage seconds, frames, peak RSS)."""
-    import numba
     import resource
+
+    import numba
 
     from sptpt.params import params_from_mapping
 

@@ -56,21 +56,20 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
-from benchmarks._results import machine_line, update_section
-
 from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FEATURES, feature_matrix, load_model
-from sptpt_dev.failure_fit import APPEARANCE_LEVELS, fit_model, fit_pass_agreement
 from annotator.flagging import FlagParams
+from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail
+from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
+from benchmarks._results import machine_line, update_section
 from benchmarks.failure_model import load_samples
-from annotator.frames import open_frames
 from sptpt.boxes import iou_xywh
+from sptpt_dev.failure_fit import APPEARANCE_LEVELS, fit_model, fit_pass_agreement
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -162,8 +161,8 @@ def markdown(data, p_alone, p_held, threshold, command, seconds, shipped, C) -> 
              f"Data: {len(names)} sequences of `../shared/otb` ({', '.join(names)}), preset `{PRESET}`, seeds "
              f"{', '.join(map(str, seeds))}, ground-truth anchors every {' and every '.join(map(str, everies))} "
              f"frames, re-tracked by the tool (`retrack_tracks`, merge `anchored`); {len(p_held)} frames strictly "
-             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Held out by video (Jogging.1 "
-             "and Jogging.2 one fold): each fold is scored by a main model (C = "
+             f"between two anchors, {100 * data['failed'].mean():.1f}% failed (IoU < 0.5). Held out by video "
+             "(Jogging.1 and Jogging.2 one fold): each fold is scored by a main model (C = "
              f"{C:g}, recalibrated, `fit_model` on the runs of `benchmarks/failure_model.py`) and a section fitted "
              "without it. Flags here are frames above the fold model's threshold "
              f"({', '.join(f'{t:.2f}' for t in sorted(set(np.round(threshold, 2))))}), before span merging.", "",

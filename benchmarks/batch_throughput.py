@@ -155,7 +155,8 @@ def main() -> None:
     parser.add_argument("--otb-root", type=Path, default=DEFAULT_ROOT)
     parser.add_argument("--sequences", default="Bolt2,Coke,Crossing,Skiing", help="comma-separated names, or 'all'")
     parser.add_argument("--stop", type=int, default=60, help="frames per sequence (0 for all)")
-    parser.add_argument("--preset", default=DEFAULT_PRESET, help=f"tracker preset (default: the tool's, {DEFAULT_PRESET})")
+    parser.add_argument("--preset", default=DEFAULT_PRESET, help="tracker preset (default: the tool's, "
+                                                                 f"{DEFAULT_PRESET})")
     parser.add_argument("--workers", default="1x1,1,2",
                         help="worker counts, comma-separated; WxT also caps numba at T threads (NUMBA_NUM_THREADS)")
     parser.add_argument("--no-render", action="store_true")

@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> None:
     before, before_seconds = load_runs(args.before, args.otb)
     after, after_seconds = load_runs(args.after, args.otb)
     print("\n".join(compare(before, after, args.worst)))
-    print(f"\ntracker ms per frame (as stored, mean over seeds): before {1e3 * np.mean(list(before_seconds.values())):.1f}, "
+    print("\ntracker ms per frame (as stored, mean over seeds): "
+          f"before {1e3 * np.mean(list(before_seconds.values())):.1f}, "
           f"after {1e3 * np.mean(list(after_seconds.values())):.1f}")
 
 

@@ -40,7 +40,8 @@ def diagnose(seq_dir: Path, params: TrackerParams, seed: int, stop: int | None) 
 
     gt = read_otb_boxes(seq_dir / "groundtruth_rect.txt")
     # Same seeding as benchmarks/_sptpt_runner.py, so the boxes equal the benchmark's.
-    tracker = Tracker(params, seed=np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())])))
+    tracker = Tracker(params,
+                      seed=np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(seq_dir.name.encode())])))
     rows: dict[str, list] = {k: [] for k in (
         "iou", "log_likelihood", "accepted", "scoring", "pos_modes", "pos_sample", "neg_modes", "neg_sample",
         "gt_log_likelihood", "spread_px", "scale", "gt_scale", "positive_batches", "pos_rank3", "neg_rank3",
@@ -114,7 +115,8 @@ def main() -> None:
     parser.add_argument("--sequences", required=True)
     parser.add_argument("--stop", type=int, default=120)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--set", default="{}", help='JSON overrides of the preset, e.g. \'{"negative_rank_matched": true}\'')
+    parser.add_argument("--set", default="{}", help='JSON overrides of the preset, e.g. \'{"negative_rank_matched": '
+                                                    'true}\'')
     parser.add_argument("--label", default=None, help="output folder name (default: the preset)")
     parser.add_argument("--out", type=Path, default=HERE / "_runs" / "diagnosis")
     args = parser.parse_args()

@@ -89,19 +89,48 @@ import numpy as np
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
-from sptpt_dev.failure_fit import (
-    APPEARANCE_LEVELS, MIN_GROUP_GAIN, TARGET_PRECISION, TARGET_RECALL, Regression, Sample, choose_C, choose_groups,
-    fit_fold, fit_model, group_features, l1_fit, platt, video)
-from annotator.failure.model import (FEATURE_GROUPS, FEATURES, FailureModel, load_model, logit, shipped_model_path,
-                                     sigmoid)
+from annotator.failure.model import (
+    FEATURE_GROUPS,
+    FEATURES,
+    FailureModel,
+    load_model,
+    logit,
+    shipped_model_path,
+    sigmoid,
+)
 from annotator.flagging import FlagParams, flag_p_fail
 from annotator.otb import read_otb_boxes
 from annotator.store import STORE_NAME, read_store
 from benchmarks._results import machine_line, update_section
+from benchmarks._right_tracks import (
+    RIGHT_CAP,
+    load_segments,
+    right_medians,
+    right_tracks_summary,
+    right_tracks_table,
+    segments_flagged,
+    sequence_of,
+    truth_flagged,
+    truth_look,
+)
 from benchmarks._sequences import ground_truth_file
 from sptpt.params import get_preset
-from benchmarks._right_tracks import (RIGHT_CAP, load_segments, right_medians, right_tracks_summary, right_tracks_table,
-                                      segments_flagged, sequence_of, truth_flagged, truth_look)
+from sptpt_dev.failure_fit import (
+    APPEARANCE_LEVELS,
+    MIN_GROUP_GAIN,
+    TARGET_PRECISION,
+    TARGET_RECALL,
+    Regression,
+    Sample,
+    choose_C,
+    choose_groups,
+    fit_fold,
+    fit_model,
+    group_features,
+    l1_fit,
+    platt,
+    video,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -190,7 +219,8 @@ def signal_cost(otb: list[Path], sequences: list[str], tracking_ms: float, frame
 
 
 def held_out(samples: list[Sample], *, C, drop=(), select_groups=False, workers: int = 1,
-             regression: Regression = l1_fit) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
+             regression: Regression = l1_fit
+             ) -> tuple[list[tuple[Sample, np.ndarray, list[str], float]], dict[str, FailureModel]]:
     """(sample, held-out p_fail, signal groups, the fold model's threshold) for every sample, and each fold's
     model by held-out video, every fit by ``regression``. Folds run in ``workers`` processes."""
     names = sorted({video(s.sequence) for s in samples})
@@ -693,8 +723,10 @@ def main() -> int:
     thresholds = {name: info["flag_threshold"] for name, info in fold_info.items()}
     for t, m in sweep.items():
         print(f"threshold {t:g}: precision {fmt(mean_std(m, 'precision'))}, recall {fmt(mean_std(m, 'recall'))}, "
-              f"flagged share {fmt(mean_std(m, 'flagged_share'))}, on AUC >= 0.6 {fmt(mean_std(m, 'good_flagged_share'))}")
-    print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}, ECE {expected_calibration_error(pooled_p, pooled_y):.3f}; "
+              f"flagged share {fmt(mean_std(m, 'flagged_share'))}, "
+              f"on AUC >= 0.6 {fmt(mean_std(m, 'good_flagged_share'))}")
+    print(f"pooled held-out AUROC {auroc(pooled_p, pooled_y):.3f}, "
+          f"ECE {expected_calibration_error(pooled_p, pooled_y):.3f}; "
           f"tracker confidence alone AUROC {base_auroc:.3f}; fold thresholds {thresholds}")
     print("AUROC without each group:", {g: round(v, 3) for g, v in worth.items()})
     tracking_ms = 1000 * float(np.nanmean(tracking_seconds))
@@ -728,9 +760,9 @@ def main() -> int:
         fold_file = dataclasses.replace(fold, info={**fold.info, "held_out": name, "fold": video(name)})
         write_text_atomic(FOLDS / f"{name}.json", json.dumps(fold_file.to_json(), indent=1) + "\n")
     # The pass_choice section reads each pass's probability under the main model: refitted with it, not kept.
-    print(f"wrote {model_file(preset).relative_to(ROOT)} without a pass_choice section (the re-track merge is 'anchored' "
-          "until it is refitted): run python -m benchmarks.pass_choice --generate --write (the rows it stored hold "
-          "the old model's per-pass probabilities, so they are tracked again)", file=sys.stderr)
+    print(f"wrote {model_file(preset).relative_to(ROOT)} without a pass_choice section (the re-track merge is "
+          "'anchored' until it is refitted): run python -m benchmarks.pass_choice --generate --write (the rows it "
+          "stored hold the old model's per-pass probabilities, so they are tracked again)", file=sys.stderr)
     PLOTS.mkdir(exist_ok=True)
     plot_calibration(PLOTS / "calibration.png", {"p_fail (held-out folds)": (pooled_p, pooled_y)})
 

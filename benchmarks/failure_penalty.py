@@ -22,10 +22,18 @@ from pathlib import Path
 import numpy as np
 
 import sptpt_dev.failure_fit as fit
-from benchmarks._results import machine_line, update_section
-from benchmarks.failure_model import (checked_C_and_workers, flag_metrics, fmt, held_out,
-                                      load_samples, mean_std, per_seed_probability, run_preset)
 from annotator.flagging import FlagParams
+from benchmarks._results import machine_line, update_section
+from benchmarks.failure_model import (
+    checked_C_and_workers,
+    flag_metrics,
+    fmt,
+    held_out,
+    load_samples,
+    mean_std,
+    per_seed_probability,
+    run_preset,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,7 +73,8 @@ def main() -> int:
             zeros = np.mean([np.sum(m.coef == 0.0) for m in models.values()])
             rows.append(f"| {penalty} | {C:g} | {fmt(mean_std(prob, 'auroc'))} | {fmt(mean_std(prob, 'ece'))} | "
                         f"{fmt(mean_std(flags, 'precision'))} | {fmt(mean_std(flags, 'recall'))} | "
-                        f"{fmt(mean_std(flags, 'good_flagged_share'))} | {zeros:.1f} of {len(models[next(iter(models))].coef)} |")
+                        f"{fmt(mean_std(flags, 'good_flagged_share'))} | "
+                        f"{zeros:.1f} of {len(models[next(iter(models))].coef)} |")
             print(rows[-1], flush=True)
     if args.no_record:
         return 0

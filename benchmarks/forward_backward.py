@@ -1,7 +1,8 @@
 """Does a backward pass pay? Forward, then backward from a late confident frame, merged per frame.
 
     python -m benchmarks.forward_backward --preset robust --seeds 0,1,2 --out benchmarks/_runs/fb
-    python -m benchmarks.forward_backward --seeds 0,1,2 --out benchmarks/_runs/fb --rescore   # merge rules again, no tracking
+    # the merge rules again on the stored passes, no tracking:
+    python -m benchmarks.forward_backward --seeds 0,1,2 --out benchmarks/_runs/fb --rescore
 
 For every sequence of an OTB-layout root and every seed, the tracker runs
 forward from the ground-truth box of the first frame, exactly as the
@@ -30,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._sequences import SequenceError, select_sequences
 from annotator.evaluation.metrics import evaluate_sequence
 from annotator.otb import read_otb_boxes
 from annotator.review.merge import MERGES, PassResult, merge_passes
+from benchmarks._sequences import SequenceError, select_sequences
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,8 +70,8 @@ def track_sequence(job: dict) -> dict:
     import numba
 
     numba.set_num_threads(job["threads"])
-    from benchmarks._sptpt_runner import stable_id
     from annotator.frames import open_frames
+    from benchmarks._sptpt_runner import stable_id
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker
 
@@ -147,7 +148,8 @@ def report(result: dict, seeds: list[int]) -> str:
         f"{per_seed[m].mean():.3f} ± {per_seed[m].std():.3f}" for m in methods) + " |")
     t = result["timing"]
     lines.append("")
-    lines.append(f"Forward pass {t['frames'] / t['fwd']:.1f} frames/s; both passes {t['frames'] / (t['fwd'] + t['bwd']):.1f} "
+    lines.append(f"Forward pass {t['frames'] / t['fwd']:.1f} frames/s; "
+                 f"both passes {t['frames'] / (t['fwd'] + t['bwd']):.1f} "
                  f"frames/s (tracker time over frames 2..N, init excluded).")
     return "\n".join(lines)
 
@@ -156,7 +158,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--otb", default=str(ROOT.parent / "shared" / "otb"))
     parser.add_argument("--preset", default="robust")
-    parser.add_argument("--sequences", default=None, help="comma-separated names, or 'all' (the default: every sequence)")
+    parser.add_argument("--sequences", default=None, help="comma-separated names, or 'all' (the default: every "
+                                                          "sequence)")
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--stable", type=int, default=10, help="accepted frames in a row that make the end anchor")
     parser.add_argument("--workers", type=int, default=1)

@@ -37,7 +37,8 @@ def make_video(sequence: str, frames: int, size: tuple[int, int], path: Path) ->
     order = files + files[-2:0:-1]  # forward, then back, without repeating the ends
     first = cv2.imread(str(files[0]))
     sx, sy = size[0] / first.shape[1], size[1] / first.shape[0]
-    x, y, w, h = (float(v) for v in re.split(r"[,\t ]+", (source / "groundtruth_rect.txt").read_text().split("\n")[0].strip()))
+    first_row = (source / "groundtruth_rect.txt").read_text().split("\n")[0].strip()
+    x, y, w, h = (float(v) for v in re.split(r"[,\t ]+", first_row))
     box = [(x - 1) * sx, (y - 1) * sy, w * sx, h * sy]
     if path.exists():
         return box

@@ -3,7 +3,7 @@
     python -m benchmarks.otb_benchmark                       # all trackers, ../shared/otb, records RESULTS.md
     python -m benchmarks.otb_benchmark --trackers paper,csrt --stop 100 --no-record
     python -m benchmarks.otb_benchmark --trackers paper,robust,csrt --seeds 0,1,2 --sequences Coke,David --no-record
-    python -m benchmarks.otb_benchmark --variant 'robust-flow=robust:flow_prior=true' --trackers robust,robust-flow --no-record
+    python -m benchmarks.otb_benchmark --variant 'flow=robust:flow_prior=true' --trackers robust,flow --no-record
     python -m benchmarks.otb_benchmark --replot /tmp/runs --trackers paper,robust,csrt   # attribute plots, no tracking
 
 For each tracker it runs one-pass evaluation on the same frames (the
@@ -54,13 +54,11 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 
-from benchmarks._results import machine_line, update_section  # noqa: E402
-from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
-
 from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.report import plot_success  # noqa: E402
-from annotator.evaluation.metrics import iou_xywh  # noqa: E402
 from annotator.otb import read_otb_boxes  # noqa: E402
+from benchmarks._results import machine_line, update_section  # noqa: E402
+from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402
 from sptpt.tracker import STAGES  # noqa: E402
 
@@ -103,6 +101,7 @@ def _peer_job(args: dict) -> dict:
 def parse_variant(text: str) -> tuple[str, dict]:
     """``NAME=PRESET:key=value,key=value`` -> (NAME, the preset's parameters with the overrides)."""
     import yaml
+
     from sptpt.params import params_from_mapping
 
     name, _, spec = text.partition("=")
@@ -204,8 +203,8 @@ def main() -> None:
         if tracker in configs:
             # Review flags are measured by benchmarks/failure_model.py: they need the tool's failure signals,
             # which this direct tracker run does not compute.
-            row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs) / sum(r["frames"] - 1 for r in recs)
-                                for st in STAGES}
+            row["stages_ms"] = {st: 1000 * sum(r["stages"].get(st, 0.0) for r in recs)
+                                / sum(r["frames"] - 1 for r in recs) for st in STAGES}
             row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in recs)
         rows.append(row)
 

@@ -33,11 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._sequences import SequenceError, select_sequences
-
 from annotator.evaluation.metrics import evaluate_sequence
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
+from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.contrast import most_contrasted
 
 HERE = Path(__file__).resolve().parent
@@ -134,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--otb", type=Path, default=HERE.parent.parent / "shared" / "otb")
     parser.add_argument("--sequences", default="", help="comma-separated names, or 'all' (the default)")
     parser.add_argument("--rechoose", choices=("contrast",), default=None,
-                        help="score the choice run_choice='contrast' makes from the stored runs instead of the stored one")
+                        help="score the choice run_choice='contrast' makes from the stored runs instead of the "
+                             "stored one")
     args = parser.parse_args(argv)
     try:
         sequences = select_sequences(args.otb, args.sequences)

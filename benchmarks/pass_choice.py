@@ -52,22 +52,21 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
-from benchmarks._results import machine_line, update_section
-
 from annotator.atomic import write_text_atomic
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FailureModelError, load_model
-from sptpt_dev.failure_fit import fit_pass_choice
 from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, shipped_model_path
 from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail
+from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
+from benchmarks._results import machine_line, update_section
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
+from sptpt_dev.failure_fit import fit_pass_choice
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -100,7 +99,10 @@ def generate(job: dict) -> str:
         if bwd is None or stop - start < 2:
             continue
         truth = gt[start + 1: stop]
-        right = lambda boxes: np.nan_to_num(iou_xywh(boxes, truth), nan=0.0) >= 0.5  # noqa: E731
+
+        def right(boxes, truth=truth):
+            return np.nan_to_num(iou_xywh(boxes, truth), nan=0.0) >= 0.5
+
         features, interpolation = pass_choice_features(
             pass_p_fail(fwd, model, backward=False), pass_p_fail(bwd, model, backward=True), fwd.boxes_xywh,
             bwd.boxes_xywh, (gt[start], gt[stop]))
@@ -211,7 +213,7 @@ def markdown(data, chosen, command, seconds, shipped, generated: bool, doubt: di
              "| merge | all frames between anchors | where the passes disagree |", "|---|---:|---:|"]
     for label, right in (("`anchored` (before)", anchored), ("`chosen` (held out)", chosen)):
         lines.append(f"| {label} | {mean_std(share(right, everywhere))} | {mean_std(share(right, disagree))} |")
-    for k, option in enumerate(PASS_OPTIONS):
+    for k in range(len(PASS_OPTIONS)):
         taken[:, k] = data["options"][:, k]
     lines.append("| always forward / backward / interpolation, where they disagree | | "
                  + " / ".join(mean_std(share(taken[:, k], disagree)) for k in range(3)) + " |")

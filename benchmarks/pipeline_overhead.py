@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -27,7 +26,6 @@ import imageio_ffmpeg
 import numpy as np
 
 from benchmarks._results import machine_line, update_section
-
 from sptpt_dev.synthetic import make_clip
 
 HERE = Path(__file__).resolve().parent
@@ -36,7 +34,8 @@ HERE = Path(__file__).resolve().parent
 def write_video(path: Path, clip_frames: np.ndarray, repeats: int, fps: float = 25.0) -> None:
     height, width = clip_frames.shape[1:3]
     writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-                                         macro_block_size=1, ffmpeg_log_level="error", output_params=["-preset", "veryfast"])
+                                         macro_block_size=1, ffmpeg_log_level="error",
+                                         output_params=["-preset", "veryfast"])
     writer.send(None)
     for _ in range(repeats):
         for frame in clip_frames:

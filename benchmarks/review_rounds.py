@@ -34,11 +34,10 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
-from benchmarks._results import machine_line, update_section
-
 from annotator.frames import open_frames
-from annotator.review import SourceFrames
 from annotator.pass_cache import PASSES_NAME
+from annotator.review import SourceFrames
+from benchmarks._results import machine_line, update_section
 
 HERE = Path(__file__).resolve().parent
 
@@ -64,12 +63,13 @@ def reading(clip: Path, n: int) -> list[tuple[str, float]]:
     for label, kwargs in ((f"iterate start={n - 10} (10 frames)", dict(start=n - 10)),
                           (f"iterate step=10 ({len(range(0, n, 10))} frames)", dict(step=10))):
         selected = open_frames(clip, **kwargs)
-        rows.append((label, timed(lambda: sum(1 for _ in selected))[0]))
+        rows.append((label, timed(lambda selected=selected: sum(1 for _ in selected))[0]))
     reader = SourceFrames(source, source.indices)
     rows.append((f"retrack's reader: frames {n - 100}..{n - 91}",
                  timed(lambda: sum(1 for _ in reader.frames(n - 100, n - 90)))[0]))
     back = n * 5 // 6 - 100
-    rows.append((f"then back to frames {back}..{back + 9}", timed(lambda: sum(1 for _ in reader.frames(back, back + 10)))[0]))
+    rows.append((f"then back to frames {back}..{back + 9}",
+                 timed(lambda: sum(1 for _ in reader.frames(back, back + 10)))[0]))
     reader.close()
     return rows
 

@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._stage_clock import StageClock
-
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
+from benchmarks._stage_clock import StageClock
 from sptpt.params import get_preset
 from sptpt.tracker import STAGES, Tracker
 
@@ -103,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         ok &= diff <= args.tol and same_accept
     per_frame = {k: 1000.0 * all_stages[k] / max(all_frames, 1) for k in STAGES if k in all_stages}
     print("ms/frame (frames 2..N): " + ", ".join(f"{k} {v:.1f}" for k, v in per_frame.items())
-          + f"; total {1000.0 * all_seconds / max(all_frames, 1):.1f} ({all_frames / max(all_seconds, 1e-9):.2f} frames/s)")
+          + f"; total {1000.0 * all_seconds / max(all_frames, 1):.1f} "
+            f"({all_frames / max(all_seconds, 1e-9):.2f} frames/s)")
     return 0 if ok else 1
 
 

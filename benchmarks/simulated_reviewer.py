@@ -87,12 +87,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._results import machine_line, update_section
-from benchmarks._sequences import SequenceError, select_sequences
-
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.failure import FailureModelError, load_model
-from sptpt_dev.failure_fit import video
 from annotator.failure.model import shipped_model_path
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask
 from annotator.frames import open_frames
@@ -106,7 +102,10 @@ from annotator.review import (
     retrack_tracks,
 )
 from annotator.wording import ordinal
+from benchmarks._results import machine_line, update_section
+from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.params import get_preset, params_from_mapping
+from sptpt_dev.failure_fit import video
 
 HERE = Path(__file__).resolve().parent
 
@@ -440,10 +439,12 @@ def markdown(records: list[dict], args, preset_text: str, model_text: str, secon
         pooled = pooled_by_seed(records, args)
         ps = [pooled[s] for s in seeds]
         ratio = [p["reviewer"] / p["baseline"] if p["baseline"] else math.nan for p in ps]
+        asked = mean_std(sum(r['reviewer'].get('keyframes_requested', 0) for r in records if r['seed'] == s)
+                         for s in seeds)
         lines.append(f"| **pooled** | {ps[0]['frames']} | | "
                      f"{mean_std(sum(r['reviewer']['inspected'] for r in records if r['seed'] == s) for s in seeds)} | "
                      f"{mean_std(sum(r['reviewer']['corrections'] for r in records if r['seed'] == s) for s in seeds)}"
-                     f" | {mean_std(sum(r['reviewer'].get('keyframes_requested', 0) for r in records if r['seed'] == s) for s in seeds)}"
+                     f" | {asked}"
                      f" | | | **{mean_std(per100(p['reviewer'], p['frames']) for p in ps)}** | | "
                      f"{sum(r['baseline']['keyframes'] for r in records if r['seed'] == seeds[0])} | "
                      f"**{per100(ps[0]['baseline'], ps[0]['frames']):.1f}** | **{mean_std(ratio, 2)}** |")
@@ -546,7 +547,8 @@ def main() -> None:
                         help="mean p_fail above which the tool asks for keyframes instead of flagging spans "
                              f"(default {FlagParams.lost_threshold}, the run default; 'none': never)")
     parser.add_argument("--keyframe-every", type=int, default=FlagParams.keyframe_every,
-                        help=f"frames between the keyframes a lost track asks for (default {FlagParams.keyframe_every})")
+                        help="frames between the keyframes a lost track asks for "
+                             f"(default {FlagParams.keyframe_every})")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None,
                         help="JSON of every record (default: benchmarks/_runs/simulated_reviewer[-POLICY].json)")
@@ -554,8 +556,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.policy in ("spans", "worst-wrong") and args.fallback == "lowest-confidence":
         # Its fallback starts when every flagged box was seen to be right, and would pick one of those again.
-        parser.error(f"--policy {args.policy} needs --fallback first-wrong: the least confident frame is then a flagged "
-                     "frame the reviewer has just seen to be right")
+        parser.error(f"--policy {args.policy} needs --fallback first-wrong: the least confident frame is then a "
+                     "flagged frame the reviewer has just seen to be right")
     # Each way of running records its own JSON and RESULTS.md section.
     variant = "".join([("" if args.policy == "worst" else "-" + args.policy), ("-accept" if args.accept else ""),
                        ("-folds" if args.fold_models is not None else "")])
@@ -571,7 +573,8 @@ def main() -> None:
     try:
         guided = get_preset(args.preset).uses_guide
         model = load_model(model_path, guided=guided)
-        FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold, keyframe_every=args.keyframe_every)
+        FlagParams(threshold=args.flag_threshold, lost_threshold=args.lost_threshold,
+                   keyframe_every=args.keyframe_every)
     except (FailureModelError, ValueError) as exc:
         parser.error(str(exc))
     model_record = {"path": model_path or f"annotator/{shipped_model_path(guided=guided)}", "info": dict(model.info),
@@ -580,8 +583,8 @@ def main() -> None:
     threshold_text = (f"{args.flag_threshold:g} (given)" if args.flag_threshold is not None
                       else f"{model.threshold:g} (the model's)")
     keyframe_text = ("never a keyframe request" if args.lost_threshold is None else
-                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every {ordinal(args.keyframe_every)} "
-                     "frame and the last instead (reason `keyframe`)")
+                     f"a track with mean p_fail above {args.lost_threshold:g} asks for every "
+                     f"{ordinal(args.keyframe_every)} frame and the last instead (reason `keyframe`)")
     model_text = (f"failure model `{model_record['path']}`{'' if model_path else ' (installed)'}, info "
                   f"`{json.dumps(model_record['info'])}`, sha256 of its canonical JSON "
                   f"{model_record['sha256'][:12]}; flag threshold {threshold_text}, {keyframe_text}, other flag "

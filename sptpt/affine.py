@@ -159,7 +159,8 @@ def template_labels_to_frame(
     cx, cy, a11, a12, a21, a22 = affine_matrices(state)[0]
     cx, cy = cx - 1.0, cy - 1.0
     offsets = template_offsets(size)
-    corners = np.array([[offsets[0], offsets[0]], [offsets[-1], offsets[0]], [offsets[0], offsets[-1]], [offsets[-1], offsets[-1]]])
+    corners = np.array([[offsets[0], offsets[0]], [offsets[-1], offsets[0]], [offsets[0], offsets[-1]],
+                        [offsets[-1], offsets[-1]]])
     xs = cx + a11 * corners[:, 0] + a12 * corners[:, 1]
     ys = cy + a21 * corners[:, 0] + a22 * corners[:, 1]
     height, width = frame_shape

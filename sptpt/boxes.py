@@ -13,6 +13,7 @@ import math
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["clip_xywh", "clip_xyxy", "iou_xywh", "lies_outside", "mean_box", "xywh_to_xyxy", "xyxy_to_xywh"]
 
@@ -29,7 +30,7 @@ def xyxy_to_xywh(boxes_xyxy) -> np.ndarray:
     return np.concatenate([corners[..., :2], corners[..., 2:] - corners[..., :2]], axis=-1)
 
 
-def clip_xyxy(box_xyxy: Sequence[float], width: float, height: float) -> tuple[float, float, float, float]:
+def clip_xyxy(box_xyxy: Sequence[float] | np.ndarray, width: float, height: float) -> tuple[float, float, float, float]:
     """The corners of one box's intersection with the ``width x height`` frame, as Python floats.
 
     Empty (nothing of the box inside) when ``x1 <= x0`` or ``y1 <= y0``; a NaN corner stays NaN.
@@ -38,7 +39,7 @@ def clip_xyxy(box_xyxy: Sequence[float], width: float, height: float) -> tuple[f
     return max(x0, 0.0), max(y0, 0.0), min(x1, float(width)), min(y1, float(height))
 
 
-def clip_xywh(box_xywh: Sequence[float], width: float, height: float, *,
+def clip_xywh(box_xywh: Sequence[float] | np.ndarray, width: float, height: float, *,
               decimals: int | None = None) -> tuple[float, float, float, float] | None:
     """One ``xywh`` box clipped to the frame, as Python floats; None when not finite or nothing of it is inside.
 
@@ -57,13 +58,13 @@ def clip_xywh(box_xywh: Sequence[float], width: float, height: float, *,
     return (x0, y0, round(x1 - x0, decimals), round(y1 - y0, decimals))
 
 
-def lies_outside(box_xywh: Sequence[float], width: float, height: float) -> bool:
+def lies_outside(box_xywh: Sequence[float] | np.ndarray, width: float, height: float) -> bool:
     """Whether no part of one ``xywh`` box (with a positive width and height) lies inside the frame."""
     x0, y0, x1, y1 = xywh_to_xyxy(box_xywh).tolist()
     return x0 >= width or y0 >= height or x1 <= 0 or y1 <= 0
 
 
-def iou_xywh(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def iou_xywh(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     """Intersection over union of ``xywh`` boxes on the last axis, broadcast over the rest.
 
     Pairs of boxes row by row (both ``(N, 4)``), or many boxes against one (``(N, 4)`` and ``(4,)``).

@@ -89,25 +89,27 @@ class CorrelationFilter:
 
     def blend(self, spectrum: np.ndarray) -> None:
         """Blend one sample's :meth:`spectrum` into ``A`` and ``B`` by the running average of rate ``eta``."""
-        self._check_learned("blend")
-        numerator, denominator = self._terms(self._checked(spectrum, channels=self._numerator.shape[0]))
-        self._numerator = (1 - self.learning_rate) * self._numerator + self.learning_rate * numerator
-        self._denominator = (1 - self.learning_rate) * self._denominator + self.learning_rate * denominator
+        old_numerator, old_denominator = self._learned("blend")
+        numerator, denominator = self._terms(self._checked(spectrum, channels=old_numerator.shape[0]))
+        self._numerator = (1 - self.learning_rate) * old_numerator + self.learning_rate * numerator
+        self._denominator = (1 - self.learning_rate) * old_denominator + self.learning_rate * denominator
 
     def response(self, spectrum: np.ndarray) -> np.ndarray:
         """The real ``(*axes)`` response ``IFFT(sum_l conj(A_l) Z_l / (B + lambda))`` to a sample's :meth:`spectrum`."""
-        self._check_learned("response")
-        spectrum = self._checked(spectrum, channels=self._numerator.shape[0])
-        return np.fft.ifftn((np.conj(self._numerator) * spectrum).sum(axis=0)
-                            / (self._denominator + self.regularisation), axes=self._axes).real
+        numerator, denominator = self._learned("response")
+        spectrum = self._checked(spectrum, channels=numerator.shape[0])
+        return np.fft.ifftn((np.conj(numerator) * spectrum).sum(axis=0)
+                            / (denominator + self.regularisation), axes=self._axes).real
 
     def _terms(self, spectrum: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The filter learned from one sample spectrum alone: ``A = conj(G) F``, ``B = sum conj(F) F``."""
         return np.conj(self._label)[None] * spectrum, (np.conj(spectrum) * spectrum).real.sum(axis=0)
 
-    def _check_learned(self, method: str) -> None:
-        if self._numerator is None:
+    def _learned(self, method: str) -> tuple[np.ndarray, np.ndarray]:
+        """``A`` and ``B``; a RuntimeError naming ``method`` before :meth:`learn` (which sets both together)."""
+        if self._numerator is None or self._denominator is None:
             raise RuntimeError(f"CorrelationFilter.{method}() before learn()")
+        return self._numerator, self._denominator
 
     def _checked(self, array: np.ndarray, *, channels: int | None, name: str = "spectrum") -> np.ndarray:
         """``array`` (a sample's features or spectrum, called ``name``) as an array of shape ``(channels, *axes)``

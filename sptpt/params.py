@@ -48,7 +48,8 @@ class TrackerParams:
     n_atoms: int = 50
     """Dictionary atoms z (k-means++ centroids of first-frame superpixel features). [TPT ncluster]"""
     lasso_lambda: float = 0.01
-    """L1 weight of the non-negative LASSO ``0.5||a - Dh||^2 + lambda||h||_1``; larger gives sparser codes. [TPT l1_opt]"""
+    """L1 weight of the non-negative LASSO ``0.5||a - Dh||^2 + lambda||h||_1``; larger gives sparser codes.
+    [TPT l1_opt]"""
     kmeans_restarts: int = 1
     """k-means++ restarts for the dictionary; the best inertia wins. [TPT fkmeans runs once]"""
 

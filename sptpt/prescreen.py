@@ -78,7 +78,8 @@ class AppearanceReference:
         self.grey = (1.0 - LEARNING_RATE) * self.grey + LEARNING_RATE * _grey_image(template)
 
     def most_alike(self, templates: np.ndarray, share: float) -> np.ndarray:
-        """Indices, ascending, of the ``ceil(share * N)`` templates most like the reference (exact ties: the earlier)."""
+        """Indices, ascending, of the ``ceil(share * N)`` templates most like the reference (exact ties: the
+        earlier)."""
         # rounded first: a third of 150 is 50.000000000000007 in floating point, and must keep 50
         keep = min(len(templates), max(1, math.ceil(round(share * len(templates), 9))))
         order = np.argsort(-grey_ncc(templates, self.grey), kind="stable")

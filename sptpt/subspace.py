@@ -206,7 +206,8 @@ class TensorSubspace:
         """
         if all(r >= k for r, k in zip(ranks, self.ranks)):
             return self
-        return TensorSubspace(*(_truncated(svd, r) for svd, r in zip((self.codeword, self.superpixel, self.sample), ranks)))
+        return TensorSubspace(*(_truncated(svd, r)
+                                for svd, r in zip((self.codeword, self.superpixel, self.sample), ranks)))
 
     @property
     def mean_tensor(self) -> np.ndarray:

@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from sptpt._kernels.snic import MAX_PIXELS, snic_batch, snic_batch_rgb
-from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE, rgb_to_lab
+from sptpt.color import RGB_TO_XYZ, SRGB_TO_LINEAR, WHITE
 
 __all__ = ["SEEDINGS", "seed_grid", "snic", "snic_lab"]
 

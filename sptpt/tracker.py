@@ -26,7 +26,7 @@ import functools
 import os
 import threading
 from concurrent.futures import Future, wait
-from typing import Callable, ContextManager, Protocol
+from typing import Any, Callable, ContextManager, Protocol
 
 import numba
 import numpy as np
@@ -105,7 +105,7 @@ class _BlasOnOneThread:
         self._lock = threading.Lock()
         self._holders = 0
         self._controller: ThreadpoolController | None = None
-        self._limiter = None
+        self._limiter: Any | None = None  # threadpoolctl's limit while held (threadpoolctl has no types)
 
     def acquire(self) -> None:
         with self._lock:
@@ -121,6 +121,7 @@ class _BlasOnOneThread:
         with self._lock:
             self._holders -= 1
             if self._holders == 0:
+                assert self._limiter is not None  # the acquire that made the holders one set it
                 _hand_over_openblas()
                 self._limiter.restore_original_limits()
                 self._limiter = None
@@ -475,6 +476,7 @@ class Tracker:
         return (box if found else None), float(score)
 
     def _vote(self, rgb: np.ndarray) -> np.ndarray:
+        assert self._filter_voter is not None  # only trackers with a voter vote
         with self._time("filter_vote"):
             return self._filter_voter.update(rgb)
 
@@ -762,6 +764,7 @@ class _Run:
             # models learn from below), its log-likelihood and its acceptance (which are reported) stay those of
             # its own template, up to 1.02**16 = 1.37x larger or smaller than the returned box: the switch was
             # measured this way (HISTORY.md, "robust development").
+            assert self._scale_filter is not None  # init makes it under either scale filter
             with self._time("scale"):
                 self._state[2] = max(self._state[2] * self._scale_filter.factor(rgb, self._state),
                                      1.0 / p.template_size)
@@ -781,6 +784,7 @@ class _Run:
             # reported takes the filter's scale at the state's centre.
             sized_state = self._state.copy()
             sized_state[2] = self._reported_scale
+            assert self._scale_filter is not None  # init makes it under either scale filter
             with self._time("scale"):
                 # On accepted frames the filter then learns at the new scale, from the state's centre.
                 self._reported_scale = self._scale_filter.step(rgb, sized_state, learn=accepted)
@@ -797,6 +801,7 @@ class _Run:
             self._anchor = self._state.copy()
             if p.scale_filter:  # the search's scale filter learns at the state it sized (the reported box's
                 # filters learnt in step and shift above; the parameters forbid both scale filters at once)
+                assert self._scale_filter is not None  # init makes it under either scale filter
                 with self._time("scale"):
                     self._scale_filter.update(rgb, self._state)
             if scoring == "subspace" and p.level_window > 0:
@@ -815,6 +820,7 @@ class _Run:
         if details:
             # The labels are the winner's template's, so they are placed with the winner's state (before any
             # scale filter step or translation filter shift of the reported box).
+            assert self._frame_shape is not None  # set by init, before any update
             frame_labels, origin = template_labels_to_frame(labels[best], states[best], self._frame_shape)
             extra = dict(
                 particles_xywh=box_xywh_from_states(states, p.template_size),
@@ -831,16 +837,17 @@ class _Run:
             **extra,
         )
 
-    def inspect(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> dict[str, np.ndarray]:
+    def inspect(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> dict[str, np.ndarray | np.generic]:
         """One run's row of :class:`TrackerInspection` for ``(N, 4)`` checked boxes; reads, never writes."""
         rgb = self.sequence_rgb(frame, "inspect")
         p = self.params
         states = np.array([state_from_box_xywh(box, p.template_size) for box in boxes_xywh]).reshape(-1, 6)
         codes = self._codes(rgb, states, time=_no_timer)[0] if len(states) else None
         positive, negative = self._scoring_models()
-        row = {"estimate_xywh": box_xywh_from_states(self._state, p.template_size),
-               "subspace": np.bool_(positive is not None and negative is not None),
-               "positive_updates": np.int64(self._positive_updates)}
+        row: dict[str, np.ndarray | np.generic] = {
+            "estimate_xywh": box_xywh_from_states(self._state, p.template_size),
+            "subspace": np.bool_(positive is not None and negative is not None),
+            "positive_updates": np.int64(self._positive_updates)}
         for name, model in (("positive", positive), ("negative", negative)):
             row[f"{name}_ranks"] = np.array((0, 0, 0) if model is None else model.ranks, dtype=np.int64)
             modes = sample = error = np.full(len(states), np.nan)
@@ -877,6 +884,7 @@ class _Run:
         p = self.params
         states = draw_candidates(state, n, sigma, self._rng, min_scale=1.0 / p.template_size)
         # Keep centres on the frame: a box whose centre left the image cannot be followed anyway.
+        assert self._frame_shape is not None  # set by init, before any candidate is drawn
         height, width = self._frame_shape
         np.clip(states[:, 0], 1.0, width, out=states[:, 0])
         np.clip(states[:, 1], 1.0, height, out=states[:, 1])
@@ -896,6 +904,7 @@ class _Run:
         p = self.params
         spread = p.redetect_sigma * _size(anchor, p.template_size) * np.sqrt(self._misses - p.redetect_after + 1)
         sigma = self._motion_sigma(anchor).copy()
+        assert self._frame_shape is not None  # set by init, before any re-detection
         sigma[:2] = min(spread, float(max(self._frame_shape)))
         return sigma
 
@@ -1141,7 +1150,8 @@ def _as_rgb(frame: np.ndarray) -> np.ndarray:
     if not isinstance(frame, np.ndarray):
         raise TypeError(f"frame must be a numpy array of uint8, got {type(frame).__name__}")
     if frame.dtype != np.uint8:
-        raise TypeError(f"frame must have dtype uint8 (RGB 0-255), got {frame.dtype}; convert with frame.astype(np.uint8)")
+        raise TypeError(f"frame must have dtype uint8 (RGB 0-255), got {frame.dtype}; convert with "
+                        "frame.astype(np.uint8)")
     if frame.ndim == 2:
         frame = np.repeat(frame[:, :, None], 3, axis=2)
     elif frame.ndim != 3 or frame.shape[2] != 3:

@@ -12,8 +12,18 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from annotator.failure.model import (FEATURE_GROUPS, FEATURES, PASS_CHOICE_FEATURES, PASS_OPTIONS, FailureModel,
-                                     PassAgreement, PassChoice, logit, model_from_fit, sigmoid)
+from annotator.failure.model import (
+    FEATURE_GROUPS,
+    FEATURES,
+    PASS_CHOICE_FEATURES,
+    PASS_OPTIONS,
+    FailureModel,
+    PassAgreement,
+    PassChoice,
+    logit,
+    model_from_fit,
+    sigmoid,
+)
 from annotator.flagging import FlagParams, span_flags
 
 __all__ = ["APPEARANCE_LEVELS", "Sample", "backward_elimination", "choose_C", "choose_groups", "choose_threshold",

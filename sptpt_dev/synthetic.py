@@ -200,8 +200,10 @@ def make_clip(
         raise ValueError(f"lookalike must be a fraction of the clip in [0, 1] or None, got {lookalike!r}")
     rng = np.random.default_rng(seed)
     width, height = size
-    background_palette = np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120], [60, 70, 50], [140, 130, 110]], np.float32)
-    object_palette = np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240], [20, 120, 20]], np.float32)
+    background_palette = np.array([[70, 90, 60], [120, 110, 80], [90, 100, 120], [60, 70, 50], [140, 130, 110]],
+                                  np.float32)
+    object_palette = np.array([[220, 40, 40], [250, 200, 30], [30, 30, 200], [240, 240, 240], [20, 120, 20]],
+                              np.float32)
     background = _texture(rng, height, width, 16, background_palette)
     obj_w, obj_h = object_size
     pattern = _texture(rng, obj_h * 2, obj_w * 2, 10, object_palette)

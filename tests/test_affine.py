@@ -35,7 +35,7 @@ def reference_warp(frame: np.ndarray, state: np.ndarray, size: int) -> np.ndarra
             x0, y0 = int(np.floor(X)), int(np.floor(Y))
             fx, fy = X - x0, Y - y0
             for ch in range(3):
-                def px(yy, xx):
+                def px(yy, xx, ch=ch):
                     return float(frame[min(yy, height) - 1, min(xx, width) - 1, ch])
                 v = (px(y0, x0) * (1 - fx) + px(y0, x0 + 1) * fx) * (1 - fy) + (
                     px(y0 + 1, x0) * (1 - fx) + px(y0 + 1, x0 + 1) * fx

@@ -11,8 +11,8 @@ import contextlib
 import csv
 import dataclasses
 import json
-import re
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -69,7 +69,8 @@ def dataset(tmp_path_factory) -> Path:
     (root / "clips" / "corrupt.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(2000))
     write_clip(root / "full.mp4", 12, seed=5, faststart=True)
     data = (root / "full.mp4").read_bytes()
-    (root / "clips" / "cut.mp4").write_bytes(data[: int(len(data) * 0.8)])  # decodes some of 12 frames (how many depends on the ffmpeg), then damage
+    # Decodes some of 12 frames (how many depends on the ffmpeg), then damage.
+    (root / "clips" / "cut.mp4").write_bytes(data[: int(len(data) * 0.8)])
     rows += [
         {"video": "clips/corrupt.mp4", "box": "10,10,20,20"},
         {"video": "clips/missing.mp4", "box": "10,10,20,20"},

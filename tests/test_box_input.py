@@ -45,7 +45,8 @@ def test_parse_box(value, origin, expected):
     "value, message",
     [
         ("10,20,30", "box '10,20,30' is not four numbers x,y,w,h (it has 3 values): give e.g. 120,80,40,60"),
-        ("10,20,30,40,50", "box '10,20,30,40,50' is not four numbers x,y,w,h (it has 5 values): give e.g. 120,80,40,60"),
+        ("10,20,30,40,50",
+         "box '10,20,30,40,50' is not four numbers x,y,w,h (it has 5 values): give e.g. 120,80,40,60"),
         ("10,,20,30", "box '10,,20,30' is not four numbers x,y,w,h (y is ''): give e.g. 120,80,40,60"),
         ("10 20 30", "box '10 20 30' is not four numbers x,y,w,h (it has 3 values): give e.g. 120,80,40,60"),
         ("a,b,c,d", "box 'a,b,c,d' is not four numbers x,y,w,h (x is 'a'): give e.g. 120,80,40,60"),

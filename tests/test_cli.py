@@ -20,6 +20,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 from pycocotools.coco import COCO
+from test_report import parse, seek_seconds, shows_frame
 from typer.testing import CliRunner
 
 import annotator
@@ -29,8 +30,6 @@ from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.otb import read_otb_boxes
 from sptpt_dev.synthetic import make_clip
-
-from test_report import parse, seek_seconds, shows_frame
 
 N_FRAMES, SIZE, FPS = 16, (96, 72), 25.0
 TRACKER_YAML = "seed: 1\ntracker:\n  n_particles: 60\n  n_negatives: 20\n"
@@ -253,7 +252,8 @@ def test_main_run_json(main_run, clip):
     config = info["config"]
     assert config["seed"] == 1  # from the file
     assert config["tracker"]["n_particles"] == 60 and config["tracker"]["n_negatives"] == 20
-    assert config["flags"]["threshold"] == 1e-9 and config["flags"]["review_budget"] == FlagParams().review_budget  # file, then defaults
+    # From the file, then the defaults.
+    assert config["flags"]["threshold"] == 1e-9 and config["flags"]["review_budget"] == FlagParams().review_budget
     assert config["tracker"]["n_superpixels"] == 30 and config["preset"] == "fused"  # full parameters
     assert [(t["track_id"], t["label"]) for t in info["targets"]] == [(1, "thing"), (2, "thing")]
     assert set(info["timings"]) >= {"seconds_total", "seconds_tracking", "frames_per_second"}

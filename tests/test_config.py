@@ -49,14 +49,16 @@ def test_precedence_defaults_file_flags(file_values, flags, expected):
 
 
 def test_file_values_are_read_from_yaml(tmp_path):
-    path = write_yaml(tmp_path, "preset: paper\nseed: 3\ntracker:\n  n_particles: 60\n  motion_sigma: [4, 4, 0.01, 0, 0, 0]\n"
+    path = write_yaml(tmp_path, "preset: paper\nseed: 3\ntracker:\n  n_particles: 60\n"
+                                "  motion_sigma: [4, 4, 0.01, 0, 0, 0]\n"
                                 "flags:\n  threshold: 0.25\n  min_span: 2\n")
     config = resolve_config(load_config_file(path), source=str(path), seed=None)
     assert config.seed == 3 and config.preset == "paper"
     assert config.tracker.n_particles == 60 and config.tracker.motion_sigma == (4.0, 4.0, 0.01, 0.0, 0.0, 0.0)
     assert config.flags.threshold == 0.25 and config.flags.min_span == 2
     # Everything not named keeps its default.
-    assert config.tracker.n_negatives == get_preset("paper").n_negatives and config.flags.merge_gap == FlagParams().merge_gap
+    assert (config.tracker.n_negatives == get_preset("paper").n_negatives
+            and config.flags.merge_gap == FlagParams().merge_gap)
 
 
 def test_flag_threshold_and_budget_default_to_none_and_take_numbers():
@@ -75,7 +77,8 @@ def test_keyframe_request_settings_take_numbers_and_null_turns_it_off():
 
 def test_recorded_config_reproduces_the_run():
     """run.json records ``RunConfig.to_dict()``; fed back as a config file it gives the same configuration."""
-    config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]}, "flags": {"threshold": 0.3}})
+    config = resolve_config({"seed": 9, "tracker": {"n_particles": 70, "ranks": [10, 4, 10]},
+                             "flags": {"threshold": 0.3}})
     again = resolve_config(yaml.safe_load(yaml.safe_dump(config.to_dict())))
     assert again == config
 
@@ -177,7 +180,8 @@ def test_a_config_saved_as_utf16_reads_as_utf8(tmp_path):
 def test_a_binary_file_is_not_a_config(tmp_path):
     path = tmp_path / "clip.mp4"
     path.write_bytes(b"\x00\xff\xfe\x9c" * 50)
-    with pytest.raises(ConfigError, match=r"clip.mp4 is not text \(UTF-8, or UTF-16 with a byte-order mark\): give a YAML file"):
+    with pytest.raises(ConfigError, match=r"clip.mp4 is not text \(UTF-8, or UTF-16 with a byte-order mark\): give a "
+                                          r"YAML file"):
         load_config_file(path)
 
 

@@ -98,8 +98,9 @@ def _track(track_id: int, frames, keyframe_rows=(0,), outside_rows=()) -> TrackR
     outside[list(outside_rows)] = True
     flagged = outside.copy()
     return TrackResult(
-        track_id=track_id, label="object", frame_indices=np.asarray(frames), boxes_xywh=np.tile([10.0, 12.0, 20, 16], (n, 1))
-        + np.arange(n)[:, None], confidence=np.full(n, 0.8), log_likelihood=np.ones(n), accepted=np.ones(n, bool),
+        track_id=track_id, label="object", frame_indices=np.asarray(frames),
+        boxes_xywh=np.tile([10.0, 12.0, 20, 16], (n, 1)) + np.arange(n)[:, None], confidence=np.full(n, 0.8),
+        log_likelihood=np.ones(n), accepted=np.ones(n, bool),
         flagged=flagged, reasons=tuple("outside" if o else "" for o in outside), keyframe=keyframe, outside=outside,
         seconds=np.zeros(n))
 
@@ -120,7 +121,8 @@ def test_coco_written_by_the_tool_yields_its_keyframes(tmp_path):
 
 def test_coco_outside_keyframe_is_an_absence(tmp_path):
     data = {"images": [{"id": 1, "frame_index": 9}], "annotations": [
-        {"id": 1, "image_id": 1, "track_id": 3, "bbox": [0, 0, 0, 0], "attributes": {"keyframe": True, "outside": True}},
+        {"id": 1, "image_id": 1, "track_id": 3, "bbox": [0, 0, 0, 0],
+         "attributes": {"keyframe": True, "outside": True}},
         {"id": 2, "image_id": 1, "instance_id": 4, "bbox": [1, 2, 3, 4], "attributes": {"keyframe": True}},
         {"id": 3, "image_id": 1, "track_id": 5, "bbox": [1, 2, 3, 4], "attributes": {"keyframe": False}},
     ]}
@@ -174,7 +176,8 @@ def test_resolve_maps_source_frames_to_positions():
 @pytest.mark.parametrize(
     "correction, track_ids, fragment",
     [
-        (Correction(3, (1, 2, 3, 4), None, "fix.csv:7"), (1,), "frame 3 was not processed by the run (frames 2 to 28 every 2)"),
+        (Correction(3, (1, 2, 3, 4), None, "fix.csv:7"), (1,), "frame 3 was not processed by the run (frames 2 to 28 "
+                                                               "every 2)"),
         (Correction(40, (1, 2, 3, 4), None, "fix.csv:7"), (1,), "frame 40 was not processed"),
         (Correction(4, (1, 2, 3, 4), 3, "fix.csv:7"), (1, 2), "unknown track id 3: the run has tracks 1, 2"),
         (Correction(4, (1, 2, 3, 4), None, "fix.csv:7"), (1, 2), "no track_id given"),

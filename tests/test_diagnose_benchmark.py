@@ -9,13 +9,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from _benchmark_scripts import BENCHMARKS, load_script
+
 from annotator.evaluation.metrics import iou_xywh
 from annotator.otb import read_otb_boxes
-from sptpt_dev.synthetic import make_clip
 from sptpt.params import get_preset, params_from_mapping
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import make_clip
 
 
 def _sequence(tmp_path: Path) -> Path:

@@ -7,7 +7,6 @@ Issue #14 item 2: a run made with ``--start``/``--stop`` (or a batch with
 from __future__ import annotations
 
 import dataclasses
-
 import shutil
 from pathlib import Path
 
@@ -20,8 +19,8 @@ from annotator.cli import _with_default_command, app
 from annotator.evaluation import EvaluationError, evaluate_result_file, evaluate_results_dir, evaluate_sequence
 from annotator.otb import write_otb_boxes
 from annotator.store import STORE_NAME, RunStore, write_store
-from sptpt_dev.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
+from sptpt_dev.synthetic import make_clip
 
 VIDEO = VideoInfo(path="Alpha", name="Alpha", width=96, height=72, fps=30.0, frame_count=20)
 
@@ -51,8 +50,8 @@ def test_a_store_of_part_of_the_video_scores_exactly_its_frames(tmp_path):
     score = evaluate_result_file(out, tmp_path / "gt.txt", name="Alpha", pairs=pairs)
     expected = evaluate_sequence(pred, gt[frames], name="Alpha")
     assert score.auc == expected.auc and score.precision_20 == expected.precision_20
-    assert [pair.note for pair, _ in pairs] == ["Alpha: scored the 6 frames the run processed (source frames 4-14, every 2nd) against those "
-                     "rows of the 20-row ground truth"]
+    assert [pair.note for pair, _ in pairs] == ["Alpha: scored the 6 frames the run processed (source frames 4-14, "
+                                                "every 2nd) against those rows of the 20-row ground truth"]
 
 
 def test_a_whole_run_needs_no_note_and_a_longer_store_is_refused(tmp_path):

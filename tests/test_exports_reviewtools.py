@@ -15,19 +15,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import test_exports
 import yaml
-
 from _cvat_import import cvat_keyframe_count, cvat_worst_error
 from _reader_env import run_check
+from test_exports import VIDEO, make_tracks
+
 from annotator import atomic
-from annotator.exports.review_tools import MAX_KEYFRAME_GAP, REVIEW_SCORE_NAME, fewest_keyframes
 from annotator.exports.cvat import MAX_ERROR_PX, build_cvat_xml, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import write_mot
+from annotator.exports.review_tools import MAX_KEYFRAME_GAP, REVIEW_SCORE_NAME, fewest_keyframes
 from annotator.exports.yolo import write_yolo
 from annotator.tracks import TrackResult, VideoInfo
-import test_exports
-from test_exports import VIDEO, make_tracks
 
 GOLDEN = Path(__file__).parent / "golden" / "exports" / "review"
 UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"

@@ -26,16 +26,30 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from sptpt_dev.failure_fit import (TARGET_PRECISION, TARGET_RECALL, THRESHOLD_FLAGS, THRESHOLD_GRID,
-                                   UNCHOSEN_THRESHOLD, Sample, backward_elimination, choose_C, choose_groups,
-                                   choose_threshold, fit_model, fit_pass_agreement, group_features,
-                                   leave_one_video_out, platt, video)
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
-from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from sptpt_dev.synthetic import changing_object, make_clip
 from annotator.failure.signals import MOTION_SIGNALS
+from annotator.flagging import REASONS, FlagParams, flag_p_fail
 from sptpt.contrast import colour_contrast
 from sptpt.params import get_preset
+from sptpt_dev.failure_fit import (
+    TARGET_PRECISION,
+    TARGET_RECALL,
+    THRESHOLD_FLAGS,
+    THRESHOLD_GRID,
+    UNCHOSEN_THRESHOLD,
+    Sample,
+    backward_elimination,
+    choose_C,
+    choose_groups,
+    choose_threshold,
+    fit_model,
+    fit_pass_agreement,
+    group_features,
+    leave_one_video_out,
+    platt,
+    video,
+)
+from sptpt_dev.synthetic import changing_object, make_clip
 
 FAIL_AT = 12
 
@@ -272,7 +286,8 @@ def slow_contrast(frame_rgb: np.ndarray, box) -> float:
     for r in range(height):
         for c in range(width):
             in_box = round(x) <= c < round(x + w) and round(y) <= r < round(y + h)
-            in_ring = round(cx - w * s / 2) <= c < round(cx + w * s / 2) and round(cy - h * s / 2) <= r < round(cy + h * s / 2)
+            in_ring = (round(cx - w * s / 2) <= c < round(cx + w * s / 2)
+                       and round(cy - h * s / 2) <= r < round(cy + h * s / 2))
             b = (hsv[r, c, 0] * 8 // 180) * 16 + (hsv[r, c, 1] * 4 // 256) * 4 + hsv[r, c, 2] * 4 // 256
             if in_box:
                 inside[b] += 1
@@ -710,6 +725,7 @@ def test_failure_model_script_describes_a_model_without_recalibration_too():
 
 def test_calibration_bounds_undo_one_shifted_base_rate_and_a_level_of_each_video_only_per_video():
     from _benchmark_scripts import load_script
+
     from sptpt_dev.failure_fit import Sample
 
     fm = load_script("failure_model")

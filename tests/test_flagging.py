@@ -19,8 +19,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from annotator.flagging import (REASONS, FlagParams, FlagResult, SpanFlagger, budget_flags, flag_p_fail,
-                                keyframe_request, span_flags, spans_from_mask, with_keyframe_request)
+from annotator.flagging import (
+    REASONS,
+    FlagParams,
+    FlagResult,
+    SpanFlagger,
+    budget_flags,
+    flag_p_fail,
+    keyframe_request,
+    span_flags,
+    spans_from_mask,
+    with_keyframe_request,
+)
 
 
 def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tuple[list[bool], list[str]]:
@@ -52,7 +62,8 @@ def reference(p_fail, groups, threshold, keyframe, outside, p: FlagParams) -> tu
                for t in range(n)]
     # A lost track (mean p_fail of its tracked frames above lost_threshold) asks for keyframes instead.
     tracked = [p_fail[t] for t in range(n) if not keyframe[t] and not outside[t] and np.isfinite(p_fail[t])]
-    if p.lost_threshold is not None and n > p.keyframe_every and tracked and sum(tracked) / len(tracked) > p.lost_threshold:
+    if (p.lost_threshold is not None and n > p.keyframe_every and tracked
+            and sum(tracked) / len(tracked) > p.lost_threshold):
         asked = {t for t in range(n) if (t % p.keyframe_every == 0 and t > 0) or t == n - 1}
         asked = {t for t in asked if not keyframe[t] and not outside[t]}
         if asked:  # nothing left to ask for: the doubtful spans stay
@@ -74,7 +85,8 @@ params_st = st.builds(FlagParams, merge_gap=st.integers(0, 6), min_span=st.integ
 @settings(max_examples=100, deadline=None)
 @given(track_st, params_st, st.floats(0.05, 0.95))
 def test_online_spans_equal_the_offline_reference(track, params, threshold):
-    p_fail, groups, keyframe, outside = (np.array(track[0]), track[1], np.array(track[2], bool), np.array(track[3], bool))
+    p_fail, groups, keyframe, outside = (np.array(track[0]), track[1], np.array(track[2], bool),
+                                         np.array(track[3], bool))
     keyframe &= ~outside
     expected = reference(p_fail, groups, threshold, keyframe, outside, params)
     result = flag_p_fail(p_fail, groups, threshold, params, keyframe=keyframe, outside=outside)
@@ -184,7 +196,8 @@ def test_once_the_asked_frames_are_boxed_the_track_is_flagged_as_usual():
     ("review_budget", 101.0, "(0, 100]"), ("merge_gap", -1, ">= 0"), ("min_span", 0, ">= 1"),
     ("lost_threshold", 1.0, "(0, 1)"), ("lost_threshold", 0.0, "(0, 1)"), ("keyframe_every", 1, ">= 2")])
 def test_bad_flag_parameters_name_the_field(field, value, expected):
-    with pytest.raises(ValueError, match=rf"flag parameter {field}={value!r} is invalid: expected .*{re.escape(expected)}"):
+    with pytest.raises(ValueError, match=rf"flag parameter {field}={value!r} is invalid: expected "
+                                         rf".*{re.escape(expected)}"):
         FlagParams(**{field: value})
 
 

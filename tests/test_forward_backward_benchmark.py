@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from _benchmark_scripts import load_script, run_benchmark
 
 
@@ -56,7 +55,8 @@ def _refusal(*args: str) -> tuple[int, str]:
 def test_unknown_sequences_are_refused_in_one_line(tmp_path):
     code, line = _refusal("--otb", str(_otb_root(tmp_path)), "--sequences", "Alpha,Gamma", "--out", str(tmp_path / "o"))
     assert code == 2
-    assert line == f"forward_backward.py: error: --sequences: Gamma is not in {tmp_path / 'otb'}; choose from Alpha, Beta"
+    assert line == (f"forward_backward.py: error: --sequences: Gamma is not in {tmp_path / 'otb'}; "
+                    "choose from Alpha, Beta")
     assert not (tmp_path / "o").exists()
 
 

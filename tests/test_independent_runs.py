@@ -8,14 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import make_clip
-from sptpt.params import get_preset
-from sptpt.results import FrameResult
-from sptpt.contrast import colour_contrast
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh
 from sptpt.boxes import iou_xywh, mean_box
+from sptpt.contrast import colour_contrast
 from sptpt.filter_tracker import FilterTracker
+from sptpt.params import get_preset
+from sptpt.results import FrameResult
 from sptpt.tracker import Tracker, _consensus, _more_confident, _most_contrasted, _most_contrasted_candidate
+from sptpt_dev.synthetic import make_clip
 
 
 def _result(ll: float, scoring: str = "subspace", x: float = 0.0) -> FrameResult:
@@ -261,7 +261,7 @@ def test_with_filter_vote_the_filter_tracker_votes_and_the_runs_are_those_alone(
         boxes = [a.box_xywh for a in alone] + [voter]
         confident = _more_confident(alone)
 
-        def choose(candidates):
+        def choose(candidates, boxes=boxes, frame=frame, confident=confident):
             votes = {i: sum(iou_xywh(boxes[i], boxes[j]) >= 0.5 for j in candidates if j != i) for i in candidates}
             tied = [i for i in candidates if votes[i] == max(votes.values())]
             contrast = {i: colour_contrast(frame, boxes[i]) for i in tied}

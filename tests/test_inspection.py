@@ -10,10 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker, TrackerInspection
+from sptpt_dev.synthetic import make_clip
 
 # Small runs: subspace scoring from the fourth frame on (update_every=3), a few particles.
 SMALL = dataclasses.replace(get_preset("paper"), n_particles=40, n_negatives=30, update_every=3)

@@ -22,13 +22,13 @@ import urllib.request
 import cv2
 import numpy as np
 import pytest
+from _labelstudio_env import LABELSTUDIO
+from test_retrack import snapshot
 from typer.testing import CliRunner
 
-from _labelstudio_env import LABELSTUDIO
 from annotator.cli import _with_default_command, app
 from annotator.store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
-from test_retrack import snapshot
 
 USER, PASSWORD, TOKEN = "reviewer@example.com", "sptpt-review-47", "sptpt47token0123456789"
 STARTUP_SECONDS = 300  # migrations on a fresh data folder; the test machine may be busy
@@ -97,9 +97,9 @@ def server(root):
     (root / "media").mkdir(exist_ok=True)
     log = open(root / "server.log", "wb")
     process = subprocess.Popen(
-        [str(LABELSTUDIO.require("label-studio")), "start", "--no-browser", "--internal-host", "127.0.0.1", "--port", str(port),
-         "--data-dir", str(root / "data"), "--username", USER, "--password", PASSWORD, "--user-token", TOKEN,
-         "--enable-legacy-api-token"],
+        [str(LABELSTUDIO.require("label-studio")), "start", "--no-browser", "--internal-host", "127.0.0.1",
+         "--port", str(port), "--data-dir", str(root / "data"), "--username", USER, "--password", PASSWORD,
+         "--user-token", TOKEN, "--enable-legacy-api-token"],
         stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
     try:
         api = Server(f"http://127.0.0.1:{port}")

@@ -123,7 +123,8 @@ def test_box_origin_1_reads_otb_style_boxes_per_item_or_for_the_batch(tmp_path):
 
 
 def test_csv_params_columns_and_track_ids(tmp_path):
-    path = write(tmp_path, "p.csv", "video,box,params.n_particles,params.threshold\na.mp4,\"1,2,3,4\",80,0.3\nb.mp4,\"1,2,3,4\",,\n")
+    path = write(tmp_path, "p.csv", "video,box,params.n_particles,params.threshold\n"
+                                    "a.mp4,\"1,2,3,4\",80,0.3\nb.mp4,\"1,2,3,4\",,\n")
     a, b = read_manifest(path)
     assert a.params == {"tracker": {"n_particles": 80}, "flags": {"threshold": 0.3}}
     assert b.params == {}
@@ -143,22 +144,27 @@ def test_csv_params_columns_and_track_ids(tmp_path):
         ("bad.csv", "video,box\na.mp4,1,2,3,4\n", [(2, "", "quote cells that hold commas")]),
         ("bad.csv", "video,box,start,stop\na.mp4,\"1,2,3,4\",x,\nb.mp4,\"1,2,3,4\",5,5\nc.mp4,\"1,2,3,4\",-1,\n",
          [(2, "start", "not an integer"), (3, "stop", "not after start"), (4, "start", "below 0")]),
-        ("bad.csv", "video,box,params\na.mp4,\"1,2,3,4\",\"{n_particle: 5}\"\nb.mp4,\"1,2,3,4\",\"{n_particles: -3}\"\n",
+        ("bad.csv", "video,box,params\na.mp4,\"1,2,3,4\",\"{n_particle: 5}\"\n"
+                    "b.mp4,\"1,2,3,4\",\"{n_particles: -3}\"\n",
          [(2, "params", "did you mean 'n_particles'"), (3, "params", "n_particles")]),
         ("bad.csv", "video,boxes,label\na.mp4,\"1,2,3,4|5,6,7,8\",x|y|z\n", [(2, "label", "3 labels for 2 boxes")]),
         ("bad.csv", "", [(0, "", "empty")]),
         # JSON Lines: the line of the object.
         ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4"}\n{"video": "b.mp4", "box": "1,2,3,4",}\n[1, 2]\n',
          [(2, "", "not valid JSON"), (3, "", "is not an item")]),
-        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "boxes": ["1,2,3,4"]}\n{"vidoe": "a.mp4", "box": "1,2,3,4"}\n',
+        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "boxes": ["1,2,3,4"]}\n'
+                      '{"vidoe": "a.mp4", "box": "1,2,3,4"}\n',
          [(1, "boxes", "both box and boxes"), (2, "vidoe", "did you mean 'video'"), (2, "video", "no video given")]),
-        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "id": "x/y"}\n{"video": "a.mp4", "box": "1,2,3,4", "params": {"seed": 3}}\n',
+        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "id": "x/y"}\n'
+                      '{"video": "a.mp4", "box": "1,2,3,4", "params": {"seed": 3}}\n',
          [(1, "id", "not a safe name"), (2, "params", "seed cannot be set per item")]),
-        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "id": "same"}\n{"video": "b.mp4", "box": "1,2,3,4", "id": "SAME"}\n',
+        ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "id": "same"}\n'
+                      '{"video": "b.mp4", "box": "1,2,3,4", "id": "SAME"}\n',
          [(2, "id", "already used by the item at line 1")]),
         ("bad.jsonl", '{"video": "a.mp4", "box": "1,2,3,4", "id": "summary.json"}\n',
          [(1, "id", "batch-level output")]),
-        ("bad.jsonl", '{"video": "a.mp4", "boxes": [{"box": "1,2,3,4", "track_id": 2}, {"box": "1,2,3,4", "track_id": 2}]}\n',
+        ("bad.jsonl", '{"video": "a.mp4", "boxes": [{"box": "1,2,3,4", "track_id": 2}, '
+                      '{"box": "1,2,3,4", "track_id": 2}]}\n',
          [(1, "boxes[1]", "track id 2, already used")]),
         # YAML: the line of the field where known.
         ("bad.yaml", "- video: a.mp4\n  box: '1,2,3,4'\n- video: b.mp4\n  box: [1, 2, 3]\n  stop: 0\n",
@@ -214,7 +220,8 @@ def test_safe_ids_are_file_name_safe(names):
 
 def make_otb_root(root: Path) -> None:
     for name, files in {"Alpha": {"groundtruth_rect.txt": "11,21,30,40\n12,22,30,40\n"},
-                        "Pair": {"groundtruth_rect.1.txt": "1\t2\t3\t4\n", "groundtruth_rect.2.txt": "5,6,7,8\n"}}.items():
+                        "Pair": {"groundtruth_rect.1.txt": "1\t2\t3\t4\n",
+                                 "groundtruth_rect.2.txt": "5,6,7,8\n"}}.items():
         (root / name / "img").mkdir(parents=True)
         for file, text in files.items():
             (root / name / file).write_text(text)

@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from _benchmark_scripts import BENCHMARKS as BENCH
+from _benchmark_scripts import load_script
 
-from _benchmark_scripts import BENCHMARKS as BENCH, load_script
 CODES = {"IV", "SV", "OCC", "DEF", "MB", "FM", "IPR", "OPR", "OV", "BC", "LR"}
 SEQUENCES = {"Bolt2", "Car4", "CarDark", "Coke", "Couple", "Crossing", "David", "Deer", "Diving", "Dog1", "Girl",
              "Human9", "Jogging.1", "Jogging.2", "Singer2", "Skiing", "Tiger1"}

@@ -6,10 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _benchmark_scripts import load_script
 
 from annotator.otb import write_otb_boxes
-
-from _benchmark_scripts import load_script
 
 
 def _module():

@@ -6,9 +6,15 @@ import numpy as np
 import pytest
 
 from annotator.failure import SIGNALS
-from annotator.pass_cache import PassResult
-from annotator.pass_cache import (CachedPass, keep_anchored, pass_fingerprint, pass_key, read_pass_cache,
-                                         write_pass_cache)
+from annotator.pass_cache import (
+    CachedPass,
+    PassResult,
+    keep_anchored,
+    pass_fingerprint,
+    pass_key,
+    read_pass_cache,
+    write_pass_cache,
+)
 from annotator.tracks import TrackResult
 
 FINGERPRINT_ARGS = ({"preset": "robust", "seed": 0}, "sha256:abc", {"start": 0, "stop": 9, "step": 1})
@@ -128,10 +134,12 @@ def test_the_fingerprint_follows_the_code(monkeypatch):
 def test_first_pass_of_a_short_track(n):
     from annotator.pass_cache import first_pass
 
-    track = TrackResult(track_id=3, label="object", frame_indices=np.arange(n), boxes_xywh=np.tile([1.0, 2, 3, 4], (n, 1)),
-                        confidence=np.full(n, 0.4), log_likelihood=np.arange(n, dtype=float), accepted=np.ones(n, bool),
+    track = TrackResult(track_id=3, label="object", frame_indices=np.arange(n),
+                        boxes_xywh=np.tile([1.0, 2, 3, 4], (n, 1)), confidence=np.full(n, 0.4),
+                        log_likelihood=np.arange(n, dtype=float), accepted=np.ones(n, bool),
                         flagged=np.zeros(n, bool), reasons=("",) * n, keyframe=np.arange(n) == 0,
-                        outside=np.zeros(n, bool), seconds=np.full(n, 0.5), signals={name: np.full(n, 0.25) for name in SIGNALS})
+                        outside=np.zeros(n, bool), seconds=np.full(n, 0.5),
+                        signals={name: np.full(n, 0.25) for name in SIGNALS})
     key, cached = first_pass(track, np.full(n, 0.9))
     assert key == (3, 0, 0, (1.0, 2.0, 3.0, 4.0))
     assert len(cached.rows.confidence) == n - 1 and cached.rows.signals.shape == (n - 1, len(SIGNALS))

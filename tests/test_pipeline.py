@@ -27,11 +27,11 @@ from pycocotools.coco import COCO
 
 import annotator
 import annotator.pipeline as pipeline_module
-from annotator.job import annotate
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_OK, EXIT_PARTIAL, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
 from annotator.frames import open_frames
+from annotator.job import annotate
 from annotator.otb import read_otb_boxes
 from annotator.pipeline import Target
 from annotator.report import flagged_spans
@@ -450,7 +450,7 @@ def test_a_lost_track_asks_for_keyframes_in_flags_csv_the_report_and_run_json(sc
     from annotator.report import keyframe_note
 
     note = keyframe_note(result.run.tracks, out)
-    assert note.startswith(f"track 1 (car) looks lost on most of its frames: box frames 9, 17, 25, 27 (4 frames, ")
+    assert note.startswith("track 1 (car) looks lost on most of its frames: box frames 9, 17, 25, 27 (4 frames, ")
     assert f"'sptpt-annotate retrack {out} --corrections FILE'" in note
     # At the default threshold the same track asks for nothing.
     assert keyframe_note(annotate(clip, TARGETS[:1], CONFIG, out_dir=tmp_path / "plain", start=START, stop=STOP,

@@ -15,8 +15,16 @@ import pytest
 from annotator.failure import load_model
 from annotator.flagging import FlagParams
 from annotator.frames import DecodeError
-from annotator.pipeline import (FrameMark, HeldFrames, OverlaySink, Target, TrackRecords, render_tracks, track_frame,
-                                track_frames)
+from annotator.pipeline import (
+    FrameMark,
+    HeldFrames,
+    OverlaySink,
+    Target,
+    TrackRecords,
+    render_tracks,
+    track_frame,
+    track_frames,
+)
 from sptpt.results import FrameResult
 
 SCORE_ONLY_MODEL = Path(__file__).parent / "data" / "score_only_failure_model.json"

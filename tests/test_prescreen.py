@@ -66,7 +66,8 @@ def test_the_reference_is_a_running_mean_of_accepted_templates():
     reference = AppearanceReference(first)
     reference.learn(second)
     luma = np.array([0.299, 0.587, 0.114])
-    expected = (1 - LEARNING_RATE) * (first.astype(np.float64) @ luma) + LEARNING_RATE * (second.astype(np.float64) @ luma)
+    expected = ((1 - LEARNING_RATE) * (first.astype(np.float64) @ luma)
+                + LEARNING_RATE * (second.astype(np.float64) @ luma))
     np.testing.assert_allclose(reference.grey, expected, rtol=0, atol=1e-4)
 
 

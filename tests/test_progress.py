@@ -257,6 +257,7 @@ def test_count_note_speaks_only_once_the_count_is_slow(tty, clock, terminal):
 def test_a_run_says_it_compiles_only_when_the_kernels_are_not_cached(tmp_path, monkeypatch, cached):
     """A slow first frame with the kernels cached (a busy machine) is no compile: the note is not armed."""
     import cv2
+
     import sptpt
     from annotator import job
     from annotator.pipeline import Target

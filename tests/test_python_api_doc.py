@@ -95,7 +95,7 @@ def test_each_package_names_its_public_api():
         for name in names:
             assert getattr(package, name) is not None
         with pytest.raises(AttributeError):
-            getattr(package, "not_a_name")
+            _ = package.not_a_name
     from annotator.job import annotate
 
     assert annotator.annotate is annotate  # the command line's own function, not a second one

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from annotator.render import (
-    DEFAULT_PALETTE, OverlayItem, OverlayRenderer, OverlayWriter, _text_colour, items_from_tracks, label_text,
+    DEFAULT_PALETTE,
+    OverlayItem,
+    OverlayRenderer,
+    OverlayWriter,
+    _text_colour,
+    items_from_tracks,
+    label_text,
 )  # fmt: skip
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
 from sptpt.results import FrameResult
@@ -47,13 +53,15 @@ def test_all_layers_off_draws_nothing():
 
 
 def test_box_is_drawn_on_its_edges_in_the_track_colour():
-    out = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 1, 0.9)])
+    out = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(),
+                                                                           [OverlayItem([20, 15, 30, 25], 1, 0.9)])
     colour = DEFAULT_PALETTE[0]
     # Box covers columns 20..49 and rows 15..39.
     assert tuple(out[15, 35]) == colour and tuple(out[39, 35]) == colour
     assert tuple(out[27, 20]) == colour and tuple(out[27, 49]) == colour
     assert tuple(out[27, 35]) == (GRAY,) * 3 and tuple(out[5, 5]) == (GRAY,) * 3
-    second = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(), [OverlayItem([20, 15, 30, 25], 2, 0.9)])
+    second = plain(draw_boxes=True, thickness=1, outline_color=None).annotate(gray_frame(),
+                                                                              [OverlayItem([20, 15, 30, 25], 2, 0.9)])
     assert tuple(second[15, 35]) == DEFAULT_PALETTE[1]
 
 

@@ -23,10 +23,18 @@ import pytest
 
 from annotator.flagging import REASONS
 from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
-from annotator.report import (_tick_step, by_expected_errors, flagged_spans, keyframe_note, keyframes_asked,
-                              reason_legend, render_report, track_summary)
-from annotator.wording import plural
+from annotator.report import (
+    _tick_step,
+    by_expected_errors,
+    flagged_spans,
+    keyframe_note,
+    keyframes_asked,
+    reason_legend,
+    render_report,
+    track_summary,
+)
 from annotator.tracks import TrackResult, VideoInfo
+from annotator.wording import plural
 
 GOLDEN = Path(__file__).parent / "golden" / "annotate"
 UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
@@ -195,6 +203,7 @@ def test_worst_frame_thumbnail_is_the_highest_p_fail_of_each_span():
     assert [(t.position, t.frame_index) for t in thumbs] == [(2, 102), (8, 108), (11, 111)]
     assert [(s.worst, s.worst_frame) for s in flagged_spans(track)] == [(t.position, t.frame_index) for t in thumbs]
     import base64
+
     import cv2
     for t in thumbs:
         image = cv2.imdecode(np.frombuffer(base64.b64decode(t.jpeg_base64), np.uint8), cv2.IMREAD_COLOR)
@@ -315,7 +324,8 @@ def test_thumbnail_seeks_the_overlay_to_its_own_frame(tmp_path):
     # Track 2's thumbnail is of its span's first frame (a thumbnail set made before worst frames): still shown.
     page = render(tmp_path, make_tracks(), thumbnails=[SpanThumbnail(1, 3, 7, "AAAA"), SpanThumbnail(2, 6, 13, "BBBB")])
     rows = {int(row["cells"][0]): row for row in parse(page).rows if row["img"]}
-    assert shows_frame(seek_seconds(rows[1]["thumb_seek"]), 3, FPS) and not shows_frame(seek_seconds(rows[1]["seek"]), 3, FPS)
+    assert (shows_frame(seek_seconds(rows[1]["thumb_seek"]), 3, FPS)
+            and not shows_frame(seek_seconds(rows[1]["seek"]), 3, FPS))
     assert rows[2]["thumb_seek"] == rows[2]["seek"] is not None
     assert 'alt="frame 7"' in page and 'alt="frame 13"' in page
     no_overlay = render(tmp_path, make_tracks(), overlay=None, thumbnails=[SpanThumbnail(1, 3, 7, "AAAA")])
@@ -374,7 +384,8 @@ def test_overlay_video_has_a_plain_fallback_link(tmp_path):
 def test_report_shows_the_absolute_input_path_from_run_json(tmp_path):
     absolute = str((tmp_path / "clips" / "walk.mp4").resolve())
     page = render(tmp_path, make_tracks(), run_info={**RUN_INFO, "input": {"path": absolute}})
-    assert f'<div class="muted">{absolute} &middot;' in page and "clips/walk.mp4 &middot;" not in page.replace(absolute, "")
+    assert (f'<div class="muted">{absolute} &middot;' in page
+            and "clips/walk.mp4 &middot;" not in page.replace(absolute, ""))
 
 
 def test_report_golden(tmp_path):

@@ -23,15 +23,15 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from annotator.job import annotate
 from annotator.commands.retrack import retrack_command
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
 from annotator.failure import LOOKAHEAD, load_model
 from annotator.failure.model import PassAgreement
-from annotator.frames import open_frames
 from annotator.flagging import FlagParams
+from annotator.frames import open_frames
+from annotator.job import annotate
 from annotator.otb import read_otb_boxes
 from annotator.pipeline import Target, track_source
 from annotator.review import (
@@ -69,7 +69,8 @@ INDICES = np.arange(16)
         ({0: (1, 1, 5, 5), 3: (2, 2, 5, 5), 6: (3, 3, 5, 5), 8: (4, 4, 5, 5)}, {6}, 10,
          [(3, 6, True, True, False), (6, 8, True, True, True)]),
         # An absence: forward only into it, and nothing tracked after it up to the next anchor.
-        ({0: (1, 1, 5, 5), 4: None, 7: (2, 2, 5, 5)}, {4}, 10, [(0, 4, True, False, False), (4, 7, False, False, True)]),
+        ({0: (1, 1, 5, 5), 4: None, 7: (2, 2, 5, 5)}, {4}, 10,
+         [(0, 4, True, False, False), (4, 7, False, False, True)]),
     ],
 )
 def test_plan_segments(anchors, changed, n, expected):
@@ -906,7 +907,8 @@ def test_a_verified_video_is_not_decoded_again_to_count_its_frames(tmp_path, mon
     assert info["input"]["damage"] is None and info["input"]["frame_count"] == 12
     counted = []
     real_count = annotator.frames._count_video_frames
-    monkeypatch.setattr(annotator.frames, "_count_video_frames", lambda *a, **k: counted.append(1) or real_count(*a, **k))
+    monkeypatch.setattr(annotator.frames, "_count_video_frames",
+                        lambda *a, **k: counted.append(1) or real_count(*a, **k))
     (tmp_path / "fix.csv").write_text(csv_row(4, clip.boxes_xywh[4], 1))
     apply_corrections(out, tmp_path / "fix.csv", show_progress=False)
     assert counted == []
@@ -925,7 +927,7 @@ def test_a_verified_video_is_not_decoded_again_to_count_its_frames(tmp_path, mon
     assert counted == [1, 1]
 
 
-# --------------------------------------------------------------------------- retrack on a moved input, interrupted (#14)
+# --------------------------------------------------------------------------- retrack: moved input, interrupted (#14)
 
 
 def _retrack_cli(*args):

@@ -11,20 +11,19 @@ from __future__ import annotations
 
 import json
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_exports import VIDEO
+from test_exports_reviewtools import SHIFTED, shifted_track
+from test_review_imports import edit_box
 
 from annotator.errors import EXIT_VALUE, InputWarning, ToolError
 from annotator.exports.cvat import build_cvat_xml, cvat_keyframes, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_config, build_labelstudio_tasks, media_url_for
 from annotator.review.imports import read_cvat_corrections, read_labelstudio_corrections, read_run_corrections
 from annotator.tracks import TrackResult, VideoInfo
-from test_exports import VIDEO
-from test_exports_reviewtools import SHIFTED, shifted_track
-from test_review_imports import edit_box
 
 DATA = Path(__file__).parent / "data" / "review_tools"
 
@@ -41,7 +40,8 @@ def retracked(track: TrackResult) -> TrackResult:
     sources = list(track.keyframe_source)
     sources[1] = "reviewed.xml:40"
     sources[3] = ""
-    return TrackResult(**{**track.__dict__, "boxes_xywh": boxes, "keyframe": keyframe, "keyframe_source": tuple(sources)})
+    return TrackResult(**{**track.__dict__, "boxes_xywh": boxes, "keyframe": keyframe,
+                          "keyframe_source": tuple(sources)})
 
 
 # --------------------------------------------------------------------------- CVAT
@@ -286,9 +286,9 @@ def test_media_url(url, expected):
 @pytest.fixture(scope="module")
 def cvat_run(tmp_path_factory):
     import cv2
+    from test_review_loop_tools import _run
 
     from sptpt_dev.synthetic import make_clip
-    from test_review_loop_tools import _run
 
     root = tmp_path_factory.mktemp("given")
     clip = make_clip(16, size=(96, 72), object_size=(24, 20))
@@ -308,9 +308,10 @@ def test_cvat_file_used_twice_from_the_command_line_changes_nothing_the_second_t
     """run.json keeps the keyframes of the cvat.xml it wrote; the second retrack with the same file is a no-op."""
     import shutil
 
-    from annotator.store import STORE_NAME, read_store
     from test_retrack import snapshot
     from test_review_loop_tools import _run
+
+    from annotator.store import STORE_NAME, read_store
 
     out = tmp_path / "out"
     shutil.copytree(cvat_run, out)
@@ -372,8 +373,9 @@ def test_trailing_outside_keyframe_is_one_warning_line_on_the_command_line(cvat_
 
 
 def test_batch_media_url_gives_each_video_its_url_and_is_part_of_what_a_rerun_keeps(tmp_path, capsys):
+    from test_batch import FAST, box_text, write_clip, write_jsonl
+
     from annotator.cli import main
-    from test_batch import FAST, write_clip, write_jsonl, box_text
 
     (tmp_path / "clips").mkdir()
     box = write_clip(tmp_path / "clips" / "v0.mp4", 5, seed=0)
@@ -385,7 +387,8 @@ def test_batch_media_url_gives_each_video_its_url_and_is_part_of_what_a_rerun_ke
         with pytest.raises(SystemExit) as info:
             main(["batch", str(manifest), "--out", str(out), "--workers", "1", "--config", str(tmp_path / "fast.yaml"),
                   "--formats", "otb,labelstudio", "--no-render", "--quiet", *extra])
-        return info.value.code, json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else None
+        summary_json = out / "summary.json"
+        return info.value.code, json.loads(summary_json.read_text()) if summary_json.exists() else None
 
     code, summary = batch("--media-url", "/data/local-files/?d=videos/")
     assert code == 0

@@ -10,6 +10,8 @@ import re
 
 import numpy as np
 import pytest
+from test_exports import VIDEO
+from test_exports_reviewtools import SHIFTED, shifted_track
 
 from annotator.corrections import Correction, resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
@@ -17,9 +19,6 @@ from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
 from annotator.exports.labelstudio import build_labelstudio_tasks
 from annotator.review.imports import read_cvat_corrections, read_labelstudio_corrections
 from annotator.tracks import TrackResult, VideoInfo
-from test_exports import VIDEO
-from test_exports_reviewtools import SHIFTED, shifted_track
-
 
 # --------------------------------------------------------------------------- corrections from CVAT
 

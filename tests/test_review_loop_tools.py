@@ -10,14 +10,14 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from test_retrack import snapshot
+from test_review_imports import edit_box
 from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
 from annotator.errors import EXIT_VALUE
 from annotator.store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
-from test_review_imports import edit_box
-from test_retrack import snapshot
 
 FORMATS = "otb,coco,flags,report,cvat,mot,labelstudio,yolo"
 N = 16

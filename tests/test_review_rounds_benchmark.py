@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
 from _benchmark_scripts import load_script
+
 from annotator.corrections import read_corrections
 
 review_rounds = load_script("review_rounds")

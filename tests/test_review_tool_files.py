@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
-
 from _cvat_import import cvat_keyframe_count, cvat_worst_error
 from _reader_env import run_check
+from test_batch import FAST, box_text, write_clip
+from test_exports_reviewtools import interpolate_labelstudio
+from typer.testing import CliRunner
+
 from annotator.cli import _with_default_command, app
 from annotator.exports.cvat import MAX_ERROR_PX
 from annotator.store import STORE_NAME, read_store
 from sptpt.boxes import clip_xywh
-from test_batch import FAST, box_text, write_clip
-from test_exports_reviewtools import interpolate_labelstudio
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).parent / "data" / "review_tools"

@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from annotator.failure.model import FEATURES, model_from_fit
-from benchmarks._right_tracks import (LOOK, RIGHT_CAP, segment_id, segment_rows, segments_flagged, sequence_of,
-                                      truth_flagged, truth_look)
+from benchmarks._right_tracks import (
+    LOOK,
+    RIGHT_CAP,
+    segment_id,
+    segment_rows,
+    segments_flagged,
+    sequence_of,
+    truth_flagged,
+    truth_look,
+)
 from sptpt_dev.failure_fit import Sample
 from sptpt_dev.synthetic import changing_object
 

@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import _texture, make_clip
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import _texture, make_clip
 
 GOLDEN = Path(__file__).parent / "golden" / "tracker"
 # Covered or away for this many frames; the target must be found within REFIND frames of its return.
@@ -118,7 +118,8 @@ def reappearing_clip(n_frames: int = 55, start: int = 20):
     return _render(boxes, visible.astype(np.float32)), boxes, start + GAP
 
 
-@pytest.mark.parametrize("make", [covered_clip, leaving_clip, reappearing_clip], ids=["covered", "leaves_frame", "reappears"])
+@pytest.mark.parametrize("make", [covered_clip, leaving_clip, reappearing_clip],
+                         ids=["covered", "leaves_frame", "reappears"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_robust_finds_the_target_again_within_ten_frames(make, seed):
     frames, boxes, back = make()

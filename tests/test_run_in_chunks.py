@@ -16,7 +16,7 @@ def test_every_item_is_done_once_whatever_the_chunk_count() -> None:
     for n_threads in (1, 2, 3, 7, 50):
         done = np.zeros(10, dtype=int)
 
-        def work(start: int, stop: int) -> None:
+        def work(start: int, stop: int, done: np.ndarray = done) -> None:
             done[start:stop] += 1
 
         run_in_chunks(work, 10, n_threads)
@@ -49,7 +49,7 @@ def test_blocks_are_contiguous_disjoint_and_cover_every_item() -> None:
         blocks = []
         lock = threading.Lock()
 
-        def work(start: int, stop: int) -> None:
+        def work(start: int, stop: int, blocks: list = blocks, lock: threading.Lock = lock) -> None:
             with lock:
                 blocks.append((start, stop))
 

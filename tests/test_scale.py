@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import _texture
 from sptpt.affine import state_from_box_xywh, warp_candidates
 from sptpt.gradients import GREY
 from sptpt.params import get_preset
 from sptpt.scale import BINS, CELL, CLIP, STEP, ScaleFilter, orientation_histograms
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import _texture
 
 
 def slow_orientation_split(grey: np.ndarray, bins: int) -> np.ndarray:
@@ -262,13 +262,19 @@ def test_the_reported_scale_filter_sizes_the_box_and_leaves_the_search_alone():
     # Without the translation filter, which would move the reported centre.
     one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_scale_filter=False,
                                   reported_translation_filter=False)
-    track = lambda params: track_results(params, frames, boxes[0])
+
+    def track(params):
+        return track_results(params, frames, boxes[0])
+
     plain = track(one_run)
     sized = track(dataclasses.replace(one_run, reported_scale_filter=True))
     # SPTPT's own run is untouched: the same scores, acceptance and centres, frame by frame.
     assert [r.log_likelihood for r in sized] == [r.log_likelihood for r in plain]
     assert [r.accepted for r in sized] == [r.accepted for r in plain]
-    centre = lambda rs: np.array([[r.box_xywh[0] + r.box_xywh[2] / 2, r.box_xywh[1] + r.box_xywh[3] / 2] for r in rs])
+
+    def centre(rs):
+        return np.array([[r.box_xywh[0] + r.box_xywh[2] / 2, r.box_xywh[1] + r.box_xywh[3] / 2] for r in rs])
+
     np.testing.assert_allclose(centre(sized), centre(plain), atol=1e-9)
     # Only the size differs, and it follows the object where the candidates' scale lags.
     def side(rs):

@@ -11,7 +11,6 @@ import types
 
 import numpy as np
 import pytest
-
 from _benchmark_scripts import load_script
 
 

@@ -16,19 +16,19 @@ import pytest
 import typer
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_exports import GOLDEN, VIDEO, make_tracks
+from test_retrack import CONFIG, GT, _write_folder, csv_row, snapshot
 from typer.testing import CliRunner
 
-from annotator.job import annotate
 from annotator.commands.retrack import retrack_command
 from annotator.errors import EXIT_INPUT
 from annotator.exports import FILE_EXPORTS, write_exports
+from annotator.job import annotate
 from annotator.pipeline import Target
 from annotator.review import load_run
 from annotator.store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
-from sptpt_dev.synthetic import make_clip
 from annotator.tracks import TrackResult, VideoInfo
-from test_exports import GOLDEN, VIDEO, make_tracks
-from test_retrack import CONFIG, GT, _write_folder, csv_row, snapshot
+from sptpt_dev.synthetic import make_clip
 
 # --------------------------------------------------------------------------- round trips
 

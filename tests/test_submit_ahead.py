@@ -13,15 +13,14 @@ from concurrent.futures import wait
 import numba
 import numpy as np
 import pytest
+from test_tracker import numba_threads
 from threadpoolctl import threadpool_info
 
 import sptpt.tracker as tracker_module
-from sptpt_dev.synthetic import make_clip
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
-
-from test_tracker import numba_threads
+from sptpt_dev.synthetic import make_clip
 
 needs_two_threads = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2,
                                        reason="numba has one thread here: no run can go ahead")

@@ -84,7 +84,10 @@ def test_training_samples_reconstruct_better_than_others():
     model = TensorSubspace.fit(stack, (8, 5, 10))
     inside = np.einsum("qk,kzs->qzs", np.abs(rng.standard_normal((5, 3))), basis)
     outside = np.abs(rng.standard_normal((5, 8, 5))) * stack.std()
-    err = lambda c: reconstruction_error(model, c, gamma=0.5, mode="paper")
+
+    def err(c):
+        return reconstruction_error(model, c, gamma=0.5, mode="paper")
+
     assert err(inside).max() < err(outside).min()
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import make_clip
 from sptpt.boxes import iou_xywh
+from sptpt_dev.synthetic import make_clip
 
 KW = dict(size=(160, 120), object_size=(24, 20), seed=7, occlusion=None)
 

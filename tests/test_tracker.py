@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sptpt_dev.synthetic import make_clip
 from sptpt._kernels import on_own_threads
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
+from sptpt_dev.synthetic import make_clip
 
 
 def run(clip, seed, params=None, n=None) -> list[FrameResult]:

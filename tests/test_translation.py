@@ -13,8 +13,14 @@ from sptpt.affine import state_from_box_xywh
 from sptpt.gradients import GREY, orientation_channels
 from sptpt.params import get_preset
 from sptpt.translation import BINS, NEIGHBOURHOOD, ORIENTATION_WEIGHT, TranslationFilter, translation_features
-from tests.test_scale import (_background_and_object, _paste, edge_templates, numpy_orientation_split,
-                              slow_orientation_split, track_results)
+from tests.test_scale import (
+    _background_and_object,
+    _paste,
+    edge_templates,
+    numpy_orientation_split,
+    slow_orientation_split,
+    track_results,
+)
 
 
 def slow_translation_features(patch: np.ndarray) -> np.ndarray:
@@ -145,7 +151,10 @@ def moving_clip(n_frames: int = 40):
 def test_the_reported_translation_filter_moves_only_the_reported_centre_and_brings_it_nearer():
     frames, boxes = moving_clip()
     one_run = dataclasses.replace(get_preset("robust"), independent_runs=1, reported_translation_filter=False)
-    track = lambda params: track_results(params, frames, boxes[0])
+
+    def track(params):
+        return track_results(params, frames, boxes[0])
+
     plain = track(one_run)
     moved = track(dataclasses.replace(one_run, reported_translation_filter=True))
     # SPTPT's own run is untouched: the same scores and acceptance, and the same size, frame by frame.

@@ -6,7 +6,6 @@ import os
 
 import cv2
 import numpy as np
-
 from _benchmark_scripts import load_script
 
 

@@ -32,7 +32,15 @@ from __future__ import annotations
 
 from annotator.batch.executors import default_workers
 from annotator.batch.outputs import BATCH_FILES, BatchResult
-from annotator.batch.plan import BatchRequest, ItemJob, PlannedItem, is_item_finished, item_seed, plan_batch, read_run_json
+from annotator.batch.plan import (
+    BatchRequest,
+    ItemJob,
+    PlannedItem,
+    is_item_finished,
+    item_seed,
+    plan_batch,
+    read_run_json,
+)
 from annotator.batch.run import run_batch
 from annotator.batch.workers import ItemOutcome, run_item
 from annotator.progress import BatchProgress

@@ -41,7 +41,7 @@ import queue as queue_module
 import time
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from annotator.batch.outputs import write_failures
 from annotator.batch.plan import ItemJob, PlannedItem
@@ -65,7 +65,8 @@ def threads_per_worker(n_workers: int) -> int:
     """numba threads for each of ``n_workers`` local workers: the cores shared out, within NUMBA_NUM_THREADS."""
     import numba
 
-    return max(1, min(default_workers() // n_workers, numba.config.NUMBA_NUM_THREADS))
+    # numba.config sets its settings at import time, unseen by the type checker.
+    return max(1, min(default_workers() // n_workers, cast(Any, numba.config).NUMBA_NUM_THREADS))
 
 
 

@@ -220,7 +220,8 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
         paths["coco"] = out_dir / "annotations.json"
     if "labelstudio" in formats:
         write_text_atomic(out_dir / "labelstudio.json",
-                          json.dumps(_merged_labelstudio(stores, media_url), indent=2, ensure_ascii=False, allow_nan=False) + "\n")
+                          json.dumps(_merged_labelstudio(stores, media_url), indent=2, ensure_ascii=False,
+                                     allow_nan=False) + "\n")
         paths["labelstudio"] = out_dir / "labelstudio.json"
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
     paths["summary"] = out_dir / "summary.json"

@@ -31,12 +31,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.config import ConfigError, RunConfig, resolve_config
 from annotator.errors import EXIT_VALUE, ToolError
+from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
 from annotator.pipeline import Target
 from annotator.provenance import content_hash
+
 
 def item_seed(base_seed: int, item_id: str) -> int:
     """The seed of one item: a stable 48-bit hash of the batch seed and the item id.

@@ -17,8 +17,13 @@ import time
 from pathlib import Path
 from typing import Sequence, TextIO
 
-from annotator.batch.executors import (check_scheduler_address, default_workers, execute_items, threads_per_worker,
-                                       worker_context)
+from annotator.batch.executors import (
+    check_scheduler_address,
+    default_workers,
+    execute_items,
+    threads_per_worker,
+    worker_context,
+)
 from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
 from annotator.batch.plan import BatchRequest, PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.workers import ItemOutcome
@@ -27,6 +32,8 @@ from annotator.manifest import BatchItem
 from annotator.progress import BatchProgress
 
 LOCK_NAME = ".batch.lock"
+#: run_batch's request when none is given: the command line's defaults (frozen, so one instance serves every call).
+_DEFAULT_REQUEST = BatchRequest()
 
 
 @contextlib.contextmanager
@@ -159,7 +166,7 @@ def _run_items(planned: list, out_dir: Path, *, force: bool, scheduler: str | No
 
 def run_batch(
     items: Sequence[BatchItem],
-    request: BatchRequest = BatchRequest(),
+    request: BatchRequest = _DEFAULT_REQUEST,
     *,
     out_dir: str | os.PathLike,
     force: bool = False,

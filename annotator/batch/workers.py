@@ -34,15 +34,15 @@ import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 from annotator.allocator import keep_freed_memory
-from annotator.job import previous_outputs, remove_staging_folders
 from annotator.batch.plan import ItemJob
 from annotator.checkpoint import CHECKPOINT_NAME
-from annotator.exports.otb import otb_result_globs
-from annotator.manifest import output_stem
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
+from annotator.exports.otb import otb_result_globs
+from annotator.job import previous_outputs, remove_staging_folders
+from annotator.manifest import output_stem
 from annotator.progress import Progress
 
 _EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item
@@ -174,7 +174,8 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
         if job.threads is not None:
             import numba
 
-            numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
+            # numba.config sets its settings at import time, unseen by the type checker.
+            numba.set_num_threads(max(1, min(job.threads, cast(Any, numba.config).NUMBA_NUM_THREADS)))
         outcome = ItemOutcome(item_id=job.item_id, status="failed", pid=os.getpid(), host=_hostname())
         started, cpu_started = time.perf_counter(), os.times()
         _THREAD.reporter = _Reporter(job.item_id, send) if send is not None else None

@@ -7,9 +7,9 @@ from typing import Optional
 
 import typer
 
-from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError, require_extra
+from annotator.formats import DEFAULT_FORMATS
 from annotator.wording import plural
 
 
@@ -69,7 +69,7 @@ def batch_command(
                 typer.echo(f"sptpt-annotate: error: {error}", err=True)
             if len(exc.errors) > 50:
                 typer.echo(f"sptpt-annotate: ... and {len(exc.errors) - 50} more problems", err=True)
-            raise typer.Exit(exc.exit_code)
+            raise typer.Exit(exc.exit_code) from None
         except ConfigError as exc:
             raise ToolError(str(exc), exc.exit_code) from None
     except ToolError as error:

@@ -12,6 +12,7 @@ from annotator.commands.common import fail
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
 from annotator.wording import plural
 
+
 def eval_command(
     results: Path = typer.Argument(..., help="A results file or output folder (one sequence), or a folder of <Seq>.txt / <Seq>/ results (dataset)."),
     ground_truth: Path = typer.Argument(..., help="A ground-truth file (one sequence) or an OTB-layout root (dataset)."),
@@ -27,9 +28,15 @@ def eval_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Score results against ground truth: OTB success AUC (IoU > t, 21 thresholds) and precision at 20 px."""
-    from annotator.evaluation import (DatasetScore, EvaluationError, MissingInputError, evaluate_result_file,
-                                      evaluate_results_dir)
-    from annotator.evaluation import results_markdown, write_report
+    from annotator.evaluation import (
+        DatasetScore,
+        EvaluationError,
+        MissingInputError,
+        evaluate_result_file,
+        evaluate_results_dir,
+        results_markdown,
+        write_report,
+    )
     from annotator.evaluation.calibration import failure_markdown, failure_summary, plot_calibration
     from annotator.otb import OTBFormatError
 

@@ -40,8 +40,7 @@ def retrack_command(
     """Apply corrections to a run: human boxes become anchors, the spans they affect are re-tracked forward and
     backward, and every output (OTB, COCO, flags, overlay unless --no-render, report, run.json) is rewritten; on
     any error the folder is left unchanged."""
-    from annotator.review import DEFAULT_MERGE, MERGES
-    from annotator.review import apply_corrections
+    from annotator.review import DEFAULT_MERGE, MERGES, apply_corrections
 
     try:
         method = merge or DEFAULT_MERGE

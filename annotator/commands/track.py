@@ -7,12 +7,13 @@ from typing import List, Optional
 
 import typer
 
-from annotator.formats import DEFAULT_FORMATS
 from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
-from sptpt.params import PRESETS
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
+from annotator.formats import DEFAULT_FORMATS
 from annotator.wording import plural
+from sptpt.params import PRESETS
+
 
 def track_command(
     video: Path = typer.Argument(..., help="Video file (mp4, avi, mov, mkv, ...) or folder of images (OTB Name/ or any)."),
@@ -100,7 +101,7 @@ def _targets(box: list[str], label: list[str], box_origin: int) -> list:
         raise ToolError(f"--label given {len(label)} times for {len(boxes)} boxes: give one per box or one for all",
                         EXIT_VALUE)
     labels = (label * len(boxes) if len(label) == 1 else label) or ["object"] * len(boxes)
-    return [Target(b, track_id=i + 1, label=l) for i, (b, l) in enumerate(zip(boxes, labels))]
+    return [Target(box, track_id=i + 1, label=name) for i, (box, name) in enumerate(zip(boxes, labels))]
 
 
 def _config(config_file: Path | None, preset: str | None, seed: int | None, review_budget: float | None,

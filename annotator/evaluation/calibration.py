@@ -170,8 +170,9 @@ def _why_undefined(summary: dict[str, float], key: str) -> str:
 
 def failure_markdown(summary: dict[str, float]) -> str:
     """The eval command's table of :func:`failure_summary`."""
-    rows = [("AUROC of p_fail for failure frames (IoU < 0.5)", "auroc"), ("expected calibration error (10 bins)", "ece"),
-            ("flag precision", "precision"), ("flag recall", "recall"), ("flagged share", "flagged_share"),
+    rows = [("AUROC of p_fail for failure frames (IoU < 0.5)", "auroc"),
+            ("expected calibration error (10 bins)", "ece"), ("flag precision", "precision"),
+            ("flag recall", "recall"), ("flagged share", "flagged_share"),
             ("onset recall (spans >= 5 frames, flag within 10)", "onset_recall"),
             ("flagged share on sequences with AUC >= 0.6", "good_flagged_share")]
     lines = [f"## Failure probability and flags ({summary['sequences']} sequences, {summary['frames']} frames)", "",

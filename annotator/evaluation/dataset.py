@@ -121,7 +121,8 @@ def find_result_file(path: str | os.PathLike, *, name: str | None = None) -> Pat
     if path.is_file():
         return path
     if not path.exists():
-        raise MissingInputError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h per row")
+        raise MissingInputError(f"{path}: no such result file or output folder; pass an OTB result file x,y,w,h "
+                                "per row")
     if (path / STORE_NAME).is_file():
         return path / STORE_NAME
     candidates = _output_folder_candidates(path, name)
@@ -383,7 +384,8 @@ def load_dataset_pairs(
     gt_root, results_dir = Path(gt_root), Path(results_dir)
     selected = _select(discover_otb_sequences(gt_root), sequences, gt_root)
     if not results_dir.is_dir():
-        raise MissingInputError(f"{results_dir}: results folder does not exist; pass the folder holding <Name>.txt files")
+        raise MissingInputError(f"{results_dir}: results folder does not exist; pass the folder holding <Name>.txt "
+                                "files")
     found: dict[str, Path] = {}
     missing: list[str] = []
     for name in selected:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from annotator.exports.coco import build_coco, dumps_coco, merge_coco, save_coco, write_coco
 from annotator.exports.cvat import build_cvat_xml, write_cvat_xml
-from annotator.exports.flags import FLAGS_HEADER, FlagTable, FlagsFormatError, read_flags_csv, write_flags_csv
+from annotator.exports.flags import FLAGS_HEADER, FlagsFormatError, FlagTable, read_flags_csv, write_flags_csv
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import build_mot_gt, write_mot
 from annotator.exports.otb import otb_sequence_names, write_otb_results

@@ -141,7 +141,8 @@ def _box_element(frame: int, box_xywh: np.ndarray, *, outside: bool, occluded: b
 
 
 def _track_rows(track: TrackResult, frames: range) -> list[tuple[int, np.ndarray, bool, bool, bool, float]]:
-    """Each ``<box>`` of a track: ``(frame, box_xywh, outside, occluded, keyframe, score)``; [] for a track never seen."""
+    """Each ``<box>`` of a track: ``(frame, box_xywh, outside, occluded, keyframe, score)``; [] for a track never
+    seen."""
     shown = visible(track)
     if not shown.any():
         return []  # no box anywhere: CVAT has nothing to draw, and a track needs coordinates

@@ -76,14 +76,13 @@ import os
 from collections import deque
 from dataclasses import dataclass
 from importlib import resources
-from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from annotator.errors import EXIT_VALUE
-from annotator.text import read_given_file
 from annotator.failure.signals import SIGNALS, measured_mean
+from annotator.text import read_given_file
 
 __all__ = [
     "FEATURES",

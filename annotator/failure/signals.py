@@ -121,8 +121,8 @@ SIGNALS: Mapping[str, str] = {
 }
 
 #: The signals :class:`MotionMeter` measures from the frames and the boxes alone.
-MOTION_SIGNALS: tuple[str, ...] = ("flow_iou", "flow_fb", "flow_kept", "flow_drift", "flow_scale_drift", "ring_with_box",
-                                   "box_with_background")
+MOTION_SIGNALS: tuple[str, ...] = ("flow_iou", "flow_fb", "flow_kept", "flow_drift", "flow_scale_drift",
+                                   "ring_with_box", "box_with_background")
 
 #: Each signal's value where nothing is wrong: a first frame, a box a person gave.
 NEUTRAL: Mapping[str, float] = {
@@ -189,7 +189,8 @@ def _ncc(a: np.ndarray | None, b: np.ndarray | None) -> float:
     return float(np.clip(np.sum(a * b), -1.0, 1.0)) if a is not None and b is not None else 0.0
 
 
-def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None, box: np.ndarray) -> tuple[float, float]:
+def particle_stats(particles_xywh: np.ndarray | None, scores: np.ndarray | None,
+                   box: np.ndarray) -> tuple[float, float]:
     """``(score_gap, particle_spread)`` of a frame's candidates (see :data:`SIGNALS`)."""
     if particles_xywh is None or scores is None or len(scores) < 2:
         return 0.0, 0.0

@@ -58,7 +58,8 @@ class SourceFrames:
                 index, frame = next(self._live)
             except StopIteration:
                 raise ToolError(f"{self.source.path}: ended before frame {int(self.frame_indices[self._next])} "
-                                "that the run processed; the input changed - re-run the annotation", EXIT_INPUT) from None
+                                "that the run processed; the input changed - re-run the annotation",
+                                EXIT_INPUT) from None
             position = self._next
             if index != self.frame_indices[position]:
                 raise ToolError(f"{self.source.path}: decoded frame {index} where the run had frame "

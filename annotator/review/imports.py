@@ -56,16 +56,16 @@ import os
 import re
 import warnings
 import xml.etree.ElementTree as ET
-from xml.parsers import expat
 from pathlib import Path
 from typing import Any, Mapping, Sequence
+from xml.parsers import expat
 
 import numpy as np
 
 from annotator.corrections import Correction
-from annotator.errors import EXIT_INPUT, EXIT_VALUE, InputWarning, ToolError
-from annotator.exports.review_tools import check_frame_range, visible
+from annotator.errors import EXIT_VALUE, InputWarning, ToolError
 from annotator.exports.labelstudio import labelstudio_region_id
+from annotator.exports.review_tools import check_frame_range, visible
 from annotator.text import read_given_file, read_text
 from annotator.tracks import TrackResult, VideoInfo
 from annotator.wording import plural

@@ -64,9 +64,9 @@ from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions
 from annotator.frames import DecodeError
-from annotator.progress import Progress
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
 from annotator.pipeline import OverlaySink, SpanThumbnail, render_tracks
+from annotator.progress import Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, run_fingerprint, write_run_files
 from annotator.render import OverlayWriter
@@ -103,8 +103,10 @@ class ReviewResult:
     def summary(self) -> str:
         if not self.changed:
             if self.written:
-                why = "; overlay.mp4 rendered again (a --no-render round had removed it)" if self.overlay_restored else ""
-                return f"every correction is already applied; nothing re-tracked; outputs rewritten in {self.out_dir}{why}"
+                why = ("; overlay.mp4 rendered again (a --no-render round had removed it)" if self.overlay_restored
+                       else "")
+                return (f"every correction is already applied; nothing re-tracked; outputs rewritten in "
+                        f"{self.out_dir}{why}")
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
         frames = sum(s.frames for s in r.segments)
@@ -341,7 +343,8 @@ def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: 
                    *, merge: str, show_progress: bool, passes: dict | None, render: bool) -> list[Path]:
     """Write every output of the run's formats, and the passes kept, into ``tmp``; return their paths relative to it."""
     tracks = retrack.tracks
-    store = RunStore(video=run.video, start=run.store.start, stop=run.store.stop, step=run.store.step, tracks=tracks)
+    store = RunStore(video=run.video, start=run.store.start, stop=run.store.stop, step=run.store.step,
+                     tracks=tuple(tracks))
     rendered = "overlay" in run.formats and render
     thumbnails = _render_overlay(tmp / OVERLAY_NAME, run, tracks, provider, show_progress) if rendered else []
     info = {**run.info, "review": _review_section(run, retrack, corrections_path, merge, rendered)}

@@ -89,7 +89,10 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         take_fwd = np.where(fresh_f & ~fresh_b, True, np.where(fresh_b & ~fresh_f, False, cf >= cb))
     else:
         take_fwd = cf >= cb
-    pick = lambda a, b: np.where(take_fwd.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+
+    def pick(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.where(take_fwd.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)
+
     out = PassResult(
         boxes_xywh=pick(fwd.boxes_xywh, bwd.boxes_xywh),
         confidence=pick(cf, cb),
@@ -109,6 +112,7 @@ def merge_passes(fwd: PassResult, bwd: PassResult | None, method: str = DEFAULT_
         out.confidence = np.clip(w * cf + (1 - w) * cb, 0.0, 1.0)
         out.signals = np.where((w >= 0.5)[:, None], fwd.signals, bwd.signals)
     if chooser is not None:
+        assert model is not None and ends is not None  # a chooser comes from the model, given the ends
         _choose_where_passes_disagree(out, fwd, bwd, model, ends)
     return out
 
@@ -153,6 +157,7 @@ def _choose_where_passes_disagree(out: PassResult, fwd: PassResult, bwd: PassRes
                                   ends: tuple[Box, Box]) -> None:
     """The ``chosen`` merge's rows where the passes disagree, written into ``out`` (see :data:`MERGES`)."""
     chooser = model.pass_choice
+    assert chooser is not None  # merge_passes calls this only with the model's pass_choice section
     both = np.isfinite(fwd.boxes_xywh).all(axis=1) & np.isfinite(bwd.boxes_xywh).all(axis=1)
     disagree = both & (out.pass_iou < chooser.disagree_below)
     if not disagree.any():

@@ -15,9 +15,8 @@ import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
 from annotator.nanotrack import guide_for
+from annotator.pass_cache import CachedPass, PassKey, PassResult, pass_key
 from annotator.pipeline import FramesAhead, seed_for_track
-from annotator.pass_cache import PassResult
-from annotator.pass_cache import CachedPass, PassKey, pass_key
 from annotator.review.segments import Box, Segment
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker
@@ -55,7 +54,8 @@ class ArrayFrames:
         for position in range(lo, hi):
             yield position, self._frames[position]
 
-def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *, first: bool = False) -> np.random.Generator:
+def pass_seed(seed: int, track_id: int, anchor_frame: int, direction: int, *,
+              first: bool = False) -> np.random.Generator:
     """Generator of one pass: from the run seed, track id, anchor source frame and direction (0 fwd, 1 back).
 
     The forward pass from the first processed frame (``first=True``) uses the

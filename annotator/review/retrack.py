@@ -61,8 +61,16 @@ import numpy as np
 
 from annotator.config import RunConfig
 from annotator.failure import SIGNALS, load_model
-from annotator.review.merge import (DEFAULT_MERGE, MERGES, NO_SCORING, PASS_CHOICE, PASS_IOU, PassResult, merge_passes,
-                                    reflag)
+from annotator.review.merge import (
+    DEFAULT_MERGE,
+    MERGES,
+    NO_SCORING,
+    PASS_CHOICE,
+    PASS_IOU,
+    PassResult,
+    merge_passes,
+    reflag,
+)
 from annotator.review.passes import DEFAULT_MAX_BUFFER_FRAMES, FrameProvider, SegmentRun
 from annotator.review.segments import (
     AnchorChange,

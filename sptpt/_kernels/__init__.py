@@ -19,11 +19,15 @@ import os
 import threading
 import weakref
 from concurrent.futures import Future, ThreadPoolExecutor, wait
+from typing import Any
 
 import numba
 
 __all__ = ["InOrder", "map_on_threads", "on_own_threads", "run_in_chunks"]
 
+#: numba's settings (``numba.config``), read when used: numba sets them at import time, from the environment,
+#: so they are invisible to the type checker.
+_NUMBA_CONFIG: Any = numba.config
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 # Threads of :func:`on_own_threads`, apart from the kernel pool: a call there may itself run kernels in chunks.
@@ -57,7 +61,7 @@ def _pool() -> ThreadPoolExecutor:
         if _POOL is None:
             # As many workers as numba would start threads; a smaller thread
             # count (numba.set_num_threads) simply uses fewer of them.
-            _POOL = ThreadPoolExecutor(max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1),
+            _POOL = ThreadPoolExecutor(max_workers=max(1, _NUMBA_CONFIG.NUMBA_NUM_THREADS - 1),
                                        thread_name_prefix="sptpt-kernel")
         return _POOL
 
@@ -194,7 +198,7 @@ class InOrder:
         return {}
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__()
+        type(self).__init__(self)
 
     def _forget(self) -> None:
         """In a forked child: the parent's thread making these calls is not there."""

@@ -367,7 +367,8 @@ def snic_batch(lab, seeds, spatial_weight, n_threads):
 
 
 @numba.njit(cache=True, nogil=True)
-def _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, white, memo, start, stop):  # pragma: no cover
+def _grow_range_rgb(images, seeds, spatial_weight, labels, linear, rgb_to_xyz, white, memo, start,
+                    stop):  # pragma: no cover
     """``_grow_range`` from uint8 RGB: each image is converted to Lab just before it grows.
 
     The Lab image stays in a per-thread buffer that is still in cache when

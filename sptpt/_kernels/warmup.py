@@ -27,11 +27,16 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
 
 __all__ = ["compile_kernels", "kernels_cached"]
+
+#: numba's settings (``numba.config``), read when used: numba sets them at import time, from the environment,
+#: so they are invisible to the type checker.
+_NUMBA_CONFIG: Any = numba.config
 
 
 def _dispatchers() -> list:
@@ -99,7 +104,7 @@ _CHILD: subprocess.Popen | None = None
 
 def _lock_path() -> Path:
     """One lock file per cache: this copy of the package, numba's version and its cache folder setting."""
-    key = f"{Path(__file__).resolve()}|{numba.__version__}|{sys.version}|{numba.config.CACHE_DIR}"
+    key = f"{Path(__file__).resolve()}|{numba.__version__}|{sys.version}|{_NUMBA_CONFIG.CACHE_DIR}"
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     return Path(tempfile.gettempdir()) / f"sptpt-warmup-{os.getuid() if hasattr(os, 'getuid') else 0}-{digest}.lock"
 
@@ -161,20 +166,21 @@ def compile_kernels(*, wait: bool = True) -> subprocess.Popen | None:
     running = _CHILD is not None and _CHILD.poll() is None
     if wait:
         if running:
+            assert _CHILD is not None  # running: it was started and has not ended
             _CHILD.wait()
         if not kernels_cached():
             _compile_all()
         return None
     if running:
         return _CHILD
-    if numba.config.DISABLE_JIT or _cores() < 2 or kernels_cached():
+    if _NUMBA_CONFIG.DISABLE_JIT or _cores() < 2 or kernels_cached():
         return None
     command = _child_command()
     if command is None:
         return None
     env = dict(os.environ)
-    if numba.config.CACHE_DIR:  # also when set in code, not in the environment
-        env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
+    if _NUMBA_CONFIG.CACHE_DIR:  # also when set in code, not in the environment
+        env["NUMBA_CACHE_DIR"] = _NUMBA_CONFIG.CACHE_DIR
     try:
         _CHILD = subprocess.Popen(command, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                   stderr=subprocess.DEVNULL)
