@@ -163,10 +163,9 @@ def check_failure_model(path: str) -> None:
 def _check_tracker_accepts(params: TrackerParams) -> None:
     """Raise the tracker's own ValueError for combinations only it checks (e.g. a superpixel rank above the
     superpixel count), so that they are configuration errors now rather than failures once a run has started."""
-    from annotator.nanotrack import guide_for
-    from sptpt.tracker import Tracker  # the tracker's modules are heavy; only a resolved config needs them
+    import sptpt  # its tracker modules load on first use: only a resolved config needs them
 
-    Tracker(params, seed=0, guide=guide_for(params))
+    sptpt.check_params(params)
 
 
 def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
