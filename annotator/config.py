@@ -83,12 +83,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"config file {path}{where} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got "
-                          f"{type(data).__name__}")
-    return data
+    return _as_mapping(data, f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}")
 
 
 def _unknown(kind: str, key: str, valid: list[str], source: str) -> ConfigError:
@@ -169,11 +164,15 @@ def _check_tracker_accepts(params: TrackerParams) -> None:
 
 
 def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
+    return _as_mapping(value, f"{source}: '{name}' must be a mapping of parameter names to values")
+
+
+def _as_mapping(value: Any, expected: str) -> dict[str, Any]:
+    """``value`` as a mapping: empty for None (an empty YAML block), else the ConfigError ``expected, got TYPE``."""
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got "
-                          f"{type(value).__name__}")
+        raise ConfigError(f"{expected}, got {type(value).__name__}")
     return value
 
 
