@@ -90,5 +90,7 @@ def test_readme_quick_start_scores_and_flags_the_sample_as_it_says(sample):
     result = evaluate_result_file(sample / "samples" / "clip_sptpt", sample / "samples" / "clip_groundtruth.txt")
     quoted = re.search(r"follows the sample's object to the end \(success AUC (\d\.\d{3}) ", README)
     assert quoted, "the README quotes the default's figure on the sample"
-    assert float(quoted[1]) == round(result.auc, 3)
+    # NanoTrack's CNN runs in OpenCV's DNN module, whose arithmetic differs a little between OpenCV releases: the
+    # figure was measured on the newest (0.908); the lowest version pyproject allows gives 0.902.
+    assert abs(float(quoted[1]) - result.auc) <= 0.01
     assert "0 of 100 frame boxes flagged" in done.stdout + done.stderr  # "its report flags no frame"
