@@ -18,7 +18,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.2.0"
+from annotator.version import __version__ as __version__
 
 __all__ = ["AnnotateResult", "NanoTrackGuide", "Target", "ToolError", "annotate", "apply_corrections", "read_store",
            "resolve_config"]
@@ -28,7 +28,7 @@ __all__ = ["AnnotateResult", "NanoTrackGuide", "Target", "ToolError", "annotate"
 _HOMES = {
     "AnnotateResult": "annotator.job",
     "NanoTrackGuide": "annotator.nanotrack",
-    "Target": "annotator.pipeline",
+    "Target": "annotator.tracks",
     "ToolError": "annotator.errors",
     "annotate": "annotator.job",
     "apply_corrections": "annotator.review",
@@ -52,6 +52,6 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from annotator.errors import ToolError
     from annotator.job import AnnotateResult, annotate
     from annotator.nanotrack import NanoTrackGuide
-    from annotator.pipeline import Target
     from annotator.review import apply_corrections
     from annotator.store import read_store
+    from annotator.tracks import Target

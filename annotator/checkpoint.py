@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from annotator import __version__
 from annotator.atomic import write_bytes_atomic
 from annotator.errors import EXIT_OUTPUT, ToolError
+from annotator.version import __version__
 
 __all__ = ["CHECKPOINT_EVERY", "CHECKPOINT_NAME", "Checkpoint", "read_checkpoint", "remove_checkpoint",
            "run_key", "write_checkpoint"]

@@ -13,9 +13,9 @@ import traceback
 
 import typer
 
-from annotator import __version__
 from annotator.allocator import keep_freed_memory
 from annotator.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
+from annotator.version import __version__
 
 app = typer.Typer(
     add_completion=False,

@@ -83,12 +83,7 @@ def load_config_file(path: str | Path) -> dict[str, Any]:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"config file {path}{where} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}, got "
-                          f"{type(data).__name__}")
-    return data
+    return _as_mapping(data, f"config file {path} must hold a mapping of {', '.join(_TOP_LEVEL)}")
 
 
 def _unknown(kind: str, key: str, valid: list[str], source: str) -> ConfigError:
@@ -163,18 +158,21 @@ def check_failure_model(path: str) -> None:
 def _check_tracker_accepts(params: TrackerParams) -> None:
     """Raise the tracker's own ValueError for combinations only it checks (e.g. a superpixel rank above the
     superpixel count), so that they are configuration errors now rather than failures once a run has started."""
-    from annotator.nanotrack import guide_for
-    from sptpt.tracker import Tracker  # the tracker's modules are heavy; only a resolved config needs them
+    import sptpt  # its tracker modules load on first use: only a resolved config needs them
 
-    Tracker(params, seed=0, guide=guide_for(params))
+    sptpt.check_params(params)
 
 
 def _mapping(value: Any, name: str, source: str) -> dict[str, Any]:
+    return _as_mapping(value, f"{source}: '{name}' must be a mapping of parameter names to values")
+
+
+def _as_mapping(value: Any, expected: str) -> dict[str, Any]:
+    """``value`` as a mapping: empty for None (an empty YAML block), else the ConfigError ``expected, got TYPE``."""
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise ConfigError(f"{source}: '{name}' must be a mapping of parameter names to values, got "
-                          f"{type(value).__name__}")
+        raise ConfigError(f"{expected}, got {type(value).__name__}")
     return value
 
 

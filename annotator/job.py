@@ -20,10 +20,9 @@ import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import sptpt
-from annotator import __version__
 from annotator.atomic import ctrl_c_ignored
 from annotator.box_input import parse_box
 from annotator.checkpoint import CHECKPOINT_NAME, Checkpoint, read_checkpoint, remove_checkpoint, run_key
@@ -43,11 +42,13 @@ from annotator.exports import ExportOptions
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
 from annotator.pass_cache import first_pass
-from annotator.pipeline import Target, TrackingRun, track_source
+from annotator.pipeline import TrackingRun, track_source
 from annotator.progress import CountNote, Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
 from annotator.store import STORE_NAME, RunStore
+from annotator.tracks import Target
+from annotator.version import __version__
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
@@ -195,6 +196,7 @@ def annotate(
     corrections: Sequence[Correction] | None = None,
     media_url: str | None = None,
     resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
 ) -> AnnotateResult:
     """Track ``targets`` through a video or image folder and write every requested output.
 
@@ -207,7 +209,7 @@ def annotate(
     targets : box, Target, or a sequence of them
         The objects' first-frame boxes. A box is four numbers ``x, y, w, h`` (0-based pixels) or the text
         ``"x,y,w,h"``, read as ``--box`` reads it (:func:`annotator.box_input.parse_box`); boxes get the track
-        ids 1, 2, ... in order and the label ``object``. A :class:`~annotator.pipeline.Target` gives its own.
+        ids 1, 2, ... in order and the label ``object``. A :class:`~annotator.tracks.Target` gives its own.
     config : RunConfig, optional
         From :func:`annotator.config.resolve_config`; by default ``resolve_config()``, what the command line uses
         without options (the default preset, seed 0).
@@ -217,15 +219,13 @@ def annotate(
         As the command line's ``--start``, ``--stop``, ``--step``, ``--formats``, ``--force`` and (not)
         ``--quiet``.
 
-    ``corrections``, when given, are only checked here against the frames
-    and tracks the run will have, before any tracking (so that a correction
-    of a frame outside ``--start``/``--stop`` fails at once); the caller
-    applies them afterwards with :func:`annotator.review.apply_corrections`.
-    ``media_url`` is the video's URL written into ``labelstudio.json``
-    (``--media-url``; see :class:`annotator.exports.ExportOptions`), kept in
-    run.json for the re-tracks.
+    ``corrections``, when given, are only checked here against the frames and tracks the run will have, before
+    any tracking (a correction of a frame outside ``--start``/``--stop`` fails at once); the caller applies them
+    afterwards with :func:`annotator.review.apply_corrections`. ``media_url`` is the video's URL written into
+    ``labelstudio.json`` (``--media-url``; :class:`annotator.exports.ExportOptions`), kept in run.json.
 
-    ``resume`` (``--resume``): go on from a checkpoint (:mod:`annotator.checkpoint`).
+    ``resume`` (``--resume``): go on from a checkpoint (:mod:`annotator.checkpoint`). ``progress(done, in_all)``,
+    if given, is called with 0 frames done before the first, then after each (with or without ``show_progress``).
 
     Raises
     ------
@@ -259,7 +259,7 @@ def annotate(
     _prepare_output_dir(out_dir, force=force, resume=resume)
     with _exclusive(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
-                         ExportOptions(media_url=media_url), resume)
+                         ExportOptions(media_url=media_url), resume, progress)
 
 
 def _checkpoint_to_resume(out_dir: Path, key: dict) -> Checkpoint | None:
@@ -301,7 +301,7 @@ def _as_targets(given) -> list[Target]:
 
 def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], config: RunConfig,
               formats: Sequence[str], input_path: Path, show_progress: bool, options: ExportOptions,
-              resume: bool) -> AnnotateResult:
+              resume: bool, on_update: Callable[[int, int], None] | None) -> AnnotateResult:
     remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
     key = run_key(input_path, range(source.start, source.stop, source.step), targets, config.to_dict())
     checkpoint = _checkpoint_to_resume(out_dir, key) if resume else None
@@ -316,7 +316,7 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
         # Closed here too, so that an error inside the tracking leaves no bar drawn (or cursor hidden).
         # Only when numba will compile: a slow first frame on a busy machine with the kernels cached is no compile.
         compiling = COMPILING_NOTE if not sptpt.kernels_cached() else None
-        with Progress(len(source), enabled=show_progress, slow_start=compiling) as progress:
+        with Progress(len(source), enabled=show_progress, slow_start=compiling, on_update=on_update) as progress:
             run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
                                progress=progress, checkpoints=(out_dir, key), resume=checkpoint)
         result = AnnotateResult(out_dir=staging, run=run)

@@ -75,8 +75,8 @@ from annotator.box_input import Box, BoxError, parse_box
 from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
 from annotator.flagging import FlagParams
-from annotator.pipeline import Target
 from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.tracks import Target
 from sptpt.params import TrackerParams
 
 __all__ = [

@@ -19,19 +19,18 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping, cast
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from annotator import __version__
 from annotator.atomic import atomic_path
 from annotator.failure import SIGNALS
 from annotator.tracks import TrackResult
+from annotator.version import __version__
 
 __all__ = ["NO_SCORING", "PASSES_NAME", "CachedPass", "PassKey", "PassResult", "first_pass", "keep_anchored",
            "pass_fingerprint", "pass_key", "read_pass_cache", "write_pass_cache"]
@@ -156,8 +155,10 @@ def code_identity() -> dict[str, str]:
     digest = hashlib.sha256()
     package = Path(sptpt.__file__).parent
     files = [(f"sptpt/{f.relative_to(package).as_posix()}", f) for f in sorted(package.rglob("*.py"))]
-    # Modules of this package, imported from their source files: each has a __file__.
-    files += [(name, Path(cast(str, importlib.import_module(name).__file__))) for name in _PASS_MODULES]
+    # Modules of this package, read from their source files, not imported: the cache sits below the engine and
+    # the re-track code whose sources it digests (tests/test_layers.py).
+    tool = Path(__file__).parent
+    files += [(name, tool.joinpath(*name.split(".")[1:]).with_suffix(".py")) for name in _PASS_MODULES]
     for name, file in files:
         digest.update(name.encode() + b"\0" + file.read_bytes() + b"\0")
     try:

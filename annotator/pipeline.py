@@ -37,35 +37,16 @@ from annotator.frames import DecodeError, FrameSource
 from annotator.nanotrack import guide_for
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
-from annotator.tracks import KEYFRAME_GIVEN, TrackRecorder, TrackResult, VideoInfo
+from annotator.tracks import KEYFRAME_GIVEN, SpanThumbnail, Target, TrackRecorder, TrackResult, VideoInfo
 from sptpt import compile_kernels
 from sptpt.results import FrameResult
 from sptpt.tracker import Tracker
 
-__all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink", "SpanThumbnail",
-           "Target", "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks",
+__all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink",
+           "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks",
            "seed_for_track", "track_frame", "track_frames", "track_source"]
 
 THUMBNAIL_WIDTH = 200
-
-
-@dataclass(frozen=True)
-class Target:
-    """One object to label: its first-frame box (0-based ``xywh``), track id and label."""
-
-    box_xywh: tuple[float, float, float, float]
-    track_id: int
-    label: str = "object"
-
-
-@dataclass(frozen=True)
-class SpanThumbnail:
-    """A small JPEG of an overlay frame, for the review report."""
-
-    track_id: int
-    position: int
-    frame_index: int
-    jpeg_base64: str
 
 
 class WorstFrameThumbnails:

@@ -33,8 +33,8 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, TextIO
+from collections.abc import Callable, Sequence
+from typing import Protocol, TextIO
 
 import rich.progress
 from rich.console import Console
@@ -42,9 +42,6 @@ from rich.table import Column
 from rich.text import Text
 
 from annotator.wording import plural
-
-if TYPE_CHECKING:
-    from annotator.batch.workers import ItemOutcome
 
 __all__ = ["ETA_AFTER", "BatchProgress", "CountNote", "Progress", "format_clock"]
 
@@ -206,12 +203,18 @@ class Progress:
         The unit of the rate (``"frames"`` → ``12.3 frames/s``).
     console : rich.console.Console, optional
         Where to draw, instead of a console on ``stream`` (default ``sys.stderr``); for tests.
+    on_update : callable, optional
+        Called as ``on_update(done, total)``: once with 0 when the bar starts, then after each :meth:`advance`,
+        whether or not anything is drawn (a batch worker forwards it to the batch's display). Its errors are
+        its own: they propagate.
     """
 
     def __init__(self, total: int, *, label: str = "frames", unit: str = "frames", enabled: bool = True,
                  stream: TextIO | None = None, console: Console | None = None, interval: float = 0.2,
-                 slow_start: str | None = None, slow_start_after: float = 2.0) -> None:
+                 slow_start: str | None = None, slow_start_after: float = 2.0,
+                 on_update: Callable[[int, int], None] | None = None) -> None:
         self.total = max(int(total), 0)
+        self._on_update = on_update
         self.label = label
         self.unit = unit
         self.enabled = enabled
@@ -227,6 +230,8 @@ class Progress:
             self._notice = threading.Timer(slow_start_after, self._slow_start, args=(slow_start,))
             self._notice.daemon = True
             self._notice.start()
+        if on_update is not None:
+            on_update(0, self.total)
 
     def __enter__(self) -> Progress:
         return self
@@ -240,6 +245,11 @@ class Progress:
                 self._display.line(text)
 
     def advance(self, steps: int = 1) -> None:
+        self._advance(steps)
+        if self._on_update is not None:
+            self._on_update(self.done, self.total)
+
+    def _advance(self, steps: int) -> None:
         with self._lock:
             self.done += steps
             now = time.perf_counter()
@@ -309,6 +319,16 @@ class CountNote:
         self._display.close()
 
 
+class FinishedItem(Protocol):
+    """What the batch display reads of an item's outcome (``annotator.batch.workers.ItemOutcome`` has it); a
+    protocol, so this module, below the batch code, does not import it."""
+
+    status: str
+    frames: int
+    seconds: float
+    error: str | None
+
+
 class BatchProgress:
     """Progress of a batch run: items done, failed and reused, frames across workers, rate, ETA.
 
@@ -361,7 +381,7 @@ class BatchProgress:
                 self._rate.update(self.frames_done, now)
             self._show(now)
 
-    def item_finished(self, item_id: str, outcome: ItemOutcome) -> None:
+    def item_finished(self, item_id: str, outcome: FinishedItem) -> None:
         with self._lock:
             self.items_done += 1
             self.failed += outcome.status != "done"

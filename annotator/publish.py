@@ -25,10 +25,10 @@ from typing import Any, Iterable, Mapping, Sequence
 from annotator.atomic import atomic_path, write_text_atomic
 from annotator.exports import ExportOptions, record_review_exports, write_exports
 from annotator.pass_cache import PASSES_NAME, pass_fingerprint, write_pass_cache
-from annotator.pipeline import SpanThumbnail
 from annotator.provenance import json_default
 from annotator.report import corrections_section, render_report, track_summary
 from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.tracks import SpanThumbnail
 
 __all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "MoveError", "move_into_place", "run_fingerprint",
            "write_run_files"]

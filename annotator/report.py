@@ -12,8 +12,7 @@ from markupsafe import Markup
 from annotator.atomic import write_text_atomic
 from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
 from annotator.pages import REPORT_TEMPLATE, template_environment
-from annotator.pipeline import SpanThumbnail
-from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from annotator.tracks import KEYFRAME_GIVEN, SpanThumbnail, TrackResult
 from annotator.wording import plural
 
 __all__ = ["FlaggedSpan", "by_expected_errors", "flagged_spans", "keyframe_note", "keyframes_asked", "reason_legend",

@@ -26,13 +26,33 @@ if TYPE_CHECKING:
 
         __dataclass_fields__: ClassVar[dict[str, Any]]
 
-__all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "VideoInfo", "TrackResult", "TrackRecorder", "select_rows"]
+__all__ = ["SCORING_STAGES", "KEYFRAME_GIVEN", "SpanThumbnail", "Target", "VideoInfo", "TrackResult", "TrackRecorder",
+           "select_rows"]
 
 #: How the tracker scored a row: the first frame (``init``), before both subspace models exist
 #: (``bootstrap``), with them (``subspace``), or not at all (``none``: an absence anchor and its span).
 SCORING_STAGES = ("init", "bootstrap", "subspace", "none")
 #: ``keyframe_source`` of the first-frame box the user gave on the command line or in a manifest.
 KEYFRAME_GIVEN = "given"
+
+
+@dataclass(frozen=True)
+class Target:
+    """One object to label: its first-frame box (0-based ``xywh``), track id and label."""
+
+    box_xywh: tuple[float, float, float, float]
+    track_id: int
+    label: str = "object"
+
+
+@dataclass(frozen=True)
+class SpanThumbnail:
+    """A small JPEG of an overlay frame, for the review report."""
+
+    track_id: int
+    position: int
+    frame_index: int
+    jpeg_base64: str
 
 
 @dataclass(frozen=True)

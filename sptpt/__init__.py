@@ -21,7 +21,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__all__ = ["FrameResult", "Guide", "Tracker", "TrackerParams", "compile_kernels", "kernels_cached", "preset"]
+__all__ = ["FrameResult", "Guide", "Tracker", "TrackerParams", "check_params", "compile_kernels", "kernels_cached",
+           "preset"]
 
 # Where each public name lives, as (module, name there). Imported on first use: ``import sptpt.boxes`` (the tool
 # does, at start-up) should not load the tracker and numba.
@@ -30,6 +31,7 @@ _HOMES = {
     "Guide": ("sptpt.tracker", "Guide"),
     "Tracker": ("sptpt.tracker", "Tracker"),
     "TrackerParams": ("sptpt.params", "TrackerParams"),
+    "check_params": ("sptpt.tracker", "check_params"),
     "compile_kernels": ("sptpt._kernels.warmup", "compile_kernels"),
     "kernels_cached": ("sptpt._kernels.warmup", "kernels_cached"),
     "preset": ("sptpt.params", "get_preset"),
@@ -52,4 +54,4 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from sptpt.params import TrackerParams
     from sptpt.params import get_preset as preset
     from sptpt.results import FrameResult
-    from sptpt.tracker import Guide, Tracker
+    from sptpt.tracker import Guide, Tracker, check_params

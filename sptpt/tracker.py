@@ -48,7 +48,7 @@ from sptpt.subspace import TensorSubspace, reconstruction_error
 from sptpt.superpixels import seed_grid, snic
 from sptpt.translation import TranslationFilter
 
-__all__ = ["STAGES", "Guide", "Tracker", "TrackerInspection"]
+__all__ = ["STAGES", "Guide", "Tracker", "TrackerInspection", "check_params"]
 
 #: The stages a ``stage_timer`` is wrapped around (``prescreen`` only with ``prescreen_share`` < 1, ``shortlist`` only
 #: with ``shortlist`` > 0 (the first pass over every candidate, its warp apart), ``scale`` only with
@@ -590,6 +590,20 @@ class Tracker:
         return done[:runs], done[runs] if len(done) > runs else None
 
 
+def check_params(params: TrackerParams) -> None:
+    """Raise the ValueError a :class:`Tracker` would raise for ``params``, without building one: the checks that
+    need the tracker's code (a superpixel rank above the superpixels a template gets), beyond those
+    ``TrackerParams`` makes itself. A tool validates a configuration with it before any frame is read."""
+    superpixels = _superpixels_per_template(params)
+    if params.ranks[1] > superpixels:
+        raise ValueError(f"parameter ranks={params.ranks!r} is invalid: the superpixel rank {params.ranks[1]} exceeds "
+                         f"the {superpixels} superpixels per template; lower it")
+
+
+def _superpixels_per_template(p: TrackerParams) -> int:
+    return seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
+
+
 def voting_allowed(p: TrackerParams) -> bool:
     """Whether boxes other than the runs' can vote (``filter_vote``, ``guide_vote``): a consensus of two runs or
     more."""
@@ -656,12 +670,8 @@ class _Run:
         self.params = p = params
         self._rng = rng
         self._time = time
-        self.n_superpixels = seed_grid(p.template_size, p.template_size, p.n_superpixels, seeding=p.seeding).shape[0]
-        if p.ranks[1] > self.n_superpixels:
-            raise ValueError(
-                f"parameter ranks={p.ranks!r} is invalid: the superpixel rank {p.ranks[1]} exceeds the "
-                f"{self.n_superpixels} superpixels per template; lower it"
-            )
+        check_params(p)
+        self.n_superpixels = _superpixels_per_template(p)
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
         self._frame_shape: tuple[int, int] | None = None
 

@@ -523,7 +523,7 @@ def test_the_out_check_compares_every_item_folder_with_every_input_folder(tmp_pa
     from annotator.batch.run import _refuse_unsafe_out_dir
     from annotator.errors import ToolError
     from annotator.manifest import BatchItem
-    from annotator.pipeline import Target
+    from annotator.tracks import Target
 
     out = tmp_path / "out"
     (out / "frames").mkdir(parents=True)  # another item's input image folder, where item 'frames' would write
@@ -550,7 +550,7 @@ def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
     fcntl = pytest.importorskip("fcntl")
     from annotator.errors import ToolError
     from annotator.manifest import BatchItem
-    from annotator.pipeline import Target
+    from annotator.tracks import Target
 
     out = tmp_path / "out"
     out.mkdir()

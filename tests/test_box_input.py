@@ -184,7 +184,7 @@ def test_the_python_api_reads_a_box_as_the_parser_does(text, tmp_path):
 )
 def test_annotate_takes_one_box_or_a_list_of_them(given, boxes):
     from annotator.job import _as_targets
-    from annotator.pipeline import Target
+    from annotator.tracks import Target
 
     assert _as_targets(given) == [Target(box, track_id=i, label="object") for i, box in enumerate(boxes, start=1)]
     mine = Target((1.0, 2.0, 3.0, 4.0), track_id=7, label="car")

@@ -117,3 +117,118 @@ def test_no_function_in_the_tool_is_over_80_lines():
                  for path in sorted(ROOT.glob("annotator/**/*.py"))
                  for name, line, lines in long_functions(path.read_text(encoding="utf-8"))]
     assert not offenders
+
+
+#: The tool's layers, from the bottom up: a module may import its own layer and those below, never one above
+#: (typing-only and function-level imports included). An entry names a module and every module inside it;
+#: ``annotator`` itself is the package's public face, at the top.
+LAYERS: list[tuple[str, list[str]]] = [
+    ("foundations", ["annotator.version", "annotator.errors", "annotator.atomic", "annotator.wording",
+                     "annotator.text", "annotator.allocator", "annotator.provenance", "annotator.formats",
+                     "annotator.pages", "annotator.box_input"]),
+    ("what a run is made of", ["annotator.tracks", "annotator.store", "annotator.checkpoint", "annotator.frames",
+                               "annotator.progress", "annotator.render", "annotator.otb", "annotator.corrections",
+                               "annotator.nanotrack"]),
+    ("doubt and settings", ["annotator.flagging", "annotator.failure", "annotator.config"]),
+    ("views of a store", ["annotator.exports", "annotator.evaluation", "annotator.report"]),
+    ("the tracking engine", ["annotator.pass_cache", "annotator.pipeline"]),
+    ("a run and its review", ["annotator.publish", "annotator.job", "annotator.review"]),
+    ("batches", ["annotator.manifest", "annotator.batch"]),
+    ("the public face and the commands", ["annotator", "annotator.commands", "annotator.cli"]),
+]
+TOOL_MODULES = {module_name(path): path for path in SOURCES if module_name(path).split(".")[0] == "annotator"}
+
+
+def layer_of(module: str) -> int:
+    """The index in LAYERS of the entry that names ``module`` or its closest package."""
+    best = None
+    for index, (_, entries) in enumerate(LAYERS):
+        for entry in entries:
+            if (module == entry or (entry != "annotator" and module.startswith(entry + "."))) \
+                    and (best is None or len(entry) > len(best[1])):
+                best = (index, entry)
+    assert best is not None, f"{module} is in no layer of tests/test_layers.py: add it where it belongs"
+    return best[0]
+
+
+def tool_imports(importer: str, path: Path) -> set[str]:
+    """The tool's modules ``importer`` makes Python import: each named module, and the packages on the way to it
+    (its own packages and the root aside: Python imports those before ``importer`` itself)."""
+    found = set()
+    for _, module, name in imports_of(path):
+        if module.split(".")[0] != "annotator":
+            continue
+        target = f"{module}.{name}" if name is not None and f"{module}.{name}" in TOOL_MODULES else module
+        parts = target.split(".")
+        for depth in range(2, len(parts) + 1):
+            package = ".".join(parts[:depth])
+            if package in TOOL_MODULES and package != importer and not importer.startswith(package + "."):
+                found.add(package)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    return {module: tool_imports(module, path) for module, path in TOOL_MODULES.items()}
+
+
+def test_every_module_of_the_tool_has_a_layer():
+    for module in TOOL_MODULES:
+        layer_of(module)
+
+
+def test_no_import_in_the_tool_points_up_a_layer():
+    offenders = [f"{importer} ({LAYERS[layer_of(importer)][0]}) imports {module} ({LAYERS[layer_of(module)][0]})"
+                 for importer, modules in import_graph().items() for module in sorted(modules)
+                 if layer_of(module) > layer_of(importer)]
+    assert not offenders
+
+
+def import_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as ``[a, b, ..., a]``, or None: depth-first, in the modules' order."""
+    state: dict[str, int] = {}  # 1 on the current path, 2 done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+@pytest.mark.parametrize("graph, expected", [
+    ({"a": {"b"}, "b": {"c"}, "c": set()}, None),
+    ({"a": {"b"}, "b": {"a"}}, ["a", "b", "a"]),
+    ({"a": {"b"}, "b": {"c"}, "c": {"b"}}, ["b", "c", "b"]),
+])
+def test_import_cycle_finds_a_cycle_and_only_one(graph, expected):
+    assert import_cycle(graph) == expected
+
+
+def test_the_tools_import_graph_has_no_cycle_within_a_layer_either():
+    assert import_cycle(import_graph()) is None
+
+
+@pytest.mark.parametrize("importer, source, expected", [
+    ("annotator.report", "from annotator.pipeline import Target\n", {"annotator.pipeline"}),
+    ("annotator.report", "if TYPE_CHECKING:\n    from annotator.batch.workers import ItemOutcome\n",
+     {"annotator.batch", "annotator.batch.workers"}),
+    ("annotator.report", "def f():\n    import annotator.review.merge\n",
+     {"annotator.review", "annotator.review.merge"}),
+    ("annotator.review.merge", "from annotator.review.segments import x\n", {"annotator.review.segments"}),
+    ("annotator.job", "from annotator.exports import views\n", {"annotator.exports", "annotator.exports.views"}),
+])
+def test_tool_imports_counts_typing_function_level_and_package_imports(importer, source, expected, tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text(source, encoding="utf-8")
+    assert tool_imports(importer, path) == expected

@@ -33,8 +33,8 @@ from annotator.exports import read_flags_csv
 from annotator.frames import open_frames
 from annotator.job import annotate
 from annotator.otb import read_otb_boxes
-from annotator.pipeline import Target
 from annotator.report import flagged_spans
+from annotator.tracks import Target
 from sptpt.results import FrameResult
 
 GOLDEN = Path(__file__).parent / "golden" / "annotate"
@@ -167,6 +167,16 @@ def test_tracking_starts_the_kernels_warm_up_beside_it_first(scripted, clip, tmp
     scripted.log = []
     annotate(clip, TARGETS[:1], CONFIG, out_dir=tmp_path / "out", stop=3, show_progress=False)
     assert calls == [({"wait": False}, 0)]  # before the first tracker call
+    scripted.log = []
+
+
+def test_annotate_reports_each_tracked_frame_to_its_progress_callback(scripted, clip, tmp_path):
+    """What a batch worker forwards to the batch's display: 0 done before the first frame, then each frame."""
+    calls = []
+    scripted.log = []
+    annotate(clip, TARGETS[:1], CONFIG, out_dir=tmp_path / "out", stop=5, show_progress=False,
+             progress=lambda done, in_all: calls.append((done, in_all)))
+    assert calls == [(done, 5) for done in range(6)]
     scripted.log = []
 
 

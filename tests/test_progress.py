@@ -260,7 +260,7 @@ def test_a_run_says_it_compiles_only_when_the_kernels_are_not_cached(tmp_path, m
 
     import sptpt
     from annotator import job
-    from annotator.pipeline import Target
+    from annotator.tracks import Target
     from sptpt_dev.synthetic import make_clip
 
     clip = make_clip(3, size=(64, 48), object_size=(16, 12))
@@ -282,3 +282,11 @@ def test_a_run_says_it_compiles_only_when_the_kernels_are_not_cached(tmp_path, m
     job.annotate(tmp_path / "seq", [Target(tuple(clip.boxes_xywh[0]), track_id=1)], config, out_dir=tmp_path / "out",
                  formats=["otb"], show_progress=False)
     assert armed == [None if cached else job.COMPILING_NOTE]
+
+
+def test_a_progress_calls_its_on_update_at_the_start_and_after_each_advance():
+    seen = []
+    with Progress(3, enabled=False, on_update=lambda done, total: seen.append((done, total))) as progress:
+        progress.advance()
+        progress.advance(2)
+    assert seen == [(0, 3), (1, 3), (3, 3)]

@@ -90,7 +90,7 @@ def test_each_package_names_its_public_api():
     for package, names in [(annotator, {"annotate", "AnnotateResult", "Target", "resolve_config",
                                         "apply_corrections", "read_store", "ToolError", "NanoTrackGuide"}),
                            (sptpt, {"Tracker", "TrackerParams", "FrameResult", "preset", "compile_kernels",
-                                    "kernels_cached", "Guide"})]:
+                                    "kernels_cached", "Guide", "check_params"})]:
         assert set(package.__all__) == names
         for name in names:
             assert getattr(package, name) is not None

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from annotator.flagging import REASONS
-from annotator.pipeline import SpanThumbnail, WorstFrameThumbnails
+from annotator.pipeline import WorstFrameThumbnails
 from annotator.report import (
     _tick_step,
     by_expected_errors,
@@ -33,7 +33,7 @@ from annotator.report import (
     render_report,
     track_summary,
 )
-from annotator.tracks import TrackResult, VideoInfo
+from annotator.tracks import SpanThumbnail, TrackResult, VideoInfo
 from annotator.wording import plural
 
 GOLDEN = Path(__file__).parent / "golden" / "annotate"

@@ -22,8 +22,8 @@ from annotator.cli import _with_default_command, app
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from annotator.nanotrack import NanoTrackGuide
-from annotator.pipeline import Target
 from annotator.store import STORE_NAME, read_store
+from annotator.tracks import Target
 from sptpt_dev.synthetic import make_clip
 
 N = 30

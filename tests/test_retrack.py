@@ -33,7 +33,7 @@ from annotator.flagging import FlagParams
 from annotator.frames import open_frames
 from annotator.job import annotate
 from annotator.otb import read_otb_boxes
-from annotator.pipeline import Target, track_source
+from annotator.pipeline import track_source
 from annotator.review import (
     ArrayFrames,
     PassResult,
@@ -48,6 +48,7 @@ from annotator.review import (
     same_box,
 )
 from annotator.review.merge import track_p_fail
+from annotator.tracks import Target
 from sptpt_dev.synthetic import make_clip
 
 CONFIG = resolve_config({"seed": 1, "tracker": {"n_particles": 60, "n_negatives": 20}})

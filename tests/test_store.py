@@ -24,10 +24,9 @@ from annotator.commands.retrack import retrack_command
 from annotator.errors import EXIT_INPUT
 from annotator.exports import FILE_EXPORTS, write_exports
 from annotator.job import annotate
-from annotator.pipeline import Target
 from annotator.review import load_run
 from annotator.store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
-from annotator.tracks import TrackResult, VideoInfo
+from annotator.tracks import Target, TrackResult, VideoInfo
 from sptpt_dev.synthetic import make_clip
 
 # --------------------------------------------------------------------------- round trips

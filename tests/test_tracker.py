@@ -211,3 +211,19 @@ def test_repeated_states_are_computed_once_with_identical_results(clip):
     features, want_labels = run._features(frames[1], repeated)
     assert np.array_equal(codes, run._code(features))
     assert np.array_equal(labels, want_labels)
+
+
+@pytest.mark.parametrize("ranks, ok", [((40, 30, 40), False), ((10, 16, 10), True)])
+def test_check_params_raises_what_building_a_tracker_raises_without_building_one(ranks, ok):
+    import sptpt
+
+    params = dataclasses.replace(get_preset("paper"), ranks=ranks)
+    if ok:
+        sptpt.check_params(params)
+        Tracker(params, seed=0)
+        return
+    with pytest.raises(ValueError, match="superpixel rank 30 exceeds") as checked:
+        sptpt.check_params(params)
+    with pytest.raises(ValueError) as built:
+        Tracker(params, seed=0)
+    assert str(checked.value) == str(built.value)

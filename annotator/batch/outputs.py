@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from annotator import __version__
 from annotator.atomic import write_text_atomic
 from annotator.batch.plan import BatchRequest, PlannedItem, normalised_json, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
 from annotator.pages import BATCH_TEMPLATE, template_environment
 from annotator.store import STORE_NAME, RunStore, read_store
+from annotator.version import __version__
 
 #: Batch-level outputs in ``OUT``.
 BATCH_FILES = ("annotations.json", "summary.json", "report.html", "failures.jsonl")

@@ -35,8 +35,8 @@ from annotator.config import ConfigError, RunConfig, resolve_config
 from annotator.errors import EXIT_VALUE, ToolError
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
-from annotator.pipeline import Target
 from annotator.provenance import content_hash
+from annotator.tracks import Target
 
 
 def item_seed(base_seed: int, item_id: str) -> int:

@@ -12,9 +12,8 @@ Progress events
     A worker sends ``("start", id, pid, total_frames)`` and ``("frames", id,
     done)`` (at most every 0.5 s per item) through whatever ``send`` it is
     given: a ``multiprocessing`` queue handed to the pool's initializer, or a
-    ``distributed.Queue`` named for the run. The frame count is read by
-    wrapping the :class:`~annotator.progress.Progress` that ``annotate``
-    creates (see :func:`_install_frame_hook`).
+    ``distributed.Queue`` named for the run. The frame counts come from
+    ``annotate``'s ``progress`` callback.
 
 Lifetime of a pool worker
     A pool worker ends within moments of the batch's main process, however
@@ -43,7 +42,6 @@ from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
 from annotator.exports.otb import otb_result_globs
 from annotator.job import previous_outputs, remove_staging_folders
 from annotator.manifest import output_stem
-from annotator.progress import Progress
 
 _EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item
 
@@ -66,7 +64,6 @@ class ItemOutcome:
 
 
 
-_THREAD = threading.local()  # .reporter: the current item's event sender in this thread
 _ITEM_LOCK = threading.Lock()  # one item at a time per process (numba parallel regions are not re-entrant)
 _POOL_EVENTS: Any = None  # the multiprocessing queue of a pool worker
 
@@ -88,41 +85,18 @@ class _Reporter:
         self.total = total
         self.emit(("start", self.item_id, os.getpid(), total))
 
+    def update(self, done: int, total: int) -> None:
+        """``annotate``'s progress callback: the item's start at 0 frames done, then its frame counts."""
+        if done == 0:
+            self.start(total)
+        else:
+            self.frames(done)
+
     def frames(self, done: int) -> None:
         now = time.monotonic()
         if now - self._last >= _EVENT_INTERVAL or done >= self.total:
             self._last = now
             self.emit(("frames", self.item_id, done))
-
-
-class _ReportingProgress(Progress):
-    """``annotate``'s per-item Progress, forwarding frame counts to the thread's reporter (if any)."""
-
-    def __init__(self, total: int, **kwargs: Any) -> None:
-        super().__init__(total, **kwargs)
-        self._reporter: _Reporter | None = getattr(_THREAD, "reporter", None)
-        if self._reporter is not None:
-            self._reporter.start(self.total)
-
-    def advance(self, steps: int = 1) -> None:
-        super().advance(steps)
-        if self._reporter is not None:
-            self._reporter.frames(self.done)
-
-
-def _install_frame_hook() -> None:
-    """Let ``annotate`` report frames: replace the Progress class it looks up by the reporting subclass.
-
-    ``annotate()`` takes no progress callback; it builds ``Progress(n,
-    enabled=...)`` from its module globals. The subclass behaves exactly
-    like Progress unless the calling thread has a reporter, so other callers
-    in the same process are unaffected. Done once per process, and only
-    while the name still refers to the original class.
-    """
-    import annotator.job as job_module
-
-    if job_module.Progress is Progress:
-        job_module.Progress = _ReportingProgress
 
 
 def _peak_rss_mb() -> float | None:
@@ -170,7 +144,6 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
     from annotator.job import annotate
 
     with _ITEM_LOCK:
-        _install_frame_hook()
         if job.threads is not None:
             import numba
 
@@ -178,7 +151,7 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
             numba.set_num_threads(max(1, min(job.threads, cast(Any, numba.config).NUMBA_NUM_THREADS)))
         outcome = ItemOutcome(item_id=job.item_id, status="failed", pid=os.getpid(), host=_hostname())
         started, cpu_started = time.perf_counter(), os.times()
-        _THREAD.reporter = _Reporter(job.item_id, send) if send is not None else None
+        reporter = _Reporter(job.item_id, send) if send is not None else None
         folder = Path(job.folder)
         try:
             if folder.is_dir():
@@ -186,7 +159,8 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
             resume = job.resume and (folder / CHECKPOINT_NAME).is_file()
             result = annotate(job.input_path, job.targets, job.config, out_dir=folder, start=job.start,
                               stop=job.stop, step=job.step, formats=job.formats, force=True, show_progress=False,
-                              media_url=job.media_url, resume=resume)
+                              media_url=job.media_url, resume=resume,
+                              progress=reporter.update if reporter is not None else None)
             outcome.frames = result.run.frames_processed
             if result.exit_code == EXIT_OK:
                 outcome.status = "done"
@@ -201,8 +175,6 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
             outcome.exit_code = EXIT_INTERNAL
             outcome.error = f"internal error: {type(exc).__name__}: {exc} (see traceback in failures.jsonl)"
             outcome.traceback = traceback.format_exc()
-        finally:
-            _THREAD.reporter = None
         if outcome.status == "failed":
             with contextlib.suppress(OSError):
                 folder.rmdir()  # only if the item left nothing: no empty folders for items that never started

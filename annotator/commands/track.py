@@ -92,7 +92,7 @@ def track_command(
 def _targets(box: list[str], label: list[str], box_origin: int) -> list:
     """The ``--box`` and ``--label`` options as targets with the track ids 1, 2, ..."""
     from annotator.box_input import parse_box
-    from annotator.pipeline import Target
+    from annotator.tracks import Target
 
     if box_origin not in (0, 1):
         raise ToolError(f"--box-origin {box_origin} is invalid: expected 0 (default) or 1 (OTB)", EXIT_VALUE)

@@ -58,14 +58,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from annotator import __version__
 from annotator.atomic import ctrl_c_ignored
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions
 from annotator.frames import DecodeError
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
-from annotator.pipeline import OverlaySink, SpanThumbnail, render_tracks
+from annotator.pipeline import OverlaySink, render_tracks
 from annotator.progress import Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, run_fingerprint, write_run_files
@@ -76,7 +75,8 @@ from annotator.review.merge import DEFAULT_MERGE
 from annotator.review.retrack import RetrackResult, retrack_tracks
 from annotator.review.run import LoadedRun, load_run
 from annotator.store import RunStore
-from annotator.tracks import TrackResult
+from annotator.tracks import SpanThumbnail, TrackResult
+from annotator.version import __version__
 from annotator.wording import plural
 
 __all__ = ["ReviewResult", "apply_corrections"]
