@@ -129,9 +129,10 @@ def resolve_config(
     # Settings typed ``X | None`` take null (YAML ``~``/``null``, run.json's null): "not set", or "never".
     nullable = {f.name for f in dataclasses.fields(FlagParams) if "None" in str(f.type)}
     try:
-        flags = dataclasses.replace(defaults, **{k: None if v is None and k in nullable else
-                                                 _like(getattr(defaults, k), v, k, source)
-                                                 for k, v in flag_values.items()})
+        # Any: each value is made like its field's default at run time (_like), which no static type follows.
+        values: dict[str, Any] = {k: None if v is None and k in nullable else _like(getattr(defaults, k), v, k, source)
+                                  for k, v in flag_values.items()}
+        flags = dataclasses.replace(defaults, **values)
     except ConfigError:
         raise  # already names its source
     except ValueError as exc:

@@ -590,6 +590,7 @@ def _count_video_frames(path: Path, progress: Callable[[int], None] | None = Non
     with tempfile.TemporaryFile(mode="w+", encoding="utf-8", errors="replace") as errors:
         with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, stdin=subprocess.DEVNULL, text=True,
                               errors="replace") as process:
+            assert process.stdout is not None  # stdout=PIPE
             try:
                 for line in process.stdout:
                     found = re.match(r"frame=(\d+)\s*$", line)

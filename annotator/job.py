@@ -40,7 +40,7 @@ from annotator.errors import (
 )
 from annotator.exports import ExportOptions
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
-from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, open_frames
+from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, VideoSource, open_frames
 from annotator.pass_cache import first_pass
 from annotator.pipeline import TrackingRun, track_source
 from annotator.progress import CountNote, Progress
@@ -457,7 +457,7 @@ def _first_run_info(result: AnnotateResult, source: FrameSource, targets: Sequen
             "frame_count": source.frame_count,
             # Videos: ffmpeg's message where decoding stopped early (None: decoded to its end). With the count, it
             # lets `retrack` skip the counting decode once the content hash says the file is the same.
-            **({"damage": source.damage} if source.kind == "video" else {}),
+            **({"damage": source.damage} if isinstance(source, VideoSource) else {}),  # kind "video": damage is its
             "fps": source.fps,
             "width": source.width,
             "height": source.height,

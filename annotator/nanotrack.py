@@ -59,6 +59,7 @@ class NanoTrackGuide:
             raise RuntimeError("catch_up() on a NanoTrack guide that is not behind")
         if self._seen == 0:
             saved = self._saved
+            assert self._first_box is not None  # behind: it was saved after init
             self.init(rgb, self._first_box)
             self._saved = saved
         else:

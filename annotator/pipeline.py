@@ -326,7 +326,7 @@ class OverlaySink:
         return self._thumbnails.finish()
 
 
-def render_tracks(sink: OverlaySink, frames, frame_indices: Sequence[int], tracks: Sequence[TrackResult],
+def render_tracks(sink: OverlaySink, frames, frame_indices: np.ndarray, tracks: Sequence[TrackResult],
                   progress: Progress | None = None) -> list[SpanThumbnail]:
     """Draw finished ``tracks`` into ``sink``: boxes, labels, keyframes and review marks, no particles.
 
@@ -596,10 +596,10 @@ def track_source(
         records.stop_marking()  # the overlay is drawn from the finished tracks
     loop = _FrameLoop(source, targets, trackers, records, progress, checkpoints, resume)
     with _deferred_interrupt() as stop_request:
-        if overlay_path is None or resume is not None:
-            end, thumbnails = loop.run(None, stop_request), []
-        else:
+        if overlay_path is not None and resume is None:
             end, thumbnails = _track_with_overlay(loop, source, overlay_path, stop_request)
+        else:
+            end, thumbnails = loop.run(None, stop_request), []
     tracks = final_flags(records.tracks(), config.flags, model)
     if overlay_path is not None and resume is not None and end.frames_tracked:
         thumbnails = _render_overlay(source, tracks, overlay_path, progress)
@@ -681,6 +681,7 @@ class _FrameLoop:
         return end
 
     def _checkpoint(self, end: FrameLoopEnd, frame_index: int) -> None:
+        assert self.checkpoints is not None  # run() passes this method only when there are checkpoints
         folder, key = self.checkpoints
         write_checkpoint(folder, Checkpoint(
             key=key, frames_tracked=end.frames_tracked, last_index=int(frame_index),
@@ -693,7 +694,7 @@ def _skipped_to(source, last: int, trackers) -> Iterator[tuple[int, np.ndarray]]
 
     The checkpoint's run key names the input, so these refusals mean the video now decodes to other frames than
     when the checkpoint was written (a damaged or re-encoded file under the same name)."""
-    behind = [t.guide for t in trackers if t.guide is not None and getattr(t.guide, "behind", 0)]
+    behind = [t.guide for t in trackers if t.guide is not None and getattr(t.guide, "behind", False)]
     reached = False  # whether the source got as far as the checkpoint's frame
     for index, frame in source:
         reached = reached or index >= last

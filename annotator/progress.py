@@ -153,10 +153,13 @@ class _Display:
                            rich.progress.BarColumn(bar_width=20), *(_Cell(i) for i in range(self.n_cells))]
                 self._bar = rich.progress.Progress(*columns, console=self.console, auto_refresh=False,
                                                    redirect_stdout=False, redirect_stderr=False)
-                self._task = self._bar.add_task(description, completed=completed, total=total, cells=tuple(cells))
+                # rich annotates add_task's completed as int, though a Task's completed is a float (as in update).
+                self._task = self._bar.add_task(description, completed=completed,  # type: ignore[arg-type]
+                                                total=total, cells=tuple(cells))
                 self._bar.start()  # draws
                 self._last_draw = now
                 return
+            assert self._task is not None  # added with the bar
             # The task always holds the latest status, so the draw at close shows it even if this one is skipped.
             self._bar.update(self._task, description=description, completed=completed, total=total,
                              cells=tuple(cells))
@@ -168,6 +171,7 @@ class _Display:
         """A line of its own: above the bar on a terminal, a plain line elsewhere."""
         if not self.enabled:
             return
+        assert self.console is not None  # enabled: __init__ made one if none was given
         with self._lock:
             if self.live:
                 self.console.print(Text(text), soft_wrap=True)

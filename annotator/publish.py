@@ -155,9 +155,9 @@ def move_into_place(staging: Path, out_dir: Path, names: Iterable[str | os.PathL
     MoveError
         A file could not be moved aside (nothing changed) or moved in (``moved`` lists what had been).
     """
-    names = [Path(name) for name in names]
-    last = [name for name in (Path(STORE_NAME), Path(RUN_JSON)) if name in names]
-    order = [*(name for name in names if name not in last), *last]
+    paths = [Path(name) for name in names]
+    last = [name for name in (Path(STORE_NAME), Path(RUN_JSON)) if name in paths]
+    order = [*(name for name in paths if name not in last), *last]
     try:
         out_dir.mkdir(exist_ok=True)
     except OSError as exc:

@@ -21,7 +21,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Generator, Literal, Sequence, cast
 
 import cv2
 import imageio_ffmpeg
@@ -195,6 +195,11 @@ def _box_edges(out: np.ndarray, corners, colour: RGB, width: int, *, grow: int =
         cv2.rectangle(out, p0, p1, colour, cv2.FILLED, cv2.LINE_8)
 
 
+def _as_rgb(colour: RGB) -> RGB:
+    """``colour`` as a tuple of plain ints, whatever sequence and number types it was given as."""
+    return cast(RGB, tuple(int(c) for c in colour))  # the given colour's length, which RGB says is 3
+
+
 def _text_colour(background: RGB) -> RGB:
     """Black or white, whichever contrasts more with ``background`` (WCAG 2 relative luminance).
 
@@ -296,10 +301,10 @@ class OverlayRenderer:
             raise ValueError(f"thickness must be >= 1 pixel or None for automatic, got {thickness}")
         if font_scale is not None and not font_scale > 0:
             raise ValueError(f"font_scale must be > 0 or None for automatic, got {font_scale}")
-        self.palette = tuple(tuple(int(c) for c in colour) for colour in palette)
-        self.corrected_color = tuple(int(c) for c in corrected_color)
-        self.flag_color = tuple(int(c) for c in flag_color)
-        self.outline_color = None if outline_color is None else tuple(int(c) for c in outline_color)
+        self.palette = tuple(_as_rgb(colour) for colour in palette)
+        self.corrected_color = _as_rgb(corrected_color)
+        self.flag_color = _as_rgb(flag_color)
+        self.outline_color = None if outline_color is None else _as_rgb(outline_color)
         self.superpixel_color = np.asarray(superpixel_color, dtype=np.float32)
         self.superpixel_alpha = float(superpixel_alpha)
         self.particle_min_alpha = float(particle_min_alpha)
@@ -359,11 +364,12 @@ class OverlayRenderer:
         # Layers from the back: particles, superpixels, boxes, labels, review mark.
         if self.draw_particles:
             for item in items:
-                if item.particles_xywh is not None and len(item.particles_xywh):
+                # Both or neither (OverlayItem checks); the test on the scores is for the type checker.
+                if item.particles_xywh is not None and item.particle_scores is not None and len(item.particles_xywh):
                     self._particles(out, item.particles_xywh, item.particle_scores, sizes.particle_radius)
         if self.draw_superpixels:
             for item in items:
-                if item.superpixel_labels is not None:
+                if item.superpixel_labels is not None and item.superpixel_origin_xy is not None:
                     self._superpixels(out, item.superpixel_labels, item.superpixel_origin_xy)
         boxes = [(item, self._box_corners(item.box_xywh)) for item in items]
         if self.draw_boxes:
@@ -563,7 +569,7 @@ class OverlayWriter:
         self.crf, self.preset = int(crf), preset
         self.frames_written = 0
         self._stack: contextlib.ExitStack | None = None
-        self._encoder = None
+        self._encoder: Generator[None, np.ndarray | None, None] | None = None  # imageio_ffmpeg.write_frames
         self._tmp: Path | None = None
 
     def __enter__(self) -> OverlayWriter:
@@ -608,14 +614,18 @@ class OverlayWriter:
         self._encoder.send(np.ascontiguousarray(frame))
         self.frames_written += 1
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    # Never True: an exception raised in the with-block always propagates, so a type checker may take a `return`
+    # inside the block as the end of its function.
+    def __exit__(self, exc_type, exc, tb) -> Literal[False]:
         stack, encoder, tmp = self._stack, self._encoder, self._tmp
         self._stack = self._encoder = self._tmp = None
         if stack is None:
             return False
         if exc_type is not None:
             _abort(encoder)
-            return bool(stack.__exit__(exc_type, exc, tb))  # removes the temporary file
+            stack.__exit__(exc_type, exc, tb)  # removes the temporary file; atomic_path suppresses nothing
+            return False
+        assert encoder is not None and tmp is not None  # set with the stack
         try:
             if self.frames_written == 0:
                 raise ValueError(f"{self.path}: no frame was written; an overlay video needs at least one frame")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Optional, cast
 
 import typer
 
@@ -47,8 +47,8 @@ def batch_command(
             require_extra("--scheduler")  # before the manifest is read: a missing install is the first thing to fix
         _check_box_origin(box_origin, otb_root)
         try:
-            items = items_from_otb_root(otb_root) if otb_root is not None else read_manifest(manifest,
-                                                                                              box_origin=box_origin)
+            items = (items_from_otb_root(otb_root) if otb_root is not None
+                     else read_manifest(cast(Path, manifest), box_origin=box_origin))  # exactly one of the two (above)
             file_values = load_config_file(config_file) if config_file is not None else {}
             chosen = [f.strip() for f in formats.split(",") if f.strip()]
             if media_url is not None and not media_url.endswith(("/", "=")):

@@ -18,7 +18,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -97,7 +97,7 @@ class _Curve:
     xlabel: str
     ylabel: str
     xlim: tuple[float, float]
-    legend_loc: str
+    legend_loc: Literal["lower left", "lower right"]  # corners matplotlib's legend(loc=...) knows
 
 
 _CURVES = {
@@ -146,14 +146,14 @@ def plot_otb(
     """
     if kind not in _CURVES:
         raise ValueError(f"plot kind {kind!r} is unknown: expected one of {', '.join(_CURVES)}")
-    kind = _CURVES[kind]
-    title = kind.title if title is None else title
+    curve = _CURVES[kind]
+    title = curve.title if title is None else title
     # The object API with an explicit Agg canvas: no pyplot global state, no
     # display needed, and the process-wide backend of a caller is left alone.
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    ranked = _ranked(_as_score_list(scores), kind.key)
+    ranked = _ranked(_as_score_list(scores), curve.key)
     if max_trackers is not None:
         ranked = ranked[:max_trackers]
     fig = Figure(figsize=figsize, dpi=dpi)
@@ -161,16 +161,16 @@ def plot_otb(
     ax = fig.add_subplot(1, 1, 1)
     for index, score in enumerate(ranked):
         ax.plot(
-            kind.x,
-            getattr(score, kind.curve),
+            curve.x,
+            getattr(score, curve.curve),
             color=_COLOURS[index % len(_COLOURS)],
             linestyle=_LINESTYLES[(index // len(_COLOURS)) % len(_LINESTYLES)],
             linewidth=2.0 if index < 3 else 1.5,
-            label=f"{score.tracker} [{getattr(score, kind.key):.3f}]",
+            label=f"{score.tracker} [{getattr(score, curve.key):.3f}]",
         )
-    ax.set(xlabel=kind.xlabel, ylabel=kind.ylabel, title=title, xlim=kind.xlim, ylim=(0.0, 1.0))
+    ax.set(xlabel=curve.xlabel, ylabel=curve.ylabel, title=title, xlim=curve.xlim, ylim=(0.0, 1.0))
     ax.grid(True, linestyle=":", linewidth=0.5)
-    ax.legend(loc=kind.legend_loc, fontsize="small", frameon=True)
+    ax.legend(loc=curve.legend_loc, fontsize="small", frameon=True)
     fig.tight_layout()
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -261,8 +261,8 @@ def results_markdown(
     for name, n_frames in sequence_names.items():
         cells = []
         for score in items:
-            seq = score.sequences.get(name)
-            cells.append("-" if seq is None else f"{seq.auc:.3f} / {seq.precision_20:.3f}")
+            found = score.sequences.get(name)
+            cells.append("-" if found is None else f"{found.auc:.3f} / {found.precision_20:.3f}")
         lines.append(f"| {_cell(name)} | {n_frames} | " + " | ".join(cells) + " |")
 
     if flag_quality:

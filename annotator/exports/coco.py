@@ -59,7 +59,7 @@ def _categories(tracks: Sequence[TrackResult], categories: Sequence[str | Mappin
                 names.append(track.label)
         names = names or [DEFAULT_LABEL]
         return [{"id": i, "name": n, "supercategory": n} for i, n in enumerate(names, start=1)]
-    result = []
+    result: list[dict] = []
     for i, item in enumerate(categories, start=1):
         if isinstance(item, str):
             result.append({"id": i, "name": item, "supercategory": item})
@@ -216,7 +216,7 @@ def _annotations(video: VideoInfo, tracks: list[TrackResult], track_ids: list[in
         for i in range(len(track)):
             rows.append((int(track.frame_indices[i]), t, i, tid))
     rows.sort()
-    annotations = []
+    annotations: list[dict] = []
     for frame, t, i, tid in rows:
         track = tracks[t]
         if track.outside[i]:

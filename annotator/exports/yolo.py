@@ -105,6 +105,7 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
     labels = _by_stem(texts, images)
     if images is not None:
         image_files = list(images.values())
+        assert video.frame_files is not None  # the names are the frame files'
         folder = json.dumps(Path(video.frame_files[0]).parent.as_posix(), ensure_ascii=False)
         how = f"# Copy or link the sequence's images ({folder}, as named in frames.txt) into images/ here\n"
     else:

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Mapping
+from typing import Mapping, TypedDict
 
 import cv2
 import numpy as np
@@ -147,7 +147,18 @@ STAND_IN: Mapping[str, str] = {"ncc_memory": "ncc_first"}
 
 _PATCH = 32  # side of the grey patches compared by NCC, px
 _GRID = 8  # flow points: an 8x8 grid over the box (corners are too few on small, smooth objects)
-_LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+
+
+class _LKOptions(TypedDict):
+    """Lucas-Kanade options for cv2.calcOpticalFlowPyrLK, typed per key so that its stubs' overloads match."""
+
+    winSize: tuple[int, int]
+    maxLevel: int
+    criteria: tuple[int, int, float]
+
+
+_LK: _LKOptions = dict(winSize=(15, 15), maxLevel=2,
+                       criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 _TOP_SHARE = 0.05
 #: ``ncc_memory``: the pass remembers the patch of every this-many-th frame, and compares a frame with remembered
 #: patches at least this many frames old (the last few frames are what the box is now, not what the object was).
@@ -290,6 +301,7 @@ class SignalMeter:
         grey = grey_of(frame_rgb)
         box = np.asarray(box_xywh, dtype=np.float64)
         prev, first = self._prev_box, self._first_box
+        assert first is not None  # set with the previous box, by first()
         size = math.sqrt(max(prev[2] * prev[3], 1e-9))
         jump = math.hypot(box[0] + box[2] / 2 - prev[0] - prev[2] / 2, box[1] + box[3] / 2 - prev[1] - prev[3] / 2)
         area = max(box[2] * box[3], 1e-9)
@@ -378,6 +390,7 @@ class MotionMeter:
 
     def next(self, grey: np.ndarray, box: np.ndarray) -> dict[str, float]:
         prev, box = self._prev_box, np.asarray(box, dtype=np.float64)
+        assert prev is not None  # first() came before (SignalMeter.next checks it)
         box_move = box[:2] + box[2:] / 2 - prev[:2] - prev[2:] / 2  # the box centre's move
         signals, motion, extent = self._flow(grey, prev, box, box_move)
         if motion is not None:
@@ -407,8 +420,10 @@ class MotionMeter:
         grid = _grid_points(prev, width, height)
         near, far = (_inside(_ring_points(prev, f, n), width, height) for f, n in ((NEAR_RING, 16), (FAR_RING, 24)))
         points = np.concatenate([grid, near, far]).reshape(-1, 1, 2).astype(np.float32)
-        forward, ok_f, _ = cv2.calcOpticalFlowPyrLK(self._prev_grey, grey, points, None, **_LK)
-        back, ok_b, _ = cv2.calcOpticalFlowPyrLK(grey, self._prev_grey, forward, None, **_LK)
+        prev_grey = self._prev_grey
+        assert prev_grey is not None  # set with the previous box
+        forward, ok_f, _ = cv2.calcOpticalFlowPyrLK(prev_grey, grey, points, None, **_LK)
+        back, ok_b, _ = cv2.calcOpticalFlowPyrLK(grey, prev_grey, forward, None, **_LK)
         ok_all = (ok_f.ravel() == 1) & (ok_b.ravel() == 1)
         fb_all = np.linalg.norm((points - back).reshape(-1, 2), axis=1)
         flows = (forward - points).reshape(-1, 2).astype(np.float64)

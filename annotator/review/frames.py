@@ -53,6 +53,7 @@ class SourceFrames:
         images = getattr(self.source, "kind", "") == "images"
         if self._live is None or self._next > lo or (images and lo - self._next > 8):
             self._open(lo)
+        assert self._live is not None  # opened just above if it was not
         while self._next < hi:
             try:
                 index, frame = next(self._live)
@@ -81,7 +82,7 @@ def open_run_source(run: LoadedRun, *, verify_input: bool, input_path: str | os.
     """
     source_info, rng = run.info["input"], run.info["range"]
     moved = input_path is not None
-    path = Path(input_path) if moved else Path(source_info["path"])
+    path = Path(input_path) if input_path is not None else Path(source_info["path"])
     verify = checks_content_hash(run, verify_input=verify_input, input_path=input_path)
     # A video file's hash is checked before opening it, so that the count can be taken from the run; an image
     # folder's count costs nothing.

@@ -57,7 +57,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, cast
 from xml.parsers import expat
 
 import numpy as np
@@ -117,7 +117,7 @@ class _RunTrack:
         i = self.row.get(frame)
         if i is None or self.track.outside[i] or not np.isfinite(self.track.boxes_xywh[i]).all():
             return None
-        return tuple(float(v) for v in self.track.boxes_xywh[i])
+        return cast(Box, tuple(float(v) for v in self.track.boxes_xywh[i]))  # a row of the (N, 4) boxes
 
     def anchored(self, frame: int, corners: tuple[float, ...] | None) -> bool:
         """Whether the run holds a human anchor at ``frame`` with these corners (None: an absence)."""
@@ -293,10 +293,10 @@ def _check_cvat_task(root: ET.Element, where, video: VideoInfo, frames: range) -
         raise ToolError(f"{where(root.find('image'))}: this is a \"CVAT for images\" file (one <image> per frame, no "
                         "<track>), which loses the tracks: export \"CVAT for video 1.1\" from CVAT (Export task "
                         "dataset) or FiftyOne (CVATVideoDataset) and give that file", EXIT_VALUE)
-    if root.tag != "annotations" or root.find("meta") is None:
+    meta = root.find("meta")
+    if root.tag != "annotations" or meta is None:
         raise ToolError(f"{where(root)}: expected <annotations> with <meta>, the CVAT for video 1.1 layout, got "
                         f"<{root.tag}>", EXIT_VALUE)
-    meta = root.find("meta")
     task = meta.find("task")
     if task is None:
         task = meta.find("job")
@@ -504,7 +504,7 @@ class _GivenSequence:
             return box0
         f1, box1, _ = after[0]
         t = (frame - f0) / (f1 - f0)
-        return tuple(a + t * (b - a) for a, b in zip(box0, box1))
+        return cast(Box, tuple(a + t * (b - a) for a, b in zip(box0, box1)))  # four pairs: two boxes zipped
 
 
 def _same_box(a: Box | None, b: Box | None) -> bool:

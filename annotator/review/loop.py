@@ -109,6 +109,7 @@ class ReviewResult:
                         f"{self.out_dir}{why}")
             return f"every correction is already applied; nothing re-tracked, {self.out_dir} unchanged"
         r = self.retrack
+        assert r is not None  # changed: a re-track ran
         frames = sum(s.frames for s in r.segments)
         from annotator.report import keyframe_note
 
@@ -197,9 +198,10 @@ def apply_corrections(
     # The passes this run already ran and that its anchors still start: the re-track runs only the others.
     passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
     try:
-        result.retrack = _retrack(run, resolved, provider, merge=merge, passes=passes, show_progress=show_progress)
-        result.flagged_after = sum(int(t.flagged.sum()) for t in result.retrack.tracks)
-        _rewrite_if_needed(result, run, provider, corrections_path, merge=merge, show_progress=show_progress,
+        result.retrack = retrack = _retrack(run, resolved, provider, merge=merge, passes=passes,
+                                            show_progress=show_progress)
+        result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
+        _rewrite_if_needed(result, retrack, run, provider, corrections_path, merge=merge, show_progress=show_progress,
                            passes=passes, render=render, always=rewrite_unchanged or media_url is not None)
     finally:
         provider.close()
@@ -257,16 +259,17 @@ def _retrack(run: LoadedRun, resolved: dict, provider: SourceFrames, *, merge: s
             bar[0].close()
 
 
-def _rewrite_if_needed(result: ReviewResult, run: LoadedRun, provider: SourceFrames, corrections_path: Path, *,
-                       merge: str, show_progress: bool, passes: dict | None, render: bool, always: bool) -> None:
+def _rewrite_if_needed(result: ReviewResult, retrack: RetrackResult, run: LoadedRun, provider: SourceFrames,
+                       corrections_path: Path, *, merge: str, show_progress: bool, passes: dict | None, render: bool,
+                       always: bool) -> None:
     """Rewrite the outputs when the re-track changed something, when ``always``, or when this round renders the
     overlay a ``--no-render`` round removed (it gets it back)."""
     overlay_missing = render and "overlay" in run.formats and (
         not (run.out_dir / OVERLAY_NAME).exists() or "overlay" not in (run.info.get("outputs") or {}))
-    if not result.retrack.changed and not always and not overlay_missing:
+    if not retrack.changed and not always and not overlay_missing:
         return
     result.written, result.overlay_removed = _write_all(
-        run, result.retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
+        run, retrack, provider, corrections_path, merge=merge, show_progress=show_progress, passes=passes,
         render=render)
     result.overlay_restored = overlay_missing
 

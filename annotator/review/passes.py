@@ -82,11 +82,12 @@ class SegmentRun:
         n = len(segment.interior)
         self.fwd = PassResult.empty(n)
         self.bwd = PassResult.empty(n) if segment.backward else None
-        self.start_row: tuple | None = None  # (log-likelihood, seconds) of the forward pass's init on the anchor
+        # (log-likelihood, seconds) of the forward pass's init on the anchor
+        self.start_row: tuple[float, float] | None = None
         self.calls = 0
         self.fwd_todo, self.bwd_todo = segment.forward, segment.backward
         if cache is not None:
-            self._from_cache(n)
+            self._from_cache(cache, n)
         # The backward pass buffers its frames only when the segment is short enough.
         self.buffered = self.bwd_todo and n <= max_buffer
         self.deferred = self.bwd_todo and not self.buffered
@@ -96,19 +97,20 @@ class SegmentRun:
     def _key(self, direction: int) -> PassKey:
         s = self.segment
         position, box = (s.start, self.box_start) if direction == 0 else (s.stop, self.box_stop)
+        assert box is not None  # a pass starts from a box (plan_segments: no pass from an absence)
         return pass_key(s.track_id, position, direction, box)
 
-    def _from_cache(self, n: int) -> None:
+    def _from_cache(self, cache: dict, n: int) -> None:
         # A pass is deterministic (its seed depends only on the anchor), so a longer run of it
         # already made holds this segment's rows as its first n rows.
         if self.fwd_todo:
-            hit = self.cache.get(self._key(0))
+            hit = cache.get(self._key(0))
             if hit is not None and len(hit.rows.confidence) >= n:
                 self.fwd = hit.rows.take(slice(0, n))
                 self.start_row = (hit.init_log_likelihood, hit.init_seconds)
                 self.fwd_todo = False
         if self.bwd_todo:
-            hit = self.cache.get(self._key(1))
+            hit = cache.get(self._key(1))
             if hit is not None and len(hit.rows.confidence) >= n:
                 self.bwd = hit.rows.take(slice(n - 1, None, -1) if n else slice(0, 0))
                 self.bwd_todo = False
@@ -121,6 +123,18 @@ class SegmentRun:
         if known is None or len(known.rows.confidence) < len(rows.confidence):
             ordered = rows if direction == 0 else rows.take(slice(None, None, -1))
             self.cache[key] = CachedPass(ordered, *init)
+
+    @property
+    def _forward_in_flight(self) -> tuple[FramesAhead, SignalMeter]:
+        # Frames come in order, so one after the anchor finds the pass the anchor's frame started.
+        assert self._forward is not None
+        return self._forward
+
+    @property
+    def _backward_rows(self) -> PassResult:
+        # Asked for by the backward pass only, which a segment has when it has these rows.
+        assert self.bwd is not None
+        return self.bwd
 
     @property
     def planned(self) -> int:
@@ -157,14 +171,16 @@ class SegmentRun:
             self._forward = FramesAhead({0: tracker}), meter
         elif s.start < position < s.stop:
             if self.fwd_todo:
-                self._forward[0].add(position, frame)
-                self._store_settled(self.fwd, *self._forward)
+                ahead, meter = self._forward_in_flight
+                ahead.add(position, frame)
+                self._store_settled(self.fwd, ahead, meter)
             if self.buffered:
                 self._buffer.append(frame)
         if position == s.stop - 1 and self.fwd_todo:
-            self._store_settled(self.fwd, *self._forward, final=True)
+            self._store_settled(self.fwd, *self._forward_in_flight, final=True)
             self._forward = None
             self.fwd_todo = False
+            assert self.start_row is not None  # set with the forward pass, on the anchor's frame
             self._remember(0, self.fwd, self.start_row)
         if position == s.stop and self.buffered:
             self._backward(frame, reversed(self._buffer), s.stop - 1)
@@ -185,7 +201,7 @@ class SegmentRun:
                 self._backward_continue(*backward, reversed(frames), hi - 1)
             hi = lo
         self.deferred = False
-        self._remember(1, self.bwd, (float("nan"), 0.0))
+        self._remember(1, self._backward_rows, (float("nan"), 0.0))
 
     def _backward(self, anchor_frame: np.ndarray, frames, first_position: int, *,
                   remember: bool = True) -> tuple[Tracker, SignalMeter]:
@@ -196,15 +212,15 @@ class SegmentRun:
         self.calls += 1
         self._backward_continue(tracker, meter, frames, first_position)
         if remember:
-            self._remember(1, self.bwd, (float("nan"), 0.0))
+            self._remember(1, self._backward_rows, (float("nan"), 0.0))
         return tracker, meter
 
     def _backward_continue(self, tracker: Tracker, meter: SignalMeter, frames, first_position: int) -> None:
         ahead = FramesAhead({0: tracker})
         for offset, frame in enumerate(frames):
             ahead.add(first_position - offset, frame)
-            self._store_settled(self.bwd, ahead, meter)
-        self._store_settled(self.bwd, ahead, meter, final=True)
+            self._store_settled(self._backward_rows, ahead, meter)
+        self._store_settled(self._backward_rows, ahead, meter, final=True)
 
     def _store_settled(self, target: PassResult, ahead: FramesAhead, meter: SignalMeter, *,
                        final: bool = False) -> None:

@@ -77,6 +77,7 @@ from annotator.review.segments import (
     Box,
     PreviousTrack,
     SegmentChange,
+    box_of,
     plan_segments,
     same_box,
 )
@@ -169,12 +170,13 @@ def retrack_tracks(
     started = time.perf_counter()
     frame_indices = np.asarray(frame_indices, dtype=np.int64)
     previous = dict(previous or {})
-    width = np.inf if width is None else width
-    height = np.inf if height is None else height
+    # No size given: nothing is clipped.
+    clip_width: float = np.inf if width is None else width
+    clip_height: float = np.inf if height is None else height
     track_ids = list(dict.fromkeys([*previous, *anchors]))
 
-    plans, runs, anchor_changes = _plan_runs(track_ids, anchors, previous, frame_indices, config, width, height,
-                                             max_buffer_frames, pass_cache)
+    plans, runs, anchor_changes = _plan_runs(track_ids, anchors, previous, frame_indices, config, clip_width,
+                                             clip_height, max_buffer_frames, pass_cache)
     _run_passes(frames, runs, max_buffer_frames, progress)
     results, scorings, changes = _assemble_tracks(track_ids, plans, runs, anchor_changes, previous, labels or {},
                                                   frame_indices, config, merge)
@@ -244,7 +246,7 @@ def _anchors_in_force(tid: int, given_anchors: Mapping, prev: PreviousTrack | No
     if prev is None:
         if 0 not in given:
             raise ValueError(f"track {tid} has no previous rows and no anchor at position 0 to start from")
-        current = {p: (None if b is None else tuple(float(v) for v in b)) for p, (b, _) in given.items()}
+        current = {p: (None if b is None else box_of(b)) for p, (b, _) in given.items()}
         return current, set(current), [AnchorChange(tid, p, int(frame_indices[p]), None, current[p], False,
                                                     given[p][1]) for p in sorted(current)]
     if len(prev.track) != n:
@@ -253,10 +255,10 @@ def _anchors_in_force(tid: int, given_anchors: Mapping, prev: PreviousTrack | No
     changed: set[int] = set()
     changes: list[AnchorChange] = []
     for p, (box, where) in sorted(given.items()):
-        box = None if box is None else tuple(float(v) for v in box)
+        box = None if box is None else box_of(box)
         if p in current and same_box(current[p], box, width=width, height=height):
             continue
-        before = None if prev.track.outside[p] else tuple(float(v) for v in prev.track.boxes_xywh[p])
+        before = None if prev.track.outside[p] else box_of(prev.track.boxes_xywh[p])
         changes.append(AnchorChange(tid, p, int(frame_indices[p]), before, box, p in current, where))
         current[p] = box
         changed.add(p)
@@ -342,8 +344,12 @@ class _Columns:
         self.sources[seg.start + 1:seg.stop] = [""] * (seg.stop - seg.start - 1)
         self.occluded[rows] = False
         if seg.forward:
-            merged = merge_passes(run.fwd, run.bwd, merge, model=model,
-                                  ends=(current[seg.start], current.get(seg.stop)) if run.bwd is not None else None)
+            ends = None
+            if run.bwd is not None:
+                box_start, box_stop = current[seg.start], current.get(seg.stop)
+                assert box_start is not None and box_stop is not None  # a backward pass runs between two boxes
+                ends = (box_start, box_stop)
+            merged = merge_passes(run.fwd, run.bwd, merge, model=model, ends=ends)
             self.boxes[rows], self.conf[rows] = merged.boxes_xywh, merged.confidence
             self.ll[rows], self.accepted[rows] = merged.log_likelihood, merged.accepted
             self.scoring[rows], self.seconds[rows] = merged.scoring, merged.seconds
@@ -357,7 +363,7 @@ class _Columns:
             self.pass_iou[rows] = self.choice[rows] = np.nan
             self.outside[rows] = True
 
-    def _anchor_row(self, position: int, box: Box | None, start_row: tuple[float, float]) -> None:
+    def _anchor_row(self, position: int, box: Box | None, start_row: tuple[float, float] | None) -> None:
         self.keyframe[position] = True
         self.occluded[position] = False
         self.signals[position] = np.nan  # a person's box: nothing measured, nothing doubtful
@@ -367,6 +373,7 @@ class _Columns:
             self.accepted[position], self.seconds[position] = False, 0.0
             self.outside[position], self.scoring[position] = True, NO_SCORING
         else:
+            assert start_row is not None  # a box anchor starts a forward pass, which sets its row
             loglik, secs = start_row
             self.boxes[position], self.conf[position], self.ll[position] = box, 1.0, loglik
             self.accepted[position], self.seconds[position] = True, secs

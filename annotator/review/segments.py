@@ -9,16 +9,21 @@ anchors form a segment, re-tracked when either end is new or changed. See
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Iterable, Mapping, cast
 
 import numpy as np
 
 from annotator.tracks import TrackResult
 from sptpt.boxes import clip_xyxy, iou_xywh, xywh_to_xyxy
 
-__all__ = ["AnchorChange", "Box", "PreviousTrack", "Segment", "SegmentChange", "plan_segments", "same_box"]
+__all__ = ["AnchorChange", "Box", "PreviousTrack", "Segment", "SegmentChange", "box_of", "plan_segments", "same_box"]
 
 Box = tuple[float, float, float, float]
+
+
+def box_of(values: Iterable[float]) -> Box:
+    """A box's four numbers (a row of an ``(N, 4)`` array, a given tuple) as a tuple of Python floats."""
+    return cast(Box, tuple(float(v) for v in values))  # four: the length of what was given, a box
 
 
 @dataclass(frozen=True)
@@ -47,7 +52,7 @@ class PreviousTrack:
     def anchors(self) -> dict[int, Box | None]:
         """``{position: box or None}`` of the keyframe rows."""
         track = self.track
-        return {int(p): (None if track.outside[p] else tuple(float(v) for v in track.boxes_xywh[p]))
+        return {int(p): (None if track.outside[p] else box_of(track.boxes_xywh[p]))
                 for p in np.flatnonzero(track.keyframe)}
 
 @dataclass(frozen=True)
@@ -107,7 +112,7 @@ class AnchorChange:
             "iou": _iou_or_none(self.box_before, self.box_after),
         }
 
-def same_box(a: Box | None, b: Box | None, *, width: int, height: int, tol: float = 2e-3) -> bool:
+def same_box(a: Box | None, b: Box | None, *, width: float, height: float, tol: float = 2e-3) -> bool:
     """Whether two anchors say the same thing: both absent, or boxes equal after clipping to the frame.
 
     Clipping and the 1/1000-pixel tolerance make a box read back from the run's
