@@ -20,7 +20,7 @@ import dataclasses
 import difflib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import yaml
 
@@ -28,6 +28,9 @@ from annotator.errors import EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.text import read_given_file
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
+
+if TYPE_CHECKING:
+    from annotator.failure.model import FailureModel
 
 __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "resolve_config"]
 
@@ -70,6 +73,13 @@ class RunConfig:
             "flags": dataclasses.asdict(self.flags),
             "failure_model": self.failure_model,
         }
+
+    def load_failure_model(self) -> FailureModel:
+        """The model that scores this run's frames: the file given, else the one shipped for this kind of run (runs
+        with the NanoTrack guide fail differently and have a model of their own)."""
+        from annotator.failure.model import load_model
+
+        return load_model(self.failure_model, guided=self.tracker.uses_guide)
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:

@@ -31,7 +31,7 @@ import numpy as np
 from annotator.checkpoint import CHECKPOINT_EVERY, Checkpoint, write_checkpoint
 from annotator.config import RunConfig
 from annotator.errors import EXIT_INPUT, ToolError
-from annotator.failure import SignalMeter, TrackDoubt, load_model, score_track
+from annotator.failure import SignalMeter, TrackDoubt, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frames import DecodeError, FrameSource
 from annotator.nanotrack import guide_for
@@ -583,7 +583,7 @@ def track_source(
     # On a fresh machine: the kernels the trackers' first frame compiles last are compiled meanwhile on the other
     # core (nothing happens once numba's cache holds them).
     compile_kernels(wait=False)
-    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
+    model = config.load_failure_model()
     if resume is None:
         trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id),
                                         guide=guide_for(config.tracker)) for t in targets}

@@ -162,7 +162,7 @@ def merge_study(frames, gt, config: RunConfig, every: int, threshold: float) -> 
     if n - 1 not in anchors:
         anchors[n - 1] = tuple(gt[n - 1])
     result = retrack_tracks(ArrayFrames(frames), np.arange(n), {1: anchors}, config)
-    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
+    model = config.load_failure_model()
     hits: dict[str, list[np.ndarray]] = {m: [] for m in (*MERGES, "forward only", "backward only")}
     for (_, start, stop), (fwd, bwd) in result.passes.items():
         if bwd is None or stop - start < 2:

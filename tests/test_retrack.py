@@ -264,9 +264,8 @@ class _Source:
 @pytest.mark.parametrize("preset", ["robust", "fused"])
 def test_a_run_and_a_retrack_score_with_the_failure_model_of_their_preset(preset, monkeypatch):
     # A preset with a learned tracker gets the model fitted on such runs (annotator.failure.model.GUIDED_MODEL_PATH).
-    import annotator.pipeline
-    import annotator.review.merge
-    import annotator.review.retrack
+    # Every stage asks the run's config (RunConfig.load_failure_model), which reads the model module's loader.
+    import annotator.failure.model
 
     asked = []
 
@@ -274,8 +273,7 @@ def test_a_run_and_a_retrack_score_with_the_failure_model_of_their_preset(preset
         asked.append(guided)
         return load_model(path, guided=guided)
 
-    for module in (annotator.pipeline, annotator.review.retrack, annotator.review.merge):
-        monkeypatch.setattr(module, "load_model", spy)
+    monkeypatch.setattr(annotator.failure.model, "load_model", spy)
     config = resolve_config(preset=preset)
     track_source(_Source(), [Target(tuple(CLIP.boxes_xywh[0]), 1)], config)
     retrack_tracks(ArrayFrames(CLIP.frames), INDICES, {1: {0: tuple(CLIP.boxes_xywh[0]),

@@ -12,7 +12,7 @@ from typing import Mapping
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.failure import SIGNALS, FailureModel, load_model, score_track
+from annotator.failure import SIGNALS, FailureModel, score_track
 from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, logit
 from annotator.failure.signals import NEUTRAL, STAND_IN
 from annotator.flagging import flag_p_fail
@@ -213,7 +213,7 @@ def reflag(signals: Mapping[str, np.ndarray], keyframe: np.ndarray, outside: np.
     model, where the caller has it loaded already.
     """
     keyframe, outside = np.asarray(keyframe, bool), np.asarray(outside, bool)
-    model = load_model(config.failure_model, guided=config.tracker.uses_guide) if model is None else model
+    model = config.load_failure_model() if model is None else model
     p_fail, groups = track_p_fail(signals, keyframe, outside, model, pass_iou=pass_iou)
     threshold = model.threshold if config.flags.threshold is None else config.flags.threshold
     result = flag_p_fail(p_fail, groups, threshold, config.flags, keyframe=keyframe, outside=outside)

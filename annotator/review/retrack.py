@@ -60,7 +60,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from annotator.config import RunConfig
-from annotator.failure import SIGNALS, load_model
+from annotator.failure import SIGNALS
 from annotator.review.merge import (
     DEFAULT_MERGE,
     MERGES,
@@ -213,7 +213,7 @@ def _assemble_tracks(track_ids: list[int], plans: dict[int, dict[int, Box | None
                      ) -> tuple[list[TrackResult], dict[int, np.ndarray], list[SegmentChange]]:
     """The new tracks: the previous rows with the re-tracked segments written over them, flagged again."""
     n = len(frame_indices)
-    model = load_model(config.failure_model, guided=config.tracker.uses_guide)
+    model = config.load_failure_model()
     results: list[TrackResult] = []
     scorings: dict[int, np.ndarray] = {}
     changes: list[SegmentChange] = []
