@@ -100,9 +100,8 @@ def write_yolo(out_dir: str | os.PathLike, video: VideoInfo, tracks: Sequence[Tr
     list of Path
         ``data.yaml``, ``frames.txt``, then the label files in frame order.
     """
-    texts, names = _label_texts(video, tracks, frames)
-    images = _image_names(video, list(texts))
-    labels = _by_stem(texts, images)
+    labels, names = build_yolo_labels(video, tracks, frames=frames)
+    images = _image_names(video, list(check_frame_range(video, list(tracks), frames)))
     if images is not None:
         image_files = list(images.values())
         assert video.frame_files is not None  # the names are the frame files'
