@@ -37,7 +37,8 @@ __all__ = ["DEFAULT_PRESET", "RunConfig", "ConfigError", "load_config_file", "re
 #: The tracker preset of a run that names none: ``fused`` (``robust`` with NanoTrack v2 beside it), success AUC
 #: 0.608 +- 0.003 on the unseen ../shared/otb_extra over 3 seeds against ``robust``'s 0.389 +- 0.009, and fewer
 #: human seconds to correct there with the simulated reviewer (benchmarks/RESULTS.md, "The fused preset").
-#: ``robust`` is the same tracker without a learned part; ``paper`` stays the spec, for reproducing the paper.
+#: ``robust`` is the same tracker without a learned part; ``paper`` follows docs/design/tracker.md, to reproduce the
+#: paper.
 DEFAULT_PRESET = "fused"
 
 _TOP_LEVEL = ("preset", "seed", "tracker", "flags", "failure_model")

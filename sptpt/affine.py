@@ -2,10 +2,10 @@
 
 State order is IVT's ``(cx, cy, sc, th, ar, sk)``: centre (1-based pixels),
 scale (box width / template width), rotation (rad), aspect ratio
-(height / width) and skew (rad) (``SPTPT_SPEC.md`` 2.1). The state is kept in
-the 1-based MATLAB convention of the reference code so that its half-pixel
-conventions carry over unchanged; boxes crossing this module's boundary are
-0-based ``xywh``.
+(height / width) and skew (rad). The state is kept in the 1-based MATLAB
+convention of the reference code so that its half-pixel conventions carry
+over unchanged; boxes crossing this module's boundary are 0-based ``xywh``.
+See ``docs/design/tracker.md``, "Affine state and boxes".
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def state_from_box_xywh(box_xywh: np.ndarray, template_size: int) -> np.ndarray:
     -------
     state : (6,) float64 ndarray
         ``(cx, cy, sc, th, ar, sk)`` with a 1-based centre
-        ``x1 + (w - 1) / 2`` (``SPTPT_SPEC.md`` 1.1, A24).
+        ``x1 + (w - 1) / 2``, as OTB computes a box's centre (``docs/design/tracker.md``,
+        "Affine state and boxes").
     """
     x, y, w, h = (float(v) for v in np.asarray(box_xywh, dtype=np.float64).reshape(4))
     return np.array([x + 1.0 + (w - 1.0) / 2.0, y + 1.0 + (h - 1.0) / 2.0, w / template_size, 0.0, h / w, 0.0])
@@ -124,7 +125,7 @@ def warp_candidates(frame: np.ndarray, states: np.ndarray, template_size: int) -
     Returns
     -------
     templates : (N, T, T, 3) uint8 ndarray
-        Rounded and clipped to uint8, as SNIC reads bytes (``SPTPT_SPEC.md`` 2.3).
+        Rounded and clipped to uint8, as SNIC reads bytes.
     """
     frame = np.ascontiguousarray(frame, dtype=np.uint8)
     q = affine_matrices(states)

@@ -1,4 +1,4 @@
-"""Dictionary learning and exact non-negative sparse coding (``SPTPT_SPEC.md`` 2.5, 2.6).
+"""Dictionary learning and exact non-negative sparse coding.
 
 The dictionary is the set of k-means++ centroids of the first frame's
 superpixel features, L2-normalised (TPT ``fkmeans``). Every superpixel
@@ -14,7 +14,8 @@ documents that positive LARS may stop before the solution for small alpha,
 and on histogram features it leaves KKT residuals of about 1e-2 on half of
 the signals. The solver here is exact (active set), because the
 subspace scores are differences of small reconstruction errors and are
-sensitive to code noise (spec section 5); :func:`kkt_residual` certifies it.
+sensitive to code noise; :func:`kkt_residual` certifies it. See
+``docs/design/tracker.md``, "Dictionary" and "Non-negative sparse codes".
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ __all__ = ["learn_dictionary", "encode_nonnegative", "encode_tensors", "kkt_resi
 
 # Stopping tolerance of the active set on the gradient D^T (a - D h) - lam,
 # relative to the signal's largest |D^T a| (or lam): far below the 1e-6 KKT residual
-# the spec asks for, yet above the rounding of the gradient itself.
+# the tests ask for, yet above the rounding of the gradient itself.
 _REL_TOL = 1e-10
 # Ridge added to every passive-set factorisation, relative to the largest
 # squared atom norm. It keeps the Cholesky factor finite when atoms are
@@ -57,9 +58,9 @@ def learn_dictionary(
 ) -> np.ndarray:
     """Learn the codebook: k-means++ centroids of ``features``, L2-normalised.
 
-    ``SPTPT_SPEC.md`` 2.5: TPT's ``fkmeans`` with ``careful = 1`` is
-    k-means++ seeding followed by batch Lloyd iterations, which is
-    ``sklearn.cluster.KMeans(init="k-means++")``.
+    TPT's ``fkmeans`` with ``careful = 1`` is k-means++ seeding followed by
+    batch Lloyd iterations, which is ``sklearn.cluster.KMeans(init="k-means++")``
+    (``docs/design/tracker.md``, "Dictionary").
 
     Parameters
     ----------
@@ -69,7 +70,7 @@ def learn_dictionary(
     n_atoms : int
         Requested number of atoms ``z`` (50 in the paper setting). Fewer
         are returned when ``features`` has fewer distinct rows:
-        ``z = min(n_atoms, number of distinct rows)`` (spec 2.5).
+        ``z = min(n_atoms, number of distinct rows)``.
     rng : numpy.random.Generator
         Source of randomness; one integer is drawn from it as the k-means
         seed, so the result is a deterministic function of the generator's
@@ -124,8 +125,8 @@ def encode_nonnegative(
     """Exact non-negative LASSO codes of many signals against one dictionary.
 
     Solves, for every row ``a`` of ``signals``,
-    ``argmin_{h >= 0} 0.5 ||a - D h||^2 + lam ||h||_1`` (spec 2.6, SPAMS
-    ``mexLasso`` mode 2 with ``pos = true``).
+    ``argmin_{h >= 0} 0.5 ||a - D h||^2 + lam ||h||_1`` (SPAMS ``mexLasso``
+    mode 2 with ``pos = true``; ``docs/design/tracker.md``, "Non-negative sparse codes").
 
     Parameters
     ----------
@@ -184,8 +185,8 @@ def encode_tensors(
 ) -> np.ndarray:
     """Code tensors: the non-negative LASSO code of every superpixel, pooled per template.
 
-    Tensor pooling is arrangement (spec 2.7): the codes of a template's ``s``
-    superpixels are the columns of its ``z x s`` tensor. Same codes, to the
+    Tensor pooling is arrangement (``docs/design/tracker.md``, "Tensor pooling"): the codes of a template's
+    ``s`` superpixels are the columns of its ``z x s`` tensor. Same codes, to the
     bit, as :func:`encode_nonnegative` of the ``(n s, B)`` features
     transposed per template, written in place by the kernel.
 

@@ -1,6 +1,6 @@
 """Colour conversions used by the tracker: CIELAB for SNIC, HSI for the cue histograms.
 
-Both follow the reference code the spec names (``SPTPT_SPEC.md`` 2.3, 2.4)
+Both follow the reference code (``docs/design/tracker.md``, "Colour conversions")
 rather than a library, because the constants matter for fidelity: SNIC's
 own sRGB->Lab and the Superpixel Tracking code's ``rgb2hsi``.
 """
@@ -75,7 +75,7 @@ def rgb_to_hsi(rgb: np.ndarray) -> np.ndarray:
     Gonzalez-Woods form with RGB in [0, 1]. Black pixels get ``S = 1`` and
     ``H = 0.25`` because SPT replaces a zero denominator by ``eps``; the
     zero-padded border of a candidate that leaves the frame is black, so this
-    is replicated for fidelity (``SPTPT_SPEC.md`` 2.4). Gray pixels (``S = 0``)
+    is replicated for fidelity. Gray pixels (``S = 0``)
     get ``H = 0``.
 
     Parameters

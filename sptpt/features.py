@@ -1,11 +1,11 @@
-"""Midlevel cue histograms of superpixels (``SPTPT_SPEC.md`` 2.4; paper eqs 1-3).
+"""Midlevel cue histograms of superpixels (paper eqs 1-3; ``docs/design/tracker.md``, "Cue histograms").
 
 Every superpixel of every template is described by eight marginal
 histograms, one per cue (H, S, I, R, G, B, x, y), of ``n_bins`` bins each.
 Each histogram counts the superpixel's pixels per bin and is divided by the
 pixel count, so it sums to 1 (paper eq 2); the eight are concatenated
 cue-major and the result is L2-normalised (TPT practice, needed for the
-``lambda = 0.01`` scale of the sparse coding, spec A6).
+``lambda = 0.01`` scale of the sparse coding).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def superpixel_features(
 ) -> np.ndarray:
     """Cue histograms of every superpixel of a batch of templates.
 
-    Binning follows ``SPTPT_SPEC.md`` 2.4 exactly:
+    Binning follows ``docs/design/tracker.md``, "Cue histograms":
 
     - H, S, I from :func:`sptpt.color.rgb_to_hsi` (SPT's ``rgb2hsi``), bin
       ``min(floor(v * n), n - 1)``;
@@ -49,7 +49,7 @@ def superpixel_features(
     n_superpixels : int
         Number of superpixels ``s`` per template (25 for the paper setting).
     n_bins : int, optional
-        Bins per cue histogram ``n`` (8, spec section 0, from SPT).
+        Bins per cue histogram ``n`` (8, from SPT).
 
     Returns
     -------

@@ -1,11 +1,13 @@
 """Tracker parameters: one frozen, typed dataclass and its named presets.
 
 Every value carries its unit, its effect and its source: **paper** (stated in
-the SPTPT paper), **TPT** / **IVT** / **SNIC** / **SPT** (reference code the
-spec traces it to), or **ours** (a choice of this project, with the
+the SPTPT paper), **TPT** / **IVT** / **SNIC** / **SPT** (the reference code
+that settles it), **design** (a detail neither settles, resolved in
+``docs/design/tracker.md``), or **ours** (a choice of this project, with the
 measurement that justifies it in ``benchmarks/RESULTS.md``). See
-``SPTPT_SPEC.md`` section 3. YAML and other files are parsed by the tool,
-not here: :func:`params_from_mapping` takes a plain mapping.
+``docs/design/tracker.md``, "Parameters and presets". YAML and other files
+are parsed by the tool, not here: :func:`params_from_mapping` takes a plain
+mapping.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ class TrackerParams:
     compactness: float = 20.0
     """SNIC compactness M (colour vs. space trade-off); higher gives more regular superpixels. [paper; SNIC demo]"""
     seeding: str = "official"
-    """SNIC seed grid: ``official`` (MATLAB snic_mex FindSeeds, 5x5 for K=30) or ``exact`` (K seeds). [SNIC; spec A1]"""
+    """SNIC seed grid: ``official`` (MATLAB snic_mex FindSeeds, 5x5 for K=30) or ``exact`` (K seeds). [SNIC; design]"""
 
     # --- midlevel cues ---------------------------------------------------------------
     n_bins: int = 8
@@ -245,13 +247,13 @@ class TrackerParams:
     update_every: int = 5
     """Accepted tensors per positive-model batch u; also the frame from which negatives are drawn. [paper]"""
     ranks: tuple[int, int, int] = (40, 5, 40)
-    """Max ranks (codeword mode, superpixel mode, sample mode); R2 <= superpixels. [TPT 40/5/5/40; spec A11]"""
+    """Max ranks (codeword mode, superpixel mode, sample mode); R2 <= superpixels. [TPT 40/5/5/40]"""
     forgetting: float = 0.9
     """Forgetting factor of the incremental SVD, (0, 1]; lower adapts faster to appearance change. [TPT]"""
     gamma: float = 0.5
     """Weight of the modes-1-2 reconstruction error against the sample-mode error. [paper]"""
     re_mode: str = "paper"
-    """Reconstruction-error form: ``paper``, ``paper_literal`` or ``tpt_code`` (spec A8). [spec]"""
+    """Reconstruction-error form: ``paper``, ``paper_literal`` or ``tpt_code``: how eq. 5 is read. [design]"""
     accept_threshold: float = 0.0
     """Phi: a frame joins the positive model only when ``RE- - RE+ > Phi``. [paper; TPT]"""
     negative_rank_matched: bool = False
@@ -367,20 +369,20 @@ def _check(ok: bool, name: str, value: Any, expected: str) -> None:
 
 
 PRESETS: dict[str, TrackerParams] = {
-    # Exactly SPTPT_SPEC.md, for comparison with the paper.
+    # Exactly docs/design/tracker.md, for comparison with the paper.
     "paper": TrackerParams(),
     # Our speed trade-off: a third of the candidates, in two rounds (150 wide, then 75 narrow around
     # the first winner), and the negative model refitted from 100 negatives on every 4th accepted
     # frame: about 250 templates a frame instead of 800. Measured in benchmarks/RESULTS.md.
     "fast": TrackerParams(n_particles=150, refine_particles=75, n_negatives=100, negative_every=4),
-    # Keeping the target on ordinary videos (issue #10): the fast preset's candidates, plus acceptance
+    # Keeping the target on ordinary videos: the fast preset's candidates, plus acceptance
     # relative to a running level (the paper's absolute Phi freezes the positive model after the first
     # batch), motion proportional to the object's size, and a wide re-detection search once the target
     # has been rejected for several frames; three independent runs and a correlation-filter tracker vote, each
     # frame the mean box of those that agree (the run whose box stands out from its surroundings where none do);
     # each run's estimate the candidate that stands out most among its five best; each run's reported box sized by
     # a scale filter beside it, and centred by a translation filter learnt from the run's own boxes; only the 25
-    # candidates of a round that score best in the estimate's superpixels evaluated in full (issue #44). Each
+    # candidates of a round that score best in the estimate's superpixels evaluated in full. Each
     # departure is measured in benchmarks/RESULTS.md ("robust development"); the rest in benchmarks/HISTORY.md.
     "robust": TrackerParams(
         n_particles=150, refine_particles=75, n_negatives=100, negative_every=4,
@@ -391,11 +393,11 @@ PRESETS: dict[str, TrackerParams] = {
         shortlist=25,
     ),
 }
-# robust with a learned tracker beside it (issue #71). Each run also draws candidates
+# robust with a learned tracker beside it. Each run also draws candidates
 # around the learned tracker's box and ranks its candidates with a bonus for overlapping that box; SPTPT's models
 # still score every candidate, and only a winner they accept is learned. Needs a ``guide`` (the tool's is NanoTrack
 # v2, annotator/nanotrack.py). Chosen on ../shared/otb, scored once on ../shared/otb_extra: benchmarks/RESULTS.md,
-# "The fused preset" (not the default: its flags and re-tracks are not tuned for it yet).
+# "The fused preset".
 PRESETS["fused"] = dataclasses.replace(PRESETS["robust"], guide_particles=30, guide_prior=5.0, guide_vote=True)
 
 

@@ -57,7 +57,7 @@ class FrameResult:
     box_xywh : (4,) float64 ndarray
         Estimated box, 0-based pixels, ``x, y, w, h`` (top-left corner and size).
     log_likelihood : float
-        ``RE- - RE+`` of the winning candidate (paper eq. 8); during the first
+        ``RE- - RE+`` of the winning candidate (paper eq. 11); during the first
         frames, before both subspace models exist, the bootstrap intersection
         score with the first-frame code tensor (see ``scoring``).
     confidence : float

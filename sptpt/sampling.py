@@ -13,7 +13,7 @@ __all__ = ["draw_candidates", "draw_negatives"]
 def draw_candidates(
     state: np.ndarray, n: int, sigma: np.ndarray, rng: np.random.Generator, *, min_scale: float
 ) -> np.ndarray:
-    """Gaussian random walk around ``state`` (paper eqs. 5-7; TPT ``DrawSample``).
+    """Gaussian random walk around ``state`` (paper eqs. 8-10; TPT ``DrawSample``).
 
     Parameters
     ----------
@@ -40,7 +40,9 @@ def draw_candidates(
 
 
 def draw_negatives(state: np.ndarray, n: int, template_size: int, rng: np.random.Generator) -> np.ndarray:
-    """Negative samples around the estimate (TPT ``DrawNegative``; ``SPTPT_SPEC.md`` 2.2).
+    """Negative samples around the estimate (TPT ``DrawNegative``).
+
+    See ``docs/design/tracker.md``, "Candidates and negative samples".
 
     Centres are drawn with a standard deviation of the target's width and
     height, then pushed out to at least a quarter of the width in x *and* a

@@ -4,7 +4,7 @@ The positive model is learned incrementally (IRTSA: one sequential
 Karhunen-Loeve update with mean update and forgetting factor per mode, as
 IVT's ``sklm``); the negative model is refitted from scratch from a stack of
 negative samples by the same first-batch routine (a HOSVD). See
-``SPTPT_SPEC.md`` 2.8 and 2.9.
+``docs/design/tracker.md``, "Tensor subspace models" and "Reconstruction error and likelihood".
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ class TensorSubspace:
 
 
 def reconstruction_error(model: TensorSubspace, codes: np.ndarray, *, gamma: float, mode: str) -> np.ndarray:
-    """Reconstruction error of code tensors against a model (paper eqs. 1-3).
+    """Reconstruction error of code tensors against a model (paper eqs. 5-7).
 
     Parameters
     ----------
@@ -254,9 +254,9 @@ def reconstruction_error(model: TensorSubspace, codes: np.ndarray, *, gamma: flo
         Weight of the modes-1-2 term.
     mode : {'paper', 'paper_literal', 'tpt_code'}
         ``paper``: ``gamma RE1 + (1 - gamma) RE2`` with squared norms;
-        ``paper_literal``: RE1 counted twice, as eq. 1's sum over the two
+        ``paper_literal``: RE1 counted twice, as eq. 5's sum over the two
         unfoldings literally reads; ``tpt_code``: ``0.5 sqrt(RE1) + sqrt(RE2)``
-        as TPT's ``Evaluate.m`` (``SPTPT_SPEC.md`` A8).
+        as TPT's ``Evaluate.m`` (``docs/design/tracker.md``, "Reconstruction error and likelihood").
 
     Returns
     -------

@@ -1,11 +1,11 @@
-"""SNIC superpixels of SPTPT templates (``SPTPT_SPEC.md`` 2.3, A1, A18, A19).
+"""SNIC superpixels of SPTPT templates (``docs/design/tracker.md``, "SNIC superpixels").
 
 SNIC (Simple Non-Iterative Clustering; Achanta & Suesstrunk, CVPR 2017) grows
 superpixels from a fixed grid of seeds with a priority queue. It never merges
 or drops a seed, so the number of superpixels equals the number of seeds and
 label ``k`` is the region grown from seed ``k``. Because the seeds depend only
 on the template size, label ``k`` is the same grid place in every candidate:
-that is the "spatial order" tensor pooling relies on (A19).
+that is the "spatial order" tensor pooling relies on.
 
 Public API:
 
@@ -133,7 +133,7 @@ def seed_grid(height: int, width: int, n_segments: int, *, seeding: str = "offic
     n_segments : int
         Requested number of superpixels ``K``, ``1 <= K <= height * width``.
     seeding : {"official", "exact"}
-        ``"official"`` (default, spec A1): ``FindSeeds`` of the official 2016
+        ``"official"`` (default; ``docs/design/tracker.md``, "Seed grid"): ``FindSeeds`` of the official 2016
         MATLAB ``snic_mex.cpp``. Integer grid step
         ``g = floor(sqrt(N / K) + 0.5)``, replaced by ``g - 1`` if that brings
         ``floor(W / g) * floor(H / g)`` closer to ``K``; seeds at
@@ -211,7 +211,7 @@ def snic_lab(lab: np.ndarray, seeds: np.ndarray, *, compactness: float = 20.0) -
     compactness : float, keyword-only
         ``M >= 0``. The distance of pixel ``q`` to superpixel ``k`` is
         ``||c_q - mu_c(k)||^2 + (M^2 s / N) ||xy_q - mu_xy(k)||^2`` against
-        ``k``'s running centroid (official SNIC code; spec 2.3), with ``s``
+        ``k``'s running centroid (official SNIC code), with ``s``
         the seed count and ``N = H W``. 20 is the paper's and the official
         demo's value.
 
@@ -293,7 +293,7 @@ def snic(
     compactness: float = 20.0,
     seeding: str = "official",
 ) -> np.ndarray:
-    """SNIC superpixels of uint8 RGB image(s) (spec 2.3).
+    """SNIC superpixels of uint8 RGB image(s).
 
     Converts to CIELAB with the official SNIC constants (each image just
     before it grows, through a memo of converted colours), places the seeds
@@ -304,8 +304,7 @@ def snic(
     ----------
     images : (H, W, 3) or (B, H, W, 3) uint8 ndarray
         RGB image or batch of same-size images (e.g. 32 x 32 templates).
-        Grayscale input is not accepted: replicate it to three channels
-        (spec A18).
+        Grayscale input is not accepted: replicate it to three channels.
     n_segments : int, keyword-only
         Requested superpixels ``K`` (paper: 30). The produced count ``s`` is
         the seed count of ``seeding``; see :func:`seed_grid`.
@@ -313,7 +312,7 @@ def snic(
         SNIC compactness ``M >= 0`` (paper: 20); see :func:`snic_lab`.
     seeding : {"official", "exact"}, keyword-only
         Seed layout; see :func:`seed_grid`. ``"official"`` gives 25
-        superpixels on 32 x 32 with ``K = 30``, ``"exact"`` gives 30 (A1).
+        superpixels on 32 x 32 with ``K = 30``, ``"exact"`` gives 30.
 
     Returns
     -------

@@ -1,6 +1,6 @@
 """The Superpixel Tensor Pooling Tracker: ``init(frame, box)`` then ``update(frame)``.
 
-One frame (``SPTPT_SPEC.md`` 1.2): draw candidates around the last estimate,
+One frame (``docs/design/tracker.md``, "One frame"): draw candidates around the last estimate,
 warp each into a 32x32 template, cut it into SNIC superpixels, describe each
 superpixel by its midlevel cue histograms, sparse-code those against the
 first-frame dictionary, pool the codes into a ``z x s`` tensor per candidate,
@@ -194,9 +194,9 @@ class TrackerInspection:
         The same in the sample mode.
     positive_error, negative_error : (R, N) float64 ndarray
         ``RE+`` and ``RE-``: the two combined as ``TrackerParams.re_mode`` says
-        (:func:`sptpt.subspace.reconstruction_error`, paper eqs. 1-3); NaN where the model does not exist yet.
+        (:func:`sptpt.subspace.reconstruction_error`, paper eqs. 5-7); NaN where the model does not exist yet.
     log_likelihood : (R, N) float64 ndarray
-        The score the run would give each box now, as ``FrameResult.particle_scores``: ``RE- - RE+`` (paper eq. 8)
+        The score the run would give each box now, as ``FrameResult.particle_scores``: ``RE- - RE+`` (paper eq. 11)
         where ``subspace``, else the bootstrap intersection with the first frame's code tensor. Equal to the
         tracker's own score of the same box up to rounding (the tracker scores a box among the other candidates).
     """
@@ -1019,8 +1019,8 @@ class _Run:
     def _log_likelihood(self, codes: np.ndarray) -> np.ndarray:
         """``RE- - RE+`` of each code tensor, the two models' errors computed on the kernel threads at once.
 
-        Scoring is single-threaded BLAS work that left the second core idle. Each model scores all the
-        candidates in one call, as before: splitting the candidates instead would change the shapes of the
+        Scoring is single-threaded BLAS work that would leave the second core idle. Each model scores all the
+        candidates in one call: splitting the candidates instead would change the shapes of the
         matrix products, and with them OpenBLAS's kernel (its small-matrix path on AVX-512 machines) and the
         last bits of the scores.
         """

@@ -20,7 +20,8 @@ def rot(a: float) -> np.ndarray:
 
 
 def reference_warp(frame: np.ndarray, state: np.ndarray, size: int) -> np.ndarray:
-    """Per-pixel bilinear sampling written from the spec's formulas (MATLAB interp2 + warpimg)."""
+    """Per-pixel bilinear sampling (MATLAB interp2 + warpimg), from the formulas of ``docs/design/tracker.md``,
+    "Affine state and boxes"."""
     cx, cy, a11, a12, a21, a22 = affine_matrices(state[None])[0]
     offsets = np.arange(1, size + 1) - size / 2
     height, width = frame.shape[:2]

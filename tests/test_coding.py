@@ -1,4 +1,7 @@
-"""Dictionary and exact non-negative LASSO (SPTPT_SPEC.md 2.5, 2.6; Appendix check 5)."""
+"""Dictionary and exact non-negative LASSO.
+
+See ``docs/design/tracker.md``, "Dictionary", "Non-negative sparse codes" and "Checks the tests hold".
+"""
 
 from __future__ import annotations
 
@@ -46,7 +49,7 @@ def objective(signals: np.ndarray, dictionary: np.ndarray, codes: np.ndarray, la
 
 
 def reference_nnls(signals: np.ndarray, dictionary: np.ndarray, lam: float) -> np.ndarray:
-    """The spec's exact reformulation: G = R^T R, c = D^T a - lam, h = nnls(R, R^{-T} c).
+    """The exact NNLS reformulation: G = R^T R, c = D^T a - lam, h = nnls(R, R^{-T} c).
 
     0.5 ||R h - R^{-T} c||^2 = 0.5 h^T G h - c^T h + const, so both have the
     same minimiser over h >= 0 (requires D of full column rank).
@@ -87,7 +90,7 @@ def test_codes_match_nnls_reference(problem) -> None:
 
 
 def test_codes_match_sklearn_lasso(problem) -> None:
-    """Appendix check 5. sklearn's Lasso run to a duality gap of 1e-12 (relative) is within about 1e-10 of
+    """sklearn's Lasso run to a duality gap of 1e-12 (relative) is within about 1e-10 of
     the optimum, hence 1e-7 here; its objective is never lower than ours beyond rounding."""
     signals, dictionary = problem
     codes = encode_nonnegative(signals[:40], dictionary, lam=LAM)

@@ -1,4 +1,7 @@
-"""Superpixel cue histograms: numba kernel against a per-pixel reference (SPTPT_SPEC.md 2.4)."""
+"""Superpixel cue histograms: numba kernel against a per-pixel reference.
+
+See ``docs/design/tracker.md``, "Cue histograms".
+"""
 
 from __future__ import annotations
 
@@ -38,7 +41,7 @@ def hsi_bins_reference(rgb: np.ndarray, n_bins: int) -> np.ndarray:
 
 
 def reference_features(templates: np.ndarray, labels: np.ndarray, s: int, n: int) -> np.ndarray:
-    """Slow, obviously correct: loop over pixels, bin each cue as the spec says.
+    """Slow, obviously correct: loop over pixels, bin each cue as the design says.
 
     HSI comes from sptpt.color.rgb_to_hsi (SPT's rgb2hsi), binned by hsi_bins_reference. The normalisation
     divides counts by the pixel count, then by the square root of a

@@ -79,7 +79,7 @@ def test_the_log_likelihood_is_the_negative_error_less_the_positive_one(clip):
     inspection = tracker.inspect(clip.frames[5], clip.boxes_xywh[3:7])
     assert inspection.subspace[0] and inspection.log_likelihood.shape == (1, 4)
     np.testing.assert_array_equal(inspection.log_likelihood, inspection.negative_error - inspection.positive_error)
-    # re_mode "paper": gamma RE1 + (1 - gamma) RE2 of the two mode errors (paper eqs. 1-3).
+    # re_mode "paper": gamma RE1 + (1 - gamma) RE2 of the two mode errors (paper eqs. 5-7).
     for model in ("positive", "negative"):
         np.testing.assert_allclose(getattr(inspection, f"{model}_error"),
                                    SMALL.gamma * getattr(inspection, f"{model}_error_modes")

@@ -1,5 +1,5 @@
 """How the packages may depend on each other: the tracker library never on the tool, no module on another's
-private names or private modules (STYLE.md, "A public face"; issue #46)."""
+private names or private modules (``docs/design/code.md``, "Layers" and "A public face"; issue #46)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,7 @@
-"""SNIC superpixels: seeding, kernel == reference, invariants, errors (SPTPT_SPEC 2.3, A1, A19)."""
+"""SNIC superpixels: seeding, kernel == reference, invariants, errors.
+
+See ``docs/design/tracker.md``, "SNIC superpixels".
+"""
 
 from __future__ import annotations
 
@@ -139,7 +142,7 @@ def check_invariants(labels: np.ndarray, seeds: np.ndarray) -> None:
 # ---------------------------------------------------------------------------
 
 
-def test_official_seeds_32x32_k30_match_spec_appendix_check_1() -> None:
+def test_official_seeds_32x32_k30_are_a_5x5_grid_from_3_to_27() -> None:
     seeds = seed_grid(32, 32, 30)
     grid = np.array([3, 9, 15, 21, 27])
     expected = np.stack(np.meshgrid(grid, grid, indexing="ij"), -1).reshape(-1, 2)

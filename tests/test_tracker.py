@@ -46,7 +46,8 @@ def test_schedule_scores_with_subspaces_after_the_first_batch(paper_run):
     scoring = [r.scoring for r in paper_run]
     assert scoring[0] == "init"
     assert set(scoring[1:5]) == {"bootstrap"}
-    # All of frames 2..5 accepted: both models exist after frame 5 (spec 1.2), so frame 6 is subspace-scored.
+    # All of frames 2..5 accepted: both models exist after frame 5, so frame 6 is subspace-scored
+    # (docs/design/tracker.md, "Update schedule").
     assert all(r.accepted for r in paper_run[1:5])
     assert scoring[5] == "subspace"
     for r in paper_run:

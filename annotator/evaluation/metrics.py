@@ -1,6 +1,6 @@
 """OTB one-pass evaluation (OPE): overlap, centre error, success and precision curves.
 
-The definitions follow the three toolkits the field uses (SPTPT_SPEC.md section 6):
+The definitions follow the three toolkits the field uses (``docs/design/tracker.md``, "Evaluation metrics"):
 the OTB MATLAB toolkit (``calcSeqErrRobust.m``), got10k (``ExperimentOTB``) and
 pysot (``OPEBenchmark``). Where they disagree, the choice made here is stated.
 

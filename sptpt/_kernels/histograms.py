@@ -1,4 +1,4 @@
-"""Per-superpixel cue histograms for a batch of templates (``SPTPT_SPEC.md`` 2.4)."""
+"""Per-superpixel cue histograms for a batch of templates (``docs/design/tracker.md``, "Cue histograms")."""
 
 from __future__ import annotations
 

@@ -5,10 +5,10 @@ For every row ``c`` of ``linear`` the kernel solves the quadratic program
     min_{h >= 0}  0.5 h^T G h - c^T h,
 
 which is ``min_{h >= 0} 0.5 ||a - D h||^2 + lam ||h||_1`` with ``G = D^T D``
-and ``c = D^T a - lam`` (``SPTPT_SPEC.md`` 2.6; SPAMS ``mexLasso`` mode 2,
-``pos = true``). The gradient of the negated objective is ``w = c - G h``;
-the optimum satisfies ``w_j <= 0`` where ``h_j = 0`` and ``w_j = 0`` where
-``h_j > 0`` (KKT).
+and ``c = D^T a - lam`` (SPAMS ``mexLasso`` mode 2, ``pos = true``;
+``docs/design/tracker.md``, "Non-negative sparse codes"). The gradient of
+the negated objective is ``w = c - G h``; the optimum satisfies
+``w_j <= 0`` where ``h_j = 0`` and ``w_j = 0`` where ``h_j > 0`` (KKT).
 
 Compiled with ``error_model="numpy"``: numba's default guards every division
 with a test for a zero divisor. No divisor here can be zero (Cholesky pivots

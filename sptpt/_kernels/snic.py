@@ -1,9 +1,9 @@
 """SNIC region growing (Achanta & Suesstrunk, CVPR 2017) as numba kernels.
 
 Reproduces ``runSNIC`` of the official MATLAB ``snic_mex.cpp``
-(``SPTPT_SPEC.md`` 2.3), with ties on distance broken by insertion order so
-that the result is deterministic (``std::priority_queue`` leaves them
-implementation-defined). The tests compare it label for label with a plain
+(``docs/design/tracker.md``, "Region growing"), with ties on distance broken
+by insertion order so that the result is deterministic
+(``std::priority_queue`` leaves them implementation-defined). The tests compare it label for label with a plain
 ``heapq`` transcription of the official loop.
 
 Priority queue. The official queue holds duplicates: every labelled pixel
@@ -22,7 +22,7 @@ heap) and stored as two parallel arrays: the distance, and one int64
 compares the counters, and the pixel rides along without a third array (one
 load and store fewer per heap move). This bounds images to fewer than 2**28
 pixels (counter < 4 N + s < 2**30); ``sptpt.superpixels`` checks it. See
-``SPTPT_SPEC.md`` 5 for the budget.
+``docs/design/tracker.md``, "Where the time goes", for the budget.
 
 No validation and no defaults here; ``sptpt.superpixels`` is the public door.
 """
