@@ -28,13 +28,13 @@ from typing import Any, Sequence
 
 from annotator.atomic import write_bytes_atomic
 from annotator.errors import EXIT_OUTPUT, ToolError
+from annotator.filenames import CHECKPOINT_NAME
 from annotator.version import __version__
 
 __all__ = ["CHECKPOINT_EVERY", "CHECKPOINT_NAME", "Checkpoint", "read_checkpoint", "remove_checkpoint",
            "run_key", "write_checkpoint"]
 
 #: The checkpoint's file name inside the output folder (hidden: it is no result).
-CHECKPOINT_NAME = ".sptpt-checkpoint.pkl"
 #: Frames between checkpoints: at most this many are tracked again after an interruption. Writing one takes
 #: a few tens of milliseconds (a few MiB per tracker), against several seconds of tracking between them.
 CHECKPOINT_EVERY = 100

@@ -9,7 +9,6 @@ to it, beside (not over) an earlier finished run in the same folder.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import json
 import numbers
@@ -39,14 +38,16 @@ from annotator.errors import (
     ToolError,
 )
 from annotator.exports import ExportOptions
+from annotator.filenames import RUN_FILES, RUN_JSON
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, VideoSource, open_frames
+from annotator.output_folder import folder_lock, remove_staging_folders, staging_folder
 from annotator.pass_cache import first_pass
 from annotator.pipeline import TrackingRun, track_source
 from annotator.progress import CountNote, Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
-from annotator.store import STORE_NAME, RunStore
+from annotator.store import RunStore
 from annotator.tracks import Target
 from annotator.version import __version__
 from annotator.wording import plural
@@ -59,12 +60,9 @@ __all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "defa
 #: installing, numba compiles them (README: the figure measured) and caches them beside the package.
 COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
 # Files whose presence means a folder already holds a run's results.
-RESULT_FILES = ("run.json", STORE_NAME, "annotations.json", "flags.csv", OVERLAY_NAME, "report.html", "cvat.xml",
-                "labelstudio.json")
+RESULT_FILES = RUN_FILES
 #: Where a run cut short (Ctrl-C, a decode error) goes when the output folder already holds a finished run.
 INCOMPLETE_DIR = "incomplete"
-#: The staging folder of a run being written (``.sptpt-run.XXXX.tmp``), inside the output folder.
-STAGING_PREFIX = ".sptpt-run."
 
 
 @dataclass
@@ -119,7 +117,7 @@ def _check_output_dir(out_dir: Path, *, force: bool, resume: bool = False) -> No
             raise ToolError(f"output folder {out_dir} already holds results ({', '.join(existing)}): "
                             "pass --force to overwrite them or choose another --out", EXIT_OUTPUT)
     if out_dir.is_dir():
-        with _exclusive(out_dir):
+        with folder_lock(out_dir):
             pass
 
 
@@ -257,7 +255,7 @@ def annotate(
         resolve_corrections(corrections, frame_indices=source.indices, track_ids=[t.track_id for t in targets],
                             width=source.width, height=source.height)
     _prepare_output_dir(out_dir, force=force, resume=resume)
-    with _exclusive(out_dir):
+    with folder_lock(out_dir):
         return _run_into(out_dir, source, targets, config, formats, input_path, show_progress,
                          ExportOptions(media_url=media_url), resume, progress)
 
@@ -309,17 +307,15 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
         remove_checkpoint(out_dir)  # another run's: this one writes its own
     # The run is written to a staging folder inside out_dir and moved into place when it is written completely,
     # so that an earlier run there stays whole until then, and stays at all if this one is cut short (Ctrl-C).
-    staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, suffix=".tmp", dir=out_dir))
-    keep_staging = False
-    try:
+    with staging_folder(out_dir) as staging:
         render = "overlay" in formats
         # Closed here too, so that an error inside the tracking leaves no bar drawn (or cursor hidden).
         # Only when numba will compile: a slow first frame on a busy machine with the kernels cached is no compile.
         compiling = COMPILING_NOTE if not sptpt.kernels_cached() else None
         with Progress(len(source), enabled=show_progress, slow_start=compiling, on_update=on_update) as progress:
-            run = track_source(source, targets, config, overlay_path=staging / OVERLAY_NAME if render else None,
+            run = track_source(source, targets, config, overlay_path=staging.path / OVERLAY_NAME if render else None,
                                progress=progress, checkpoints=(out_dir, key), resume=checkpoint)
-        result = AnnotateResult(out_dir=staging, run=run)
+        result = AnnotateResult(out_dir=staging.path, run=run)
         if (run.decode_error is not None or run.interrupted) and _holds_finished_run(out_dir):
             destination = out_dir / INCOMPLETE_DIR
             kept = f"; the earlier finished run in {out_dir} is kept"
@@ -345,20 +341,18 @@ def _run_into(out_dir: Path, source: FrameSource, targets: Sequence[Target], con
                 if result.exit_code == EXIT_OK:  # every frame tracked and published: nothing left to resume
                     remove_checkpoint(out_dir)
         except MoveError as failed:
-            keep_staging, exc = True, failed.cause
+            staging.keep()
+            exc = failed.cause
             raise ToolError(f"{exc.filename or destination}: {exc.strerror or exc} while moving the results into "
-                            f"{destination}; this run's complete results are in {staging}: move them by hand "
+                            f"{destination}; this run's complete results are in {staging.path}: move them by hand "
                             "or rerun with another --out", EXIT_OUTPUT) from None
-    finally:
-        if not keep_staging:
-            shutil.rmtree(staging, ignore_errors=True)
     return result
 
 
 def _run_info(out_dir: Path) -> dict:
     """``out_dir``'s run.json if this tool wrote one there, else ``{}``."""
     try:
-        info = json.loads((out_dir / "run.json").read_text(encoding="utf-8"))
+        info = json.loads((out_dir / RUN_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return {}
     return info if isinstance(info, dict) and info.get("tool") == "sptpt-annotate" else {}
@@ -388,36 +382,6 @@ def _publish(result: AnnotateResult, out_dir: Path) -> None:
     result.outputs = {kind: [out_dir / p.relative_to(staging) for p in paths] for kind, paths in result.outputs.items()}
     if result.run.overlay_path is not None:
         result.run.overlay_path = out_dir / result.run.overlay_path.relative_to(staging)
-
-
-@contextlib.contextmanager
-def _exclusive(out_dir: Path):
-    """Hold a lock on the output folder for the run, so that a second run into it stops with an error.
-
-    The lock is on the folder itself (``flock`` of its descriptor), so no lock file is left among the
-    results; the kernel releases it when the process ends, however it ends.
-    """
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX: no lock
-        yield
-        return
-    try:
-        fd = os.open(out_dir, os.O_RDONLY)
-    except OSError:  # a folder that can be written but not opened (no read permission): run without the lock
-        yield
-        return
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ToolError(f"output folder {out_dir} is in use by another sptpt-annotate run: wait for it to "
-                            "finish or choose another --out", EXIT_OUTPUT) from None
-        except OSError:
-            pass  # a file system without locks (some network mounts): run without the lock
-        yield
-    finally:
-        os.close(fd)
 
 
 def _write_outputs(result: AnnotateResult, source: FrameSource, targets: Sequence[Target], config: RunConfig,
@@ -482,21 +446,11 @@ def _first_run_info(result: AnnotateResult, source: FrameSource, targets: Sequen
     }
 
 
-def remove_staging_folders(out_dir: Path) -> None:
-    """Remove the staging folders that runs killed before they finished (``kill -9``, power) left in ``out_dir``.
-
-    Only under the folder's lock (or the batch's, for an item folder): a live run's staging folder is in use.
-    """
-    for folder in out_dir.glob(f"{STAGING_PREFIX}*.tmp"):
-        if folder.is_dir() and not folder.is_symlink():
-            shutil.rmtree(folder, ignore_errors=True)
-
-
 def previous_outputs(out_dir: Path) -> set[str]:
     """Result files of an earlier run in ``out_dir``: the fixed names, and the files its run.json lists."""
-    names = set(RESULT_FILES) - {"run.json"}
+    names = set(RESULT_FILES) - {RUN_JSON}
     try:
-        listed = json.loads((out_dir / "run.json").read_text(encoding="utf-8"))["outputs"]
+        listed = json.loads((out_dir / RUN_JSON).read_text(encoding="utf-8"))["outputs"]
         names |= {str(name) for files in listed.values() for name in files}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         pass  # no earlier run, or a run.json this tool did not write

@@ -74,10 +74,11 @@ import yaml
 from annotator.box_input import Box, BoxError, parse_box
 from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
+from annotator.filenames import BATCH_FILES
 from annotator.flagging import FlagParams
 from annotator.text import TEXT_ENCODINGS, read_text
 from annotator.tracks import Target
-from sptpt.params import TrackerParams
+from sptpt import TrackerParams
 
 __all__ = [
     "BatchItem",
@@ -100,7 +101,7 @@ BOX_FIELDS: tuple[str, ...] = ("box", "label", "track_id")
 #: Manifest file extensions and their format.
 MANIFEST_SUFFIXES: dict[str, str] = {".csv": "csv", ".jsonl": "jsonl", ".yaml": "yaml", ".yml": "yaml"}
 #: Names of the batch-level outputs: no item may be called that (its folder would take their place).
-RESERVED_IDS: tuple[str, ...] = ("annotations.json", "summary.json", "report.html", "failures.jsonl")
+RESERVED_IDS: tuple[str, ...] = BATCH_FILES
 
 _ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 _ID_MAX = 100

@@ -29,6 +29,7 @@ import numpy as np
 
 from annotator.atomic import atomic_path
 from annotator.failure import SIGNALS
+from annotator.filenames import PASSES_NAME
 from annotator.tracks import TrackResult
 from annotator.version import __version__
 
@@ -79,7 +80,6 @@ class PassResult:
 
 
 #: File name of the kept passes in a run folder.
-PASSES_NAME = "passes.npz"
 
 #: (track_id, anchor position, direction 0 forward / 1 backward, anchor box x, y, w, h)
 PassKey = tuple

@@ -24,6 +24,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from annotator.atomic import atomic_path, write_text_atomic
 from annotator.exports import ExportOptions, record_review_exports, write_exports
+from annotator.filenames import OVERLAY_NAME, REPORT_NAME, RUN_JSON
 from annotator.pass_cache import PASSES_NAME, pass_fingerprint, write_pass_cache
 from annotator.provenance import json_default
 from annotator.report import corrections_section, render_report, track_summary
@@ -33,9 +34,6 @@ from annotator.tracks import SpanThumbnail
 __all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "MoveError", "move_into_place", "run_fingerprint",
            "write_run_files"]
 
-OVERLAY_NAME = "overlay.mp4"
-REPORT_NAME = "report.html"
-RUN_JSON = "run.json"
 
 
 def run_fingerprint(info: Mapping[str, Any]) -> str:

@@ -53,11 +53,11 @@ from typing import Sequence
 import numpy as np
 
 from annotator.atomic import atomic_path
+from annotator.filenames import STORE_NAME
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["SCHEMA_VERSION", "STORE_FORMAT", "STORE_NAME", "RunStore", "StoreError", "read_store", "write_store"]
 
-STORE_NAME = "tracks.npz"
 STORE_FORMAT = "sptpt-annotate track store"
 SCHEMA_VERSION = 1
 

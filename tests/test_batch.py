@@ -547,19 +547,20 @@ def test_a_missing_otb_root_is_named_once(tmp_path, capsys):
 
 
 def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
-    fcntl = pytest.importorskip("fcntl")
+    pytest.importorskip("fcntl")
     from annotator.errors import ToolError
     from annotator.manifest import BatchItem
+    from annotator.output_folder import folder_lock
     from annotator.tracks import Target
 
     out = tmp_path / "out"
     out.mkdir()
-    with open(out / ".batch.lock", "w") as handle:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
-        with pytest.raises(ToolError, match="in use by another batch run") as info:
+    with folder_lock(out):  # as a run or a batch in another process holds it: one lock for every writer
+        with pytest.raises(ToolError, match="in use by another sptpt-annotate run") as info:
             run_batch([BatchItem("a", tmp_path / "a.mp4", (Target((1, 2, 3, 4), 1),))], out_dir=out,
                       show_progress=False)
     assert info.value.exit_code == 5
+    assert list(out.iterdir()) == []  # the lock is on the folder: no lock file among the results
 
 
 def test_item_seed_is_stable_and_depends_on_base_seed_and_id():
@@ -599,7 +600,8 @@ def test_an_otb_root_is_a_batch_that_eval_scores(tmp_path, capsys):
 
 
 def test_merged_coco_from_the_stores_keeps_real_image_paths_and_renames_frame_dumps(tmp_path):
-    from annotator.batch.outputs import _item_stores, _merged_coco
+    from annotator.batch.outputs import _item_stores
+    from annotator.exports import write_dataset_exports
     from annotator.store import STORE_NAME, RunStore, write_store
     from annotator.tracks import TrackRecorder, VideoInfo
 
@@ -621,7 +623,9 @@ def test_merged_coco_from_the_stores_keeps_real_image_paths_and_renames_frame_du
         write_store(tmp_path / "out" / item / STORE_NAME, RunStore(video=video, start=0, stop=2, step=1,
                                                                   tracks=[track]))
         rows.append({"id": item, "status": "done", "input": source})
-    merged = _merged_coco(_item_stores(tmp_path / "out", rows))
+    written = write_dataset_exports(tmp_path / "out", _item_stores(tmp_path / "out", rows), ["coco", "flags"])
+    assert list(written) == ["coco"]  # flags are one file per video: they stay in the items' folders
+    merged = json.loads(written["coco"][0].read_text(encoding="utf-8"))
     assert [v["name"] for v in merged["videos"]] == ["item-a", "item-b"]
     assert [im["file_name"] for im in merged["images"]] == [
         "Coke/img/0001.jpg", "Coke/img/0002.jpg", "item-b/000000.jpg", "item-b/000001.jpg"]

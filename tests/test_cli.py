@@ -386,11 +386,11 @@ def test_ctrl_c_during_force_keeps_the_earlier_finished_run(config_file, work):
 
 
 def test_a_second_run_into_a_folder_in_use_stops_with_one_line(clip, config_file, work):
-    from annotator.job import _exclusive
+    from annotator.output_folder import folder_lock
 
     out = work / "busy"
     out.mkdir()
-    with _exclusive(out):  # as a run in another process holds it
+    with folder_lock(out):  # as a run in another process holds it
         busy = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3)
     assert busy.exit_code == 5 and busy.stderr.count("\n") == 1
     assert f"output folder {out} is in use by another sptpt-annotate run" in busy.stderr

@@ -39,6 +39,24 @@ def test_the_tracker_library_never_imports_the_tool():
     assert not offenders
 
 
+#: What the tool may import of the tracker library: its public names, and its public box-geometry module.
+SPTPT_PUBLIC = {"sptpt", "sptpt.boxes"}
+
+
+def test_the_tool_uses_only_the_tracker_librarys_public_names():
+    import sptpt
+
+    offenders = [f"{path.relative_to(ROOT)}:{line} imports {module}" for path in SOURCES
+                 if module_name(path).startswith("annotator") for line, module, _ in imports_of(path)
+                 if module.split(".")[0] == "sptpt" and module not in SPTPT_PUBLIC]
+    assert not offenders
+    named = {name for path in SOURCES if module_name(path).startswith("annotator")
+             for _, module, name in imports_of(path) if module == "sptpt" and name is not None}
+    assert named <= set(sptpt.__all__), named - set(sptpt.__all__)
+    for name in sptpt.__all__:  # each public name resolves
+        assert getattr(sptpt, name) is not None
+
+
 def test_no_module_imports_another_modules_private_names():
     offenders = []
     for path in SOURCES:
@@ -123,9 +141,9 @@ def test_no_function_in_the_tool_is_over_80_lines():
 #: (typing-only and function-level imports included). An entry names a module and every module inside it;
 #: ``annotator`` itself is the package's public face, at the top.
 LAYERS: list[tuple[str, list[str]]] = [
-    ("foundations", ["annotator.version", "annotator.errors", "annotator.atomic", "annotator.wording",
-                     "annotator.text", "annotator.allocator", "annotator.provenance", "annotator.formats",
-                     "annotator.pages", "annotator.box_input"]),
+    ("foundations", ["annotator.version", "annotator.filenames", "annotator.errors", "annotator.atomic",
+                     "annotator.wording", "annotator.text", "annotator.allocator", "annotator.provenance",
+                     "annotator.formats", "annotator.pages", "annotator.box_input", "annotator.output_folder"]),
     ("what a run is made of", ["annotator.tracks", "annotator.store", "annotator.checkpoint", "annotator.frames",
                                "annotator.progress", "annotator.render", "annotator.otb", "annotator.corrections",
                                "annotator.nanotrack"]),

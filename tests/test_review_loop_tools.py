@@ -106,3 +106,33 @@ def test_bad_review_files_are_one_line_and_change_nothing(out, tmp_path, kind, f
     lines = output.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0], output
     assert snapshot(out) == before
+
+
+def test_a_retrack_into_a_folder_in_use_stops_and_changes_nothing(out, tmp_path):
+    pytest.importorskip("fcntl")
+    from annotator.output_folder import folder_lock
+
+    edited = tmp_path / "cvat_reviewed.xml"
+    edited.write_text(edit_box((out / "cvat.xml").read_text(), 9, xtl="30.00", ytl="20.00", xbr="55.00",
+                               ybr="41.00", keyframe="1"))
+    before = snapshot(out)
+    with folder_lock(out):  # as a run, a batch or another re-track in another process holds it
+        code, output = _run("retrack", out, "--corrections", edited, "-q")
+    assert code == 5 and output.count("\n") == 1 and f"output folder {out} is in use" in output, output
+    assert snapshot(out) == before
+
+
+def test_a_retrack_stages_inside_the_folder_and_clears_what_a_killed_one_left(out, tmp_path):
+    # The same staging as a first run: a dead re-track's folder is removed under the lock, and nothing is left
+    # beside the output folder or in it.
+    dead = out / ".sptpt-run.killed.tmp"
+    dead.mkdir()
+    (dead / "tracks.npz").write_bytes(b"half")
+    edited = tmp_path / "cvat_reviewed.xml"
+    edited.write_text(edit_box((out / "cvat.xml").read_text(), 9, xtl="30.00", ytl="20.00", xbr="55.00",
+                               ybr="41.00", keyframe="1"))
+    beside = sorted(out.parent.iterdir())
+    code, output = _run("retrack", out, "--corrections", edited, "-q")
+    assert code == 0, output
+    assert not dead.exists() and not list(out.glob(".sptpt-run.*"))
+    assert sorted(out.parent.iterdir()) == beside

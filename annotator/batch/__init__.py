@@ -31,7 +31,7 @@ Killing a run
 from __future__ import annotations
 
 from annotator.batch.executors import default_workers
-from annotator.batch.outputs import BATCH_FILES, BatchResult
+from annotator.batch.outputs import BatchResult
 from annotator.batch.plan import (
     BatchRequest,
     ItemJob,
@@ -43,6 +43,7 @@ from annotator.batch.plan import (
 )
 from annotator.batch.run import run_batch
 from annotator.batch.workers import ItemOutcome, run_item
+from annotator.filenames import BATCH_FILES
 from annotator.progress import BatchProgress
 
 __all__ = [

@@ -31,12 +31,11 @@ from annotator.atomic import write_text_atomic
 from annotator.batch.plan import BatchRequest, PlannedItem, normalised_json, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
+from annotator.exports import DATASET_EXPORTS, ExportOptions, write_dataset_exports
+from annotator.filenames import FAILURES_NAME, REPORT_NAME, SUMMARY_NAME
 from annotator.pages import BATCH_TEMPLATE, template_environment
 from annotator.store import STORE_NAME, RunStore, read_store
 from annotator.version import __version__
-
-#: Batch-level outputs in ``OUT``.
-BATCH_FILES = ("annotations.json", "summary.json", "report.html", "failures.jsonl")
 
 
 @dataclass
@@ -111,8 +110,8 @@ def _status_row(plan: PlannedItem, outcome: ItemOutcome | None, run: Mapping[str
             "seconds": timings.get("seconds_total"),
             "frames_per_second": timings.get("frames_per_second"),
         })
-        if (out_dir / item.id / "report.html").is_file():
-            row["report"] = f"{item.id}/report.html"
+        if (out_dir / item.id / REPORT_NAME).is_file():
+            row["report"] = f"{item.id}/{REPORT_NAME}"
     return row
 
 
@@ -128,7 +127,7 @@ def write_failures(out_dir: Path, planned: Sequence[PlannedItem], outcomes: Mapp
         if outcome.traceback:
             record["traceback"] = outcome.traceback
         lines.append(json.dumps(record, ensure_ascii=False) + "\n")
-    path = out_dir / "failures.jsonl"
+    path = out_dir / FAILURES_NAME
     write_text_atomic(path, "".join(lines))
     return path
 
@@ -150,28 +149,6 @@ def _item_stores(out_dir: Path, rows: Sequence[Mapping[str, Any]]) -> list[RunSt
     return stores
 
 
-def _merged_coco(stores: Sequence[RunStore]) -> dict[str, Any]:
-    """All items' tracks as one COCO file, ids renumbered to be unique across videos."""
-    from annotator.exports.coco import build_coco, merge_coco
-
-    if not stores:
-        return {"info": {"description": "sptpt-annotate boxes for 0 videos", "contributor": "sptpt-annotate",
-                         "bbox_format": "xywh, 0-based pixels"},
-                "licenses": [], "categories": [], "videos": [], "images": [], "tracks": [], "annotations": []}
-    merged = merge_coco([build_coco(store.video, store.tracks) for store in stores])
-    merged["info"]["description"] = f"sptpt-annotate boxes for {len(merged['videos'])} videos"
-    return merged
-
-
-def _merged_labelstudio(stores: Sequence[RunStore], media_url: str | None = None) -> list[dict[str, Any]]:
-    """One Label Studio task list for the whole batch: every item's task, in manifest order."""
-    from annotator.exports.labelstudio import build_labelstudio_tasks, media_url_for
-
-    return [task for store in stores for task in build_labelstudio_tasks(
-        store.video, store.tracks, frames=range(store.start, store.stop, store.step),
-        video_url=media_url_for(media_url, store.video.path))]
-
-
 def _render_index(path: Path, summary: Mapping[str, Any]) -> None:
     page = template_environment().get_template(BATCH_TEMPLATE).render(summary=summary, rows=summary["items"])
     write_text_atomic(path, page)
@@ -182,8 +159,6 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
                         interrupted: bool) -> BatchResult:
     """Write every batch-level file from all planned items (reused ones included) and say what the run did."""
     formats, seed, config_values, media_url = request.formats, request.seed, request.config_values, request.media_url
-    from annotator.exports.coco import save_coco
-
     rows = [_status_row(plan, outcomes.get(plan.item.id), read_run_json(plan.job.folder), out_dir)
             for plan in planned]
     counts = {"items": len(rows)}
@@ -214,18 +189,12 @@ def write_batch_outputs(planned: Sequence[PlannedItem], outcomes: Mapping[str, I
     }
     paths = {"failures": write_failures(out_dir, planned, outcomes)}
     # Merged views of every item's track store, for the formats that hold several videos.
-    stores = _item_stores(out_dir, rows) if {"coco", "labelstudio"} & set(formats) else []
-    if "coco" in formats:
-        save_coco(out_dir / "annotations.json", _merged_coco(stores))
-        paths["coco"] = out_dir / "annotations.json"
-    if "labelstudio" in formats:
-        write_text_atomic(out_dir / "labelstudio.json",
-                          json.dumps(_merged_labelstudio(stores, media_url), indent=2, ensure_ascii=False,
-                                     allow_nan=False) + "\n")
-        paths["labelstudio"] = out_dir / "labelstudio.json"
-    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
-    paths["summary"] = out_dir / "summary.json"
-    _render_index(out_dir / "report.html", summary)
-    paths["report"] = out_dir / "report.html"
+    stores = _item_stores(out_dir, rows) if set(DATASET_EXPORTS) & set(formats) else []
+    for kind, written in write_dataset_exports(out_dir, stores, formats, ExportOptions(media_url=media_url)).items():
+        paths[kind] = written[0]
+    write_text_atomic(out_dir / SUMMARY_NAME, json.dumps(summary, indent=2, ensure_ascii=False) + "\n")
+    paths["summary"] = out_dir / SUMMARY_NAME
+    _render_index(out_dir / REPORT_NAME, summary)
+    paths["report"] = out_dir / REPORT_NAME
     return BatchResult(out_dir=out_dir, rows=rows, exit_code=exit_code, counts=counts,
                        frames_this_run=frames_this_run, seconds=seconds, paths=paths)

@@ -33,6 +33,7 @@ from typing import Any, Mapping, Sequence
 
 from annotator.config import ConfigError, RunConfig, resolve_config
 from annotator.errors import EXIT_VALUE, ToolError
+from annotator.filenames import RUN_JSON
 from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
 from annotator.provenance import content_hash
@@ -107,7 +108,7 @@ def _expected_targets(targets: Sequence[Target]) -> list[dict[str, Any]]:
 def read_run_json(folder: str | os.PathLike) -> dict[str, Any] | None:
     """An item folder's ``run.json``, or None when it is absent or unreadable."""
     try:
-        data = json.loads((Path(folder) / "run.json").read_text(encoding="utf-8"))
+        data = json.loads((Path(folder) / RUN_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None

@@ -1,9 +1,9 @@
 """The entry point :func:`run_batch`: plan, hold the output folder, execute, write the batch-level files.
 
 One run at a time per folder
-    A lock file (``OUT/.batch.lock``, ``flock``) stops two batch runs
-    writing to one folder at once; the kernel releases it when the holder
-    dies. Items are judged finished or not (the resume rule, in
+    The output folder's lock (:func:`annotator.output_folder.folder_lock`)
+    stops two runs writing to one folder at once; the kernel releases it
+    when the holder dies. Items are judged finished or not (the resume rule, in
     :mod:`annotator.batch.plan`) only under the lock, and temporary files of
     batch-level writes that a killed run left behind are removed first.
 """
@@ -24,42 +24,17 @@ from annotator.batch.executors import (
     threads_per_worker,
     worker_context,
 )
-from annotator.batch.outputs import BATCH_FILES, BatchResult, write_batch_outputs
+from annotator.batch.outputs import BatchResult, write_batch_outputs
 from annotator.batch.plan import BatchRequest, PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
+from annotator.filenames import BATCH_FILES, RUN_JSON
 from annotator.manifest import BatchItem
+from annotator.output_folder import folder_lock
 from annotator.progress import BatchProgress
 
-LOCK_NAME = ".batch.lock"
 #: run_batch's request when none is given: the command line's defaults (frozen, so one instance serves every call).
 _DEFAULT_REQUEST = BatchRequest()
-
-
-@contextlib.contextmanager
-def _exclusive(out_dir: Path):
-    """Hold ``OUT/.batch.lock`` for the run; the kernel releases it if the process dies."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX: no lock
-        yield
-        return
-    handle = open(out_dir / LOCK_NAME, "a+", encoding="utf-8")
-    try:
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            raise ToolError(f"output folder {out_dir} is in use by another batch run ({holder}): wait for it to "
-                            "finish or choose another --out", EXIT_OUTPUT) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"pid {os.getpid()}\n")
-        handle.flush()
-        yield
-    finally:
-        handle.close()
 
 
 def _prepare_out_dir(out_dir: Path, planned: list) -> None:
@@ -97,7 +72,7 @@ def _refuse_unsafe_out_dir(out_dir: Path, planned: Sequence[PlannedItem]) -> Non
             if place in folders:
                 raise ToolError(f"--out {out_dir}: item {folders[place]!r} would write into the input folder {source}: "
                                 "choose an --out folder outside the input folders", EXIT_OUTPUT)
-    if (out_dir / "run.json").is_file():
+    if (out_dir / RUN_JSON).is_file():
         raise ToolError(f"--out {out_dir} holds a single-video run (run.json): the batch's index would replace its "
                         "files; choose another --out folder", EXIT_OUTPUT)
 
@@ -218,7 +193,7 @@ def run_batch(
     planned = plan_batch(items, request, out_dir=out_dir, force=True)
     _prepare_out_dir(out_dir, planned)
     started = time.perf_counter()
-    with _exclusive(out_dir):
+    with folder_lock(out_dir):
         outcomes, interrupted, settings = _run_items(planned, out_dir, force=force, scheduler=scheduler,
                                                      workers=workers or default_workers(),
                                                      show_progress=show_progress, stream=stream)

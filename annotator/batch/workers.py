@@ -40,8 +40,10 @@ from annotator.batch.plan import ItemJob
 from annotator.checkpoint import CHECKPOINT_NAME
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
 from annotator.exports.otb import otb_result_globs
-from annotator.job import previous_outputs, remove_staging_folders
+from annotator.filenames import RUN_JSON
+from annotator.job import previous_outputs
 from annotator.manifest import output_stem
+from annotator.output_folder import remove_staging_folders
 
 _EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item
 
@@ -120,7 +122,7 @@ def _clear_item_folder(folder: Path, video_name: str) -> None:
     for pattern in otb_result_globs(video_name):
         names |= {path.relative_to(folder).as_posix() for path in folder.glob(pattern)}
     with contextlib.suppress(FileNotFoundError):
-        (folder / "run.json").unlink()
+        (folder / RUN_JSON).unlink()
     for name in sorted(names):
         with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             (folder / name).unlink()

@@ -10,6 +10,7 @@ import typer
 
 from annotator.commands.common import fail
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
+from annotator.filenames import CALIBRATION_PLOT
 from annotator.wording import plural
 
 
@@ -85,7 +86,7 @@ def eval_command(
                     scored = [(pair, seq) for pair, seq in pairs if pair.p_fail is not None]
                     p_fail = np.concatenate([pair.p_fail for pair, _ in scored])
                     failed = np.concatenate([~(seq.ious >= 0.5) for _, seq in scored])
-                    written["calibration"] = plot_calibration(out / "calibration.png",
+                    written["calibration"] = plot_calibration(out / CALIBRATION_PLOT,
                                                               {tracker_name: (p_fail, failed)})
             except OSError as exc:
                 raise ToolError(f"--out {out} cannot be written ({exc.strerror or exc}): choose a writable folder "

@@ -31,6 +31,7 @@ from annotator.evaluation.metrics import (
     DatasetScore,
     EvaluationError,
 )
+from annotator.filenames import PRECISION_PLOT, RESULTS_JSON, RESULTS_MD, SUCCESS_PLOT
 
 __all__ = [
     "PROTOCOL",
@@ -372,8 +373,8 @@ def write_report(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     return {
-        "success_plot": plot_success(scores, out_dir / "success_plots.png", dpi=dpi),
-        "precision_plot": plot_precision(scores, out_dir / "precision_plots.png", dpi=dpi),
-        "markdown": write_results_markdown(out_dir / "results.md", scores, flag_quality=flag_quality),
-        "json": write_results_json(out_dir / "results.json", scores, flag_quality=flag_quality),
+        "success_plot": plot_success(scores, out_dir / SUCCESS_PLOT, dpi=dpi),
+        "precision_plot": plot_precision(scores, out_dir / PRECISION_PLOT, dpi=dpi),
+        "markdown": write_results_markdown(out_dir / RESULTS_MD, scores, flag_quality=flag_quality),
+        "json": write_results_json(out_dir / RESULTS_JSON, scores, flag_quality=flag_quality),
     }

@@ -14,10 +14,18 @@ from annotator.exports.flags import FLAGS_HEADER, FlagsFormatError, FlagTable, r
 from annotator.exports.labelstudio import build_labelstudio_tasks, write_labelstudio
 from annotator.exports.mot import build_mot_gt, write_mot
 from annotator.exports.otb import otb_sequence_names, write_otb_results
-from annotator.exports.views import FILE_EXPORTS, ExportOptions, record_review_exports, write_exports
+from annotator.exports.views import (
+    DATASET_EXPORTS,
+    FILE_EXPORTS,
+    ExportOptions,
+    record_review_exports,
+    write_dataset_exports,
+    write_exports,
+)
 from annotator.exports.yolo import build_yolo_labels, write_yolo
 
 __all__ = [
+    "DATASET_EXPORTS",
     "ExportOptions",
     "FILE_EXPORTS",
     "FLAGS_HEADER",
@@ -36,6 +44,7 @@ __all__ = [
     "save_coco",
     "write_coco",
     "write_cvat_xml",
+    "write_dataset_exports",
     "write_flags_csv",
     "write_exports",
     "write_labelstudio",

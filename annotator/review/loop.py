@@ -52,8 +52,6 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,6 +61,7 @@ from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions
 from annotator.frames import DecodeError
+from annotator.output_folder import folder_lock, remove_staging_folders, staging_folder
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
 from annotator.pipeline import OverlaySink, render_tracks
 from annotator.progress import Progress
@@ -137,7 +136,6 @@ def apply_corrections(
     verify_input: bool = True,
     rewrite_unchanged: bool = False,
     input_path: str | os.PathLike | None = None,
-    input_checked: bool = False,
     render: bool = True,
     media_url: str | None = None,
 ) -> ReviewResult:
@@ -164,10 +162,6 @@ def apply_corrections(
         Where the input is now, when it moved since the run; checked against
         the content hash in run.json, and recorded there once the re-track
         is written.
-    input_checked : bool
-        The caller has just read the input and recorded its content hash in
-        run.json (``track --corrections`` right after the run): it counts as
-        verified without ``verify_input`` reading it again.
     render : bool
         Re-render the overlay (if the run has one). Without, it is removed,
         since it would show the old boxes; the report then has no overlay
@@ -189,8 +183,28 @@ def apply_corrections(
         FILE:LINE), missing or inconsistent run files or input (3), an output
         folder that cannot be written (5). The output folder is then unchanged.
     """
+    return correct_run(out_dir, corrections_path, merge=merge, show_progress=show_progress, verify_input=verify_input,
+                       rewrite_unchanged=rewrite_unchanged, input_path=input_path, render=render, media_url=media_url)
+
+
+def correct_run(out_dir: str | os.PathLike, corrections_path: str | os.PathLike, *, merge: str = DEFAULT_MERGE,
+                show_progress: bool = True, verify_input: bool = True, rewrite_unchanged: bool = False,
+                input_path: str | os.PathLike | None = None, input_checked: bool = False, render: bool = True,
+                media_url: str | None = None) -> ReviewResult:
+    """:func:`apply_corrections`, for the tool's own callers: ``input_checked`` says the caller has just read the
+    input and recorded its content hash in run.json (``track --corrections`` right after the run), so it counts
+    as verified without ``verify_input`` reading it again."""
     out_dir = Path(out_dir)
-    corrections_path = Path(corrections_path)
+    with folder_lock(out_dir):
+        remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
+        return _correct_locked(out_dir, Path(corrections_path), merge=merge, show_progress=show_progress,
+                               verify_input=verify_input, rewrite_unchanged=rewrite_unchanged, input_path=input_path,
+                               input_checked=input_checked, render=render, media_url=media_url)
+
+
+def _correct_locked(out_dir: Path, corrections_path: Path, *, merge: str, show_progress: bool, verify_input: bool,
+                    rewrite_unchanged: bool, input_path: str | os.PathLike | None, input_checked: bool,
+                    render: bool, media_url: str | None) -> ReviewResult:
     run, resolved = _run_and_corrections(out_dir, corrections_path, media_url)
     provider, checked = _open_input(run, verify_input=verify_input, input_path=input_path,
                                     input_checked=input_checked)
@@ -303,24 +317,18 @@ def _review_section(run: LoadedRun, retrack: RetrackResult, corrections_path: Pa
 
 def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path, *,
                merge: str, show_progress: bool, passes: dict | None, render: bool) -> tuple[list[Path], bool]:
-    """Write every output beside the folder, then move them in: their paths, and whether a stale overlay went."""
+    """Write every output into a staging folder inside the run's, then move them in: their paths, and whether a
+    stale overlay went."""
     out_dir = run.out_dir
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.retrack-", dir=out_dir.parent))
-    except OSError:
-        try:
-            tmp = Path(tempfile.mkdtemp(prefix=".retrack-", dir=out_dir))
-        except OSError as exc:
-            raise ToolError(f"output folder {out_dir} cannot be written ({exc.strerror}); nothing was changed",
-                            EXIT_OUTPUT) from None
-    try:
+    with staging_folder(out_dir) as staging:
+        tmp = staging.path
         try:
             written = _write_outputs(tmp, run, retrack, provider, corrections_path, merge=merge,
                                      show_progress=show_progress, passes=passes, render=render)
         except DecodeError as exc:
             raise ToolError(f"{exc}; nothing in {out_dir} was changed", EXIT_INPUT) from None
         except OSError as exc:
-            raise ToolError(f"cannot write the new outputs beside {out_dir} ({exc}); nothing was changed",
+            raise ToolError(f"cannot write the new outputs into {out_dir} ({exc}); nothing was changed",
                             EXIT_OUTPUT) from None
         # Everything is complete: move it in. A stale overlay (a --no-render round: it shows the boxes before this
         # re-track) goes with it; run.json is kept until the last move, so that a failure leaves a run to re-track.
@@ -338,8 +346,6 @@ def _write_all(run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, c
                                 "describes the previous state - fix the folder and run the re-track again",
                                 EXIT_OUTPUT) from None
         return paths, bool(stale)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _write_outputs(tmp: Path, run: LoadedRun, retrack: RetrackResult, provider: SourceFrames, corrections_path: Path,

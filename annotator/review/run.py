@@ -13,15 +13,15 @@ import numpy as np
 
 from annotator.config import ConfigError, RunConfig, check_failure_model
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
+from annotator.filenames import RUN_JSON
 from annotator.flagging import FlagParams
 from annotator.review.segments import PreviousTrack
 from annotator.store import STORE_NAME, RunStore, StoreError, read_store
 from annotator.tracks import TrackResult, VideoInfo
-from sptpt.params import params_from_mapping
+from sptpt import params_from_mapping
 
 __all__ = ["RUN_JSON", "LoadedRun", "load_run"]
 
-RUN_JSON = "run.json"
 
 
 @dataclass
