@@ -8,8 +8,10 @@ What a Python user imports::
     result.store.track(1).boxes_xywh                    # (F, 4): a box for every processed frame
 
 ``annotate`` is what ``sptpt-annotate VIDEO --box ...`` runs; ``apply_corrections`` what ``sptpt-annotate retrack``
-runs; ``resolve_config`` builds their settings; ``read_store`` reads a run's ``tracks.npz`` back; ``NanoTrackGuide``
-is the learned tracker the ``fused`` preset's ``sptpt.Tracker`` takes as its ``guide``. docs/python-api.md
+runs; ``resolve_config`` (or ``load_config_file``) builds their settings; ``read_store`` reads a run's
+``tracks.npz`` back; ``open_frames`` reads a video or image folder's frames; ``evaluate_result_file`` and
+``evaluate_results_dir`` score results against ground truth; ``NanoTrackGuide`` is the learned tracker the ``fused``
+preset's ``sptpt.Tracker`` takes as its ``guide``. The types they take and return are public too. docs/python-api.md
 has the details. Everything else is the tool's inside and may change.
 """
 
@@ -20,20 +22,45 @@ from typing import TYPE_CHECKING, Any
 
 from annotator.version import __version__ as __version__
 
-__all__ = ["AnnotateResult", "NanoTrackGuide", "Target", "ToolError", "annotate", "apply_corrections", "read_store",
-           "resolve_config"]
+__all__ = ["AnchorChange", "AnnotateResult", "Correction", "DatasetScore", "DecodeError", "FlagParams", "FrameSource",
+           "NanoTrackGuide", "PassResult", "RetrackResult", "ReviewResult", "RunConfig", "RunStore", "SegmentChange",
+           "SequenceScore", "SpanThumbnail", "Target", "ToolError", "TrackResult", "TrackingRun", "VideoInfo",
+           "annotate", "apply_corrections", "evaluate_result_file", "evaluate_results_dir", "load_config_file",
+           "open_frames", "read_store", "resolve_config", "seed_for_track"]
 
 # Where each public name lives. Imported on first use: ``import annotator.errors`` (every command, every batch
 # worker) should not load the tracker, numba and the whole tool.
 _HOMES = {
+    "AnchorChange": "annotator.review.segments",
     "AnnotateResult": "annotator.job",
+    "Correction": "annotator.corrections",
+    "DatasetScore": "annotator.evaluation",
+    "DecodeError": "annotator.frames",
+    "FlagParams": "annotator.flagging",
+    "FrameSource": "annotator.frames",
     "NanoTrackGuide": "annotator.nanotrack",
+    "PassResult": "annotator.pass_cache",
+    "RetrackResult": "annotator.review",
+    "ReviewResult": "annotator.review",
+    "RunConfig": "annotator.config",
+    "RunStore": "annotator.store",
+    "SegmentChange": "annotator.review.segments",
+    "SequenceScore": "annotator.evaluation",
+    "SpanThumbnail": "annotator.tracks",
     "Target": "annotator.tracks",
     "ToolError": "annotator.errors",
+    "TrackResult": "annotator.tracks",
+    "TrackingRun": "annotator.pipeline",
+    "VideoInfo": "annotator.tracks",
     "annotate": "annotator.job",
     "apply_corrections": "annotator.review",
+    "evaluate_result_file": "annotator.evaluation",
+    "evaluate_results_dir": "annotator.evaluation",
+    "load_config_file": "annotator.config",
+    "open_frames": "annotator.frames",
     "read_store": "annotator.store",
     "resolve_config": "annotator.config",
+    "seed_for_track": "annotator.pipeline",
 }
 
 
@@ -48,10 +75,17 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
-    from annotator.config import resolve_config
+    from annotator.config import RunConfig, load_config_file, resolve_config
+    from annotator.corrections import Correction
     from annotator.errors import ToolError
+    from annotator.evaluation import DatasetScore, SequenceScore, evaluate_result_file, evaluate_results_dir
+    from annotator.flagging import FlagParams
+    from annotator.frames import DecodeError, FrameSource, open_frames
     from annotator.job import AnnotateResult, annotate
     from annotator.nanotrack import NanoTrackGuide
-    from annotator.review import apply_corrections
-    from annotator.store import read_store
-    from annotator.tracks import Target
+    from annotator.pass_cache import PassResult
+    from annotator.pipeline import TrackingRun, seed_for_track
+    from annotator.review import RetrackResult, ReviewResult, apply_corrections
+    from annotator.review.segments import AnchorChange, SegmentChange
+    from annotator.store import RunStore, read_store
+    from annotator.tracks import SpanThumbnail, Target, TrackResult, VideoInfo

@@ -27,7 +27,8 @@ import yaml
 from annotator.errors import EXIT_VALUE
 from annotator.flagging import FlagParams
 from annotator.text import read_given_file
-from sptpt.params import TrackerParams, get_preset, params_from_mapping
+from sptpt import TrackerParams, params_from_mapping
+from sptpt import preset as get_preset
 
 if TYPE_CHECKING:
     from annotator.failure.model import FailureModel

@@ -38,9 +38,7 @@ from annotator.nanotrack import guide_for
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
 from annotator.tracks import KEYFRAME_GIVEN, SpanThumbnail, Target, TrackRecorder, TrackResult, VideoInfo
-from sptpt import compile_kernels
-from sptpt.results import FrameResult
-from sptpt.tracker import Tracker
+from sptpt import FrameResult, Tracker, compile_kernels
 
 __all__ = ["FRAMES_AHEAD", "FrameLoopEnd", "FrameMark", "FramesAhead", "HeldFrames", "OverlaySink",
            "TrackRecords", "TrackingRun", "WorstFrameThumbnails", "final_flags", "render_tracks",

@@ -29,8 +29,8 @@ import numpy as np
 
 from annotator.atomic import atomic_path
 from annotator.tracks import KEYFRAME_GIVEN, TrackResult
+from sptpt import checked_box, checked_particles
 from sptpt.boxes import xywh_to_xyxy
-from sptpt.results import checked_box, checked_particles
 
 __all__ = ["DEFAULT_PALETTE", "OverlayItem", "OverlayRenderer", "OverlayWriter", "items_from_tracks", "label_text"]
 

@@ -87,15 +87,70 @@ def test_each_package_names_its_public_api():
     import annotator
     import sptpt
 
-    for package, names in [(annotator, {"annotate", "AnnotateResult", "Target", "resolve_config",
-                                        "apply_corrections", "read_store", "ToolError", "NanoTrackGuide"}),
-                           (sptpt, {"Tracker", "TrackerParams", "FrameResult", "preset", "compile_kernels",
-                                    "kernels_cached", "Guide", "check_params"})]:
-        assert set(package.__all__) == names
-        for name in names:
-            assert getattr(package, name) is not None
+    for package in (annotator, sptpt):
+        for name in package.__all__:
+            assert getattr(package, name) is not None, name
         with pytest.raises(AttributeError):
             _ = package.not_a_name
     from annotator.job import annotate
 
     assert annotator.annotate is annotate  # the command line's own function, not a second one
+
+
+def _tool_classes(hint) -> set[type]:
+    """The classes of the tool or the tracker inside a type hint (``RunConfig | None``, ``list[TrackResult]``)."""
+    import typing
+
+    found = set()
+    if isinstance(hint, type) and hint.__module__.split(".")[0] in ("annotator", "sptpt"):
+        found.add(hint)
+    for arg in typing.get_args(hint):
+        found |= _tool_classes(arg)
+    return found
+
+
+def test_what_annotate_and_apply_corrections_take_and_return_is_public():
+    """A caller can name every type they touch: the parameters and returns of the public functions, and the
+    fields of the results they return, each a public name of ``annotator`` or ``sptpt``."""
+    import dataclasses
+    import typing
+
+    import annotator
+    import sptpt
+
+    public = {id(getattr(package, name)) for package in (annotator, sptpt) for name in package.__all__}
+    todo = [annotator.annotate, annotator.apply_corrections]
+    seen: set = set()
+    missing = []
+    while todo:
+        thing = todo.pop()
+        if thing in seen:
+            continue
+        seen.add(thing)
+        hints = typing.get_type_hints(thing)
+        if dataclasses.is_dataclass(thing):  # its fields, not its private ones
+            hints = {f.name: hints[f.name] for f in dataclasses.fields(thing) if not f.name.startswith("_")}
+        for hint in hints.values():
+            for cls in _tool_classes(hint):
+                if id(cls) not in public:
+                    missing.append(f"{getattr(thing, '__qualname__', thing)}: {cls.__module__}.{cls.__qualname__}")
+                elif dataclasses.is_dataclass(cls) and cls.__module__.startswith("annotator"):
+                    todo.append(cls)
+    assert not missing
+    assert {annotator.AnnotateResult, annotator.RunConfig, annotator.RunStore, annotator.TrackingRun,
+            annotator.ReviewResult, annotator.RetrackResult, annotator.TrackResult} <= seen
+
+
+def test_the_page_imports_only_public_names():
+    import annotator
+    import sptpt
+
+    text = PAGE.read_text(encoding="utf-8")
+    for module, names in re.findall(r"^from (annotator\S*|sptpt\S*) import (.+)$", text, flags=re.M):
+        assert module in ("annotator", "sptpt"), f"the page imports from {module}: only package names are public"
+        package = annotator if module == "annotator" else sptpt
+        for name in (n.strip() for n in names.split(",")):
+            assert name in package.__all__, name
+    for name in re.findall(r"`((?:annotator|sptpt)\.[a-z_.]+)", text):
+        assert name.count(".") == 1 and name.split(".")[1] in (annotator if name.startswith("a") else sptpt).__all__ \
+            or name == "sptpt.boxes", f"the page names {name}, not a public name"

@@ -40,6 +40,7 @@ from annotator.review import (
     PreviousTrack,
     Segment,
     apply_corrections,
+    correct_run,
     load_run,
     merge_passes,
     plan_segments,
@@ -538,12 +539,10 @@ def test_passes_are_kept_only_for_an_input_that_was_checked(out, tmp_path):
     assert (out / PASSES_NAME).read_bytes() == before and PASSES_NAME not in [p.name for p in unchecked.written]
     assert json.loads((out / "run.json").read_text())["outputs"]["passes"] == [PASSES_NAME]  # still listed
     (tmp_path / "fix2.csv").write_text(csv_row(20, GT[20]))
-    checked = apply_corrections(out, tmp_path / "fix2.csv", show_progress=False, verify_input=False,
-                                input_checked=True)
+    checked = correct_run(out, tmp_path / "fix2.csv", show_progress=False, verify_input=False, input_checked=True)
     assert checked.retrack.frames_tracked == 4 + 4 + 4  # forward from 12 not kept: that round wrote no passes
     (tmp_path / "fix3.csv").write_text(csv_row(24, GT[24]))
-    again = apply_corrections(out, tmp_path / "fix3.csv", show_progress=False, verify_input=False,
-                              input_checked=True)
+    again = correct_run(out, tmp_path / "fix3.csv", show_progress=False, verify_input=False, input_checked=True)
     assert again.retrack.frames_tracked == 2 + 2  # forward from 20 kept: backward from 24, forward from 24
 
 

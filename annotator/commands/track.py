@@ -12,7 +12,7 @@ from annotator.config import DEFAULT_PRESET
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
 from annotator.formats import DEFAULT_FORMATS
 from annotator.wording import plural
-from sptpt.params import PRESETS
+from sptpt import PRESETS
 
 
 def track_command(
@@ -125,12 +125,12 @@ def _apply_given_corrections(result, corrections: Path, quiet: bool):
     """``--corrections`` applied right after a finished run, as ``retrack`` would; None after an unfinished one."""
     if result.exit_code != EXIT_OK:
         return None
-    from annotator.review import apply_corrections
+    from annotator.review import correct_run
 
     try:
         with one_line_warnings():
-            return apply_corrections(result.out_dir, corrections, show_progress=not quiet, verify_input=False,
-                                     input_checked=True)
+            return correct_run(result.out_dir, corrections, show_progress=not quiet, verify_input=False,
+                               input_checked=True)
     except ToolError as exc:
         raise ToolError(
             f"{exc}; the tracked results without corrections are in {result.out_dir}: fix the file and run "

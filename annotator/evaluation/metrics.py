@@ -43,11 +43,11 @@ Invalid ground truth
     got10k does no masking.
 Invalid tracker output
     A result row with a NaN/inf value or ``w <= 0`` or ``h <= 0``. With
-    ``invalid_pred="previous"`` (default, OTB ``calcSeqErrRobust.m``) it is
-    replaced by the previous frame's (already repaired) box; with no earlier
-    valid box it stays a failure. With ``invalid_pred="failure"`` (got10k and
-    pysot, where NaN compares false) it is a failure at every threshold of
-    both curves: IoU 0 and centre error ``inf``.
+    ``invalid_pred="failure"`` (the default: got10k and pysot, where NaN
+    compares false) it is a failure at every threshold of both curves: IoU 0
+    and centre error ``inf``. With ``invalid_pred="previous"`` (OTB
+    ``calcSeqErrRobust.m``) it is replaced by the previous frame's (already
+    repaired) box; with no earlier valid box it stays a failure.
 First frame
     The toolkits overwrite the first result row with the ground truth (the
     tracker was initialised with it): OTB ``rectMat(1,:) = rect_anno(1,:)``,
@@ -352,7 +352,7 @@ def evaluate_sequence(
     invalid_pred : {"previous", "failure"}
         Rule for result rows with NaN or a non-positive size: carry the
         previous box forward (OTB) or count a failure (got10k, pysot).
-        Defaults to :data:`DEFAULT_INVALID_PRED` (``"previous"``).
+        Defaults to :data:`DEFAULT_INVALID_PRED` (``"failure"``).
 
     Returns
     -------

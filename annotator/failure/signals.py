@@ -66,8 +66,8 @@ from typing import Mapping, TypedDict
 import cv2
 import numpy as np
 
+from sptpt import colour_contrast
 from sptpt.boxes import iou_xywh
-from sptpt.contrast import colour_contrast
 
 __all__ = ["MOTION_SIGNALS", "NEUTRAL", "SIGNALS", "STAND_IN", "MotionMeter", "SignalMeter", "grey_of",
            "particle_stats"]

@@ -16,7 +16,7 @@ Where things are:
 from __future__ import annotations
 
 from annotator.review.frames import BUFFER_BYTES, SourceFrames
-from annotator.review.loop import ReviewResult, apply_corrections
+from annotator.review.loop import ReviewResult, apply_corrections, correct_run
 from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PassResult, merge_passes, reflag
 from annotator.review.passes import ArrayFrames, FrameProvider, pass_seed
 from annotator.review.retrack import RetrackResult, retrack_tracks
@@ -40,6 +40,7 @@ __all__ = [
     "SegmentChange",
     "SourceFrames",
     "apply_corrections",
+    "correct_run",
     "load_run",
     "merge_passes",
     "pass_seed",

@@ -18,8 +18,7 @@ from annotator.nanotrack import guide_for
 from annotator.pass_cache import CachedPass, PassKey, PassResult, pass_key
 from annotator.pipeline import FramesAhead, seed_for_track
 from annotator.review.segments import Box, Segment
-from sptpt.params import TrackerParams
-from sptpt.tracker import Tracker
+from sptpt import Tracker, TrackerParams
 
 __all__ = ["DEFAULT_MAX_BUFFER_FRAMES", "ArrayFrames", "FrameProvider", "SegmentRun", "pass_seed"]
 
