@@ -32,18 +32,18 @@ __all__ = ["AnchorChange", "AnnotateResult", "Correction", "DatasetScore", "Deco
 # worker) should not load the tracker, numba and the whole tool.
 _HOMES = {
     "AnchorChange": "annotator.review.segments",
-    "AnnotateResult": "annotator.job",
+    "AnnotateResult": "annotator.run",
     "Correction": "annotator.corrections",
     "DatasetScore": "annotator.evaluation",
-    "DecodeError": "annotator.frames",
+    "DecodeError": "annotator.frame_sources",
     "FlagParams": "annotator.flagging",
-    "FrameSource": "annotator.frames",
+    "FrameSource": "annotator.frame_sources",
     "NanoTrackGuide": "annotator.nanotrack",
     "PassResult": "annotator.pass_cache",
     "RetrackResult": "annotator.review",
     "ReviewResult": "annotator.review",
     "RunConfig": "annotator.config",
-    "RunStore": "annotator.store",
+    "RunStore": "annotator.track_store",
     "SegmentChange": "annotator.review.segments",
     "SequenceScore": "annotator.evaluation",
     "SpanThumbnail": "annotator.tracks",
@@ -52,13 +52,13 @@ _HOMES = {
     "TrackResult": "annotator.tracks",
     "TrackingRun": "annotator.pipeline",
     "VideoInfo": "annotator.tracks",
-    "annotate": "annotator.job",
+    "annotate": "annotator.run",
     "apply_corrections": "annotator.review",
     "evaluate_result_file": "annotator.evaluation",
     "evaluate_results_dir": "annotator.evaluation",
     "load_config_file": "annotator.config",
-    "open_frames": "annotator.frames",
-    "read_store": "annotator.store",
+    "open_frames": "annotator.frame_sources",
+    "read_store": "annotator.track_store",
     "resolve_config": "annotator.config",
     "seed_for_track": "annotator.pipeline",
 }
@@ -80,12 +80,12 @@ if TYPE_CHECKING:  # the same names, for type checkers and editors
     from annotator.errors import ToolError
     from annotator.evaluation import DatasetScore, SequenceScore, evaluate_result_file, evaluate_results_dir
     from annotator.flagging import FlagParams
-    from annotator.frames import DecodeError, FrameSource, open_frames
-    from annotator.job import AnnotateResult, annotate
+    from annotator.frame_sources import DecodeError, FrameSource, open_frames
     from annotator.nanotrack import NanoTrackGuide
     from annotator.pass_cache import PassResult
     from annotator.pipeline import TrackingRun, seed_for_track
     from annotator.review import RetrackResult, ReviewResult, apply_corrections
     from annotator.review.segments import AnchorChange, SegmentChange
-    from annotator.store import RunStore, read_store
+    from annotator.run import AnnotateResult, annotate
+    from annotator.track_store import RunStore, read_store
     from annotator.tracks import SpanThumbnail, Target, TrackResult, VideoInfo

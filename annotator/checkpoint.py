@@ -28,7 +28,7 @@ from typing import Any, Sequence
 
 from annotator.atomic import write_bytes_atomic
 from annotator.errors import EXIT_OUTPUT, ToolError
-from annotator.filenames import CHECKPOINT_NAME
+from annotator.output_files import CHECKPOINT_NAME
 from annotator.version import __version__
 
 __all__ = ["CHECKPOINT_EVERY", "CHECKPOINT_NAME", "Checkpoint", "read_checkpoint", "remove_checkpoint",

@@ -26,7 +26,7 @@ import yaml
 
 from annotator.errors import EXIT_VALUE
 from annotator.flagging import FlagParams
-from annotator.text import read_given_file
+from annotator.text_input import read_given_file
 from sptpt import TrackerParams, params_from_mapping
 from sptpt import preset as get_preset
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from annotator.box_input import Box, BoxError, parse_box
 from annotator.errors import EXIT_VALUE, ToolError
-from annotator.text import read_given_file
+from annotator.text_input import read_given_file
 from sptpt.boxes import lies_outside
 
 __all__ = ["Correction", "CSV_HEADER", "read_corrections", "resolve_corrections"]

@@ -66,7 +66,7 @@ class FlagParams:
 
     threshold: float | None = None
     """Flag frames with ``p_fail`` above this; ``None`` takes the failure model's, chosen when it was fitted for issue
-    #9's flag targets on sequences it did not learn from (``sptpt_dev.failure_fit.choose_threshold``; the shipped
+    #9's flag targets on sequences it did not learn from (``annotator.failure.fit.choose_threshold``; the shipped
     model's is the ``threshold`` of its file). [ours, benchmarks/RESULTS.md "Failure probability and flags"]"""
     review_budget: float | None = None
     """Percent of each track's frames to flag, the most doubtful first, instead of the threshold. [ours]"""
@@ -232,7 +232,7 @@ def span_flags(doubtful: np.ndarray, params: FlagParams, *, blocked: np.ndarray 
     The same flags as :func:`flag_p_fail` with ``p_fail > threshold`` as ``doubtful``, ``blocked`` = keyframes
     (no outside frames, no review budget, no keyframe request): the rules the flagger applies window by window
     (:func:`_span_rules`), applied once to the whole track, without reasons and without a Python loop over
-    frames: choosing a threshold (:func:`sptpt_dev.failure_fit.choose_threshold`) flags tens of thousands of
+    frames: choosing a threshold (:func:`annotator.failure.fit.choose_threshold`) flags tens of thousands of
     frames at each of ninety thresholds.
     """
     doubtful = np.asarray(doubtful, bool)

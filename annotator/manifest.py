@@ -74,9 +74,9 @@ import yaml
 from annotator.box_input import Box, BoxError, parse_box
 from annotator.config import ConfigError, resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_VALUE
-from annotator.filenames import BATCH_FILES
 from annotator.flagging import FlagParams
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.output_files import BATCH_FILES
+from annotator.text_input import TEXT_ENCODINGS, read_text
 from annotator.tracks import Target
 from sptpt import TrackerParams
 
@@ -655,7 +655,7 @@ def items_from_otb_root(root: str | os.PathLike) -> list[BatchItem]:
     """
     from annotator.evaluation.dataset import discover_otb_sequences
     from annotator.evaluation.metrics import EvaluationError, MissingInputError
-    from annotator.otb import OTBFormatError, read_otb_boxes
+    from annotator.otb_format import OTBFormatError, read_otb_boxes
 
     root = Path(root)
     try:

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Iterator
 
 from annotator.errors import EXIT_OUTPUT, ToolError
-from annotator.filenames import STAGING_PREFIX
+from annotator.output_files import STAGING_PREFIX
 
 __all__ = ["Staging", "folder_lock", "remove_staging_folders", "staging_folder"]
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from annotator.atomic import atomic_path
 from annotator.failure import SIGNALS
-from annotator.filenames import PASSES_NAME
+from annotator.output_files import PASSES_NAME
 from annotator.tracks import TrackResult
 from annotator.version import __version__
 
@@ -136,7 +136,8 @@ def pass_fingerprint(config: Mapping[str, Any], content_hash: str | None, frame_
 
 #: Modules besides the ``sptpt`` package whose code decides a pass's rows: decoding, the failure signals measured
 #: along a pass, how a pass runs and is seeded.
-_PASS_MODULES = ("annotator.frames", "annotator.failure.signals", "annotator.review.passes", "annotator.pipeline")
+_PASS_MODULES = ("annotator.frame_sources", "annotator.failure.signals", "annotator.review.passes",
+                 "annotator.pipeline")
 
 
 @functools.lru_cache(maxsize=1)

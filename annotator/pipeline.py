@@ -33,7 +33,7 @@ from annotator.config import RunConfig
 from annotator.errors import EXIT_INPUT, ToolError
 from annotator.failure import SignalMeter, TrackDoubt, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
-from annotator.frames import DecodeError, FrameSource
+from annotator.frame_sources import DecodeError, FrameSource
 from annotator.nanotrack import guide_for
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
@@ -55,7 +55,7 @@ class WorstFrameThumbnails:
     the worst frame so far is kept, already shrunk to thumbnail size, so
     memory is one small image per track. Equal maxima keep the first frame,
     and a span without a finite ``p_fail`` (object absent throughout) keeps its
-    first frame: the same choice as :func:`annotator.report.flagged_spans`.
+    first frame: the same choice as :func:`annotator.run_report.flagged_spans`.
     The first frame of a span is not captured too: the report's frame-range
     link already seeks there, and a span's first frames are often still
     right (spans merge and lead up to the failure).
@@ -457,7 +457,7 @@ def track_frames(source, targets: Sequence[Target], trackers: dict[int, Tracker]
     is what it would be if the loop did it all in turn. At most two frames wait behind, so an error there stops
     tracking soon; the first error is the one raised.
 
-    ``source`` yields ``(frame_index, frame)``; a :class:`~annotator.frames.DecodeError` from it ends the loop,
+    ``source`` yields ``(frame_index, frame)``; a :class:`~annotator.frame_sources.DecodeError` from it ends the loop,
     as do ``stop_requested()`` (checked between frames) and a Ctrl-C outside the main thread; every frame tracked
     so far is kept (after a Ctrl-C, those in flight are dropped).
 

@@ -1,6 +1,6 @@
 """What ``run.json`` records of where a run came from: the input's content hash, and its values as JSON.
 
-Below both the first run (:mod:`annotator.job`) and the re-track (:mod:`annotator.review`), which write
+Below both the first run (:mod:`annotator.run`) and the re-track (:mod:`annotator.review`), which write
 run.json, and the batch, which compares an item's input with the recorded hash to resume.
 """
 

@@ -24,11 +24,11 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from annotator.atomic import atomic_path, write_text_atomic
 from annotator.exports import ExportOptions, record_review_exports, write_exports
-from annotator.filenames import OVERLAY_NAME, REPORT_NAME, RUN_JSON
+from annotator.output_files import OVERLAY_NAME, REPORT_NAME, RUN_JSON
 from annotator.pass_cache import PASSES_NAME, pass_fingerprint, write_pass_cache
 from annotator.provenance import json_default
-from annotator.report import corrections_section, render_report, track_summary
-from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.run_report import corrections_section, render_report, track_summary
+from annotator.track_store import STORE_NAME, RunStore, write_store
 from annotator.tracks import SpanThumbnail
 
 __all__ = ["OVERLAY_NAME", "REPORT_NAME", "RUN_JSON", "MoveError", "move_into_place", "run_fingerprint",

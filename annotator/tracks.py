@@ -7,7 +7,7 @@ in ``__post_init__`` so that no exporter has to re-check shapes. Boxes are
 
 The tracking loop builds a record frame by frame with :class:`TrackRecorder`
 and calls :meth:`TrackRecorder.to_result` at the end, or after a
-:class:`~annotator.frames.DecodeError` to keep what was computed.
+:class:`~annotator.frame_sources.DecodeError` to keep what was computed.
 """
 
 from __future__ import annotations

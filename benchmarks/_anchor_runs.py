@@ -18,8 +18,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from annotator.failure.fit import video
 from benchmarks._sequences import SequenceError, select_sequences
-from sptpt_dev.failure_fit import video
 
 __all__ = ["add_arguments", "mean_std", "parse_seeds_and_intervals", "stored_data", "stored_rows", "track_jobs",
            "video"]

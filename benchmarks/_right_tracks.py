@@ -33,13 +33,13 @@ import numpy as np
 
 from annotator.evaluation import iou_xywh
 from annotator.failure import SIGNALS, SignalMeter, feature_matrix
+from annotator.failure.fit import Sample, video
 from annotator.failure.model import FEATURE_GROUPS, FEATURES, FailureModel
 from annotator.flagging import FlagParams, flag_p_fail
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
-from annotator.store import STORE_NAME, read_store
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
+from annotator.track_store import STORE_NAME, read_store
 from benchmarks._sequences import ground_truth_file
-from sptpt_dev.failure_fit import Sample, video
 
 #: Restarted segments: a new track from the true box every EVERY frames, LENGTH frames long.
 LENGTH, EVERY = 40, 80

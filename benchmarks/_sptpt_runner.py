@@ -18,9 +18,9 @@ import numpy as np
 
 from annotator.allocator import keep_freed_memory
 from annotator.atomic import atomic_path
-from annotator.frames import open_frames
+from annotator.frame_sources import open_frames
 from annotator.nanotrack import guide_for
-from annotator.otb import read_otb_boxes, write_otb_boxes, write_otb_times
+from annotator.otb_format import read_otb_boxes, write_otb_boxes, write_otb_times
 from benchmarks._stage_clock import StageClock
 from sptpt.params import TrackerParams
 from sptpt.tracker import Tracker

@@ -60,16 +60,16 @@ from annotator.atomic import write_text_atomic
 from annotator.config import RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FEATURES, feature_matrix, load_model
+from annotator.failure.fit import APPEARANCE_LEVELS, fit_model, fit_pass_agreement
 from annotator.flagging import FlagParams
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import PASS_IOU, filled_signals, track_p_fail
 from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
 from benchmarks._results import machine_line, update_section
 from benchmarks.failure_model import load_samples
 from sptpt.boxes import iou_xywh
-from sptpt_dev.failure_fit import APPEARANCE_LEVELS, fit_model, fit_pass_agreement
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from annotator.evaluation import evaluate_sequence
-from annotator.otb import read_otb_boxes
-from annotator.store import STORE_NAME, read_store
+from annotator.otb_format import read_otb_boxes
+from annotator.track_store import STORE_NAME, read_store
 from benchmarks._sequences import ground_truth_file
 
 

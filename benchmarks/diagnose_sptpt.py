@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from annotator.evaluation.metrics import iou_xywh
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from sptpt.params import TrackerParams, get_preset, params_from_mapping
 from sptpt.tracker import Tracker
 

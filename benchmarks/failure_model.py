@@ -26,7 +26,7 @@ a. Design on ``../shared/otb`` alone: compare variants (``--drop``) by their hel
            --C 0.003 --segments 'benchmarks/_runs/segments/otb/robust-s*' --truth [--record]
 
    The shipped design (2026-12-01) leaves the appearance levels out (``--drop``'s default,
-   ``sptpt_dev.failure_fit.APPEARANCE_LEVELS``) and is fitted at C = 0.003; ``--drop none`` offers every feature.
+   ``annotator.failure.fit.APPEARANCE_LEVELS``) and is fitted at C = 0.003; ``--drop none`` offers every feature.
 
 b. The frozen procedure, fitted on all of ``../shared/otb``, scored once on ``../shared/otb_extra``, which no
    choice has seen (section "failure-model-unseen")::
@@ -50,7 +50,7 @@ Step c reads every item's track store and ground truth (every frame of every seq
 session) the runs stopped at frame 150), and reports, on held-out videos only (each sequence scored by a
 model fitted on the other videos: Jogging.1 and Jogging.2 are one video, held out together; until the 6th
 session on 2026-11-27 the folds were sequences), its flag threshold chosen for the targets on those alone by
-``sptpt_dev.failure_fit.choose_threshold``: AUROC of p_fail for failure frames
+``annotator.failure.fit.choose_threshold``: AUROC of p_fail for failure frames
 (IoU < 0.5), expected calibration error, and the flags' precision, recall,
 flagged share, onset recall and flagged share on sequences tracked with
 AUC >= 0.6, per seed and as mean and standard deviation over seeds. It also
@@ -58,7 +58,7 @@ measures each signal group's worth (AUROC with the group left out) and the
 tracker's own confidence as a baseline. ``--select-groups`` lets each fold
 leave out the signal groups that backward elimination picks on its training
 sequences (nested), and the shipped model those it picks on all of them. The
-regression is L1-regularised (``sptpt_dev.failure_fit``), which sets the weight
+regression is L1-regularised (``annotator.failure.fit``), which sets the weight
 of a signal that does not pay to exactly 0 by itself; the shipped model is
 fitted without ``--select-groups`` since then (RESULTS.md, "Failure model:
 sparse"). Before, with L2, it was fitted with it (HISTORY.md, "the track's own
@@ -66,7 +66,7 @@ past"). Forward selection was tried and did worse held out (HISTORY.md, "Forward
 selection"). Every model,
 each fold's and the shipped one, chooses its C by the held-out AUROC of its
 training sequences and then recalibrates its log-odds on their held-out
-predictions (``sptpt_dev.failure_fit``). ``--write`` refits on everything,
+predictions (``annotator.failure.fit``). ``--write`` refits on everything,
 writes ``annotator/data/failure_model.json`` and the calibration plot, and
 records the figures in ``benchmarks/RESULTS.md``.
 """
@@ -89,33 +89,7 @@ import numpy as np
 from annotator.evaluation import evaluate_sequence, flag_quality, iou_xywh
 from annotator.evaluation.calibration import auroc, expected_calibration_error, plot_calibration
 from annotator.failure import SIGNALS, feature_matrix
-from annotator.failure.model import (
-    FEATURE_GROUPS,
-    FEATURES,
-    FailureModel,
-    load_model,
-    logit,
-    shipped_model_path,
-    sigmoid,
-)
-from annotator.flagging import FlagParams, flag_p_fail
-from annotator.otb import read_otb_boxes
-from annotator.store import STORE_NAME, read_store
-from benchmarks._results import machine_line, update_section
-from benchmarks._right_tracks import (
-    RIGHT_CAP,
-    load_segments,
-    right_medians,
-    right_tracks_summary,
-    right_tracks_table,
-    segments_flagged,
-    sequence_of,
-    truth_flagged,
-    truth_look,
-)
-from benchmarks._sequences import ground_truth_file
-from sptpt.params import get_preset
-from sptpt_dev.failure_fit import (
+from annotator.failure.fit import (
     APPEARANCE_LEVELS,
     MIN_GROUP_GAIN,
     TARGET_PRECISION,
@@ -131,6 +105,32 @@ from sptpt_dev.failure_fit import (
     platt,
     video,
 )
+from annotator.failure.model import (
+    FEATURE_GROUPS,
+    FEATURES,
+    FailureModel,
+    load_model,
+    logit,
+    shipped_model_path,
+    sigmoid,
+)
+from annotator.flagging import FlagParams, flag_p_fail
+from annotator.otb_format import read_otb_boxes
+from annotator.track_store import STORE_NAME, read_store
+from benchmarks._results import machine_line, update_section
+from benchmarks._right_tracks import (
+    RIGHT_CAP,
+    load_segments,
+    right_medians,
+    right_tracks_summary,
+    right_tracks_table,
+    segments_flagged,
+    sequence_of,
+    truth_flagged,
+    truth_look,
+)
+from benchmarks._sequences import ground_truth_file
+from sptpt.params import get_preset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -456,7 +456,7 @@ def checked_C_and_workers(parser: argparse.ArgumentParser, args: argparse.Namesp
     return C
 
 
-#: ``--drop``'s default: the shipped design leaves the appearance levels out (``sptpt_dev.failure_fit``).
+#: ``--drop``'s default: the shipped design leaves the appearance levels out (``annotator.failure.fit``).
 DEFAULT_DROP = ",".join(APPEARANCE_LEVELS)
 
 
@@ -825,7 +825,7 @@ def main() -> int:
            f"{dict(sorted(collections.Counter('+'.join(g) or 'none' for g in fold_groups.values()).items()))} "
            f"(groups: folds); the shipped model leaves out {'+'.join(dropped) or 'none'} (weight 0)."
            if select else f"Left out by design (weight 0): {', '.join(drop) or 'nothing'}"
-                          + (" (the appearance levels: `sptpt_dev.failure_fit.APPEARANCE_LEVELS` says why)"
+                          + (" (the appearance levels: `annotator.failure.fit.APPEARANCE_LEVELS` says why)"
                              if args.drop == DEFAULT_DROP else "") + ". "
                           "Every other signal is offered to the regression, whose L1 penalty gives a signal that "
                           "does not pay weight 0 (--select-groups also leaves groups out by nested selection). "

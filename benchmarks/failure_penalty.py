@@ -5,8 +5,8 @@
 The same runs as ``benchmarks/failure_model.py`` (its docstring has the batch commands). For each penalty and
 each C of ``--C``, every video is scored by a model fitted on the other videos, every signal offered, C fixed
 (not chosen per fold), recalibrated and its threshold chosen on its own training videos, exactly as
-``sptpt_dev.failure_fit.fit_model`` does it; only the regression differs. L1 is the product's
-(``sptpt_dev.failure_fit.l1_fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
+``annotator.failure.fit.fit_model`` does it; only the regression differs. L1 is the product's
+(``annotator.failure.fit.l1_fit``); L2 is the regression it replaced (scikit-learn's default penalty, lbfgs).
 Prints the held-out figures, mean ± std over seeds, and records them in RESULTS.md (section "failure-penalty").
 
 This is how the penalty was chosen (2026-11-27, 6th session), on the sequences whose held-out figures
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-import sptpt_dev.failure_fit as fit
+import annotator.failure.fit as fit
 from annotator.flagging import FlagParams
 from benchmarks._results import machine_line, update_section
 from benchmarks.failure_model import (

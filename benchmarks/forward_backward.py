@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.evaluation.metrics import evaluate_sequence
-from annotator.otb import read_otb_boxes
+from annotator.otb_format import read_otb_boxes
 from annotator.review.merge import MERGES, PassResult, merge_passes
 from benchmarks._sequences import SequenceError, select_sequences
 
@@ -70,7 +70,7 @@ def track_sequence(job: dict) -> dict:
     import numba
 
     numba.set_num_threads(job["threads"])
-    from annotator.frames import open_frames
+    from annotator.frame_sources import open_frames
     from benchmarks._sptpt_runner import stable_id
     from sptpt.params import get_preset
     from sptpt.tracker import Tracker

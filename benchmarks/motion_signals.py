@@ -23,8 +23,8 @@ import numpy as np
 
 from annotator.failure.signals import MOTION_SIGNALS as MOTION
 from annotator.failure.signals import NEUTRAL, MotionMeter, grey_of
-from annotator.frames import open_frames
-from annotator.store import STORE_NAME, read_store, write_store
+from annotator.frame_sources import open_frames
+from annotator.track_store import STORE_NAME, read_store, write_store
 
 ROOT = Path(__file__).resolve().parents[1]
 

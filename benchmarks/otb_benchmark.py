@@ -56,7 +56,7 @@ HERE = Path(__file__).resolve().parent
 
 from annotator.evaluation import DatasetScore, evaluate_dataset, write_report  # noqa: E402
 from annotator.evaluation.report import plot_success  # noqa: E402
-from annotator.otb import read_otb_boxes  # noqa: E402
+from annotator.otb_format import read_otb_boxes  # noqa: E402
 from benchmarks._results import machine_line, update_section  # noqa: E402
 from benchmarks._sequences import SequenceError, select_sequences  # noqa: E402
 from sptpt.params import PRESETS  # noqa: E402

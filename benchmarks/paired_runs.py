@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from annotator.evaluation.metrics import evaluate_sequence
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.contrast import most_contrasted
 

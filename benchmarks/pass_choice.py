@@ -56,17 +56,17 @@ from annotator.atomic import write_text_atomic
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.evaluation.calibration import auroc, expected_calibration_error
 from annotator.failure import FailureModelError, load_model
+from annotator.failure.fit import fit_pass_choice
 from annotator.failure.model import PASS_CHOICE_FEATURES, PASS_OPTIONS, shipped_model_path
 from annotator.flagging import FlagParams
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from annotator.review import ArrayFrames, retrack_tracks
 from annotator.review.merge import merge_passes, pass_choice_features, pass_p_fail
 from benchmarks._anchor_runs import add_arguments, mean_std, stored_data, stored_rows, video
 from benchmarks._results import machine_line, update_section
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
-from sptpt_dev.failure_fit import fit_pass_choice
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent

@@ -34,7 +34,7 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
-from annotator.frames import open_frames
+from annotator.frame_sources import open_frames
 from annotator.pass_cache import PASSES_NAME
 from annotator.review import SourceFrames
 from benchmarks._results import machine_line, update_section

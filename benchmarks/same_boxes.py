@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from benchmarks._stage_clock import StageClock
 from sptpt.params import get_preset
 from sptpt.tracker import STAGES, Tracker

@@ -89,10 +89,11 @@ import numpy as np
 
 from annotator.config import DEFAULT_PRESET, RunConfig
 from annotator.failure import FailureModelError, load_model
+from annotator.failure.fit import video
 from annotator.failure.model import shipped_model_path
 from annotator.flagging import FlagParams, keyframe_rows, spans_from_mask
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from annotator.review import (
     DEFAULT_MERGE,
     MERGES,
@@ -105,7 +106,6 @@ from annotator.wording import ordinal
 from benchmarks._results import machine_line, update_section
 from benchmarks._sequences import SequenceError, select_sequences
 from sptpt.params import get_preset, params_from_mapping
-from sptpt_dev.failure_fit import video
 
 HERE = Path(__file__).resolve().parent
 

@@ -22,7 +22,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # sptpt_dev lives in the source tree, not in the installed package
 
-from annotator.otb import write_otb_boxes  # noqa: E402
+from annotator.otb_format import write_otb_boxes  # noqa: E402
 from sptpt_dev.synthetic import make_clip  # noqa: E402
 
 FPS = 25

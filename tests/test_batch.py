@@ -26,7 +26,7 @@ import pytest
 from annotator.batch import BatchRequest, ItemJob, is_item_finished, item_seed, plan_batch, read_run_json, run_batch
 from annotator.cli import main
 from annotator.config import load_config_file
-from annotator.frames import open_frames
+from annotator.frame_sources import open_frames
 from annotator.manifest import read_manifest
 from sptpt_dev.synthetic import make_clip
 
@@ -520,7 +520,7 @@ def test_a_killed_runs_otb_files_go_and_a_symlinked_subfolder_is_not_followed(tm
 
 
 def test_the_out_check_compares_every_item_folder_with_every_input_folder(tmp_path):
-    from annotator.batch.run import _refuse_unsafe_out_dir
+    from annotator.batch.runner import _refuse_unsafe_out_dir
     from annotator.errors import ToolError
     from annotator.manifest import BatchItem
     from annotator.tracks import Target
@@ -602,7 +602,7 @@ def test_an_otb_root_is_a_batch_that_eval_scores(tmp_path, capsys):
 def test_merged_coco_from_the_stores_keeps_real_image_paths_and_renames_frame_dumps(tmp_path):
     from annotator.batch.outputs import _item_stores
     from annotator.exports import write_dataset_exports
-    from annotator.store import STORE_NAME, RunStore, write_store
+    from annotator.track_store import STORE_NAME, RunStore, write_store
     from annotator.tracks import TrackRecorder, VideoInfo
 
     recorder = TrackRecorder(1, "object")

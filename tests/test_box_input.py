@@ -87,7 +87,7 @@ def reference(text: str, name: str):
 
 @pytest.mark.parametrize("text", [*AS_TYPED, "10;20;30;40", "10 20 30 40", "1,2,3"])
 def test_the_command_line_reads_a_box_as_the_parser_does(text, tmp_path, monkeypatch, capsys):
-    import annotator.job
+    import annotator.run
 
     got = []
 
@@ -95,7 +95,7 @@ def test_the_command_line_reads_a_box_as_the_parser_does(text, tmp_path, monkeyp
         got.extend(t.box_xywh for t in targets)
         raise SystemExit(0)
 
-    monkeypatch.setattr(annotator.job, "annotate", capture)
+    monkeypatch.setattr(annotator.run, "annotate", capture)
     with pytest.raises(SystemExit) as caught:
         main([str(tmp_path / "clip.mp4"), "--box", text, "--quiet"])
     expected = reference(text, "--box")
@@ -183,7 +183,7 @@ def test_the_python_api_reads_a_box_as_the_parser_does(text, tmp_path):
     ],
 )
 def test_annotate_takes_one_box_or_a_list_of_them(given, boxes):
-    from annotator.job import _as_targets
+    from annotator.run import _as_targets
     from annotator.tracks import Target
 
     assert _as_targets(given) == [Target(box, track_id=i, label="object") for i, box in enumerate(boxes, start=1)]

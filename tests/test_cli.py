@@ -27,8 +27,8 @@ import annotator
 from annotator.cli import app, main
 from annotator.exports import read_flags_csv
 from annotator.flagging import FlagParams
-from annotator.frames import open_frames
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from sptpt_dev.synthetic import make_clip
 
 N_FRAMES, SIZE, FPS = 16, (96, 72), 25.0
@@ -319,12 +319,12 @@ def test_debug_shows_the_traceback_and_keeps_the_exit_code(work):
     (OSError(5, "Input/output error"), 1, "sptpt-annotate: internal error: OSError: [Errno 5] Input/output error"),
 ])
 def test_a_full_disk_is_an_output_error_not_a_bug(clip, monkeypatch, capsys, error, code, needle):
-    import annotator.job
+    import annotator.run
 
     def full(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(annotator.job, "annotate", full)
+    monkeypatch.setattr(annotator.run, "annotate", full)
     with pytest.raises(SystemExit) as caught:
         main([str(clip), "--box", "1,2,3,4", "--quiet"])
     assert caught.value.code == code
@@ -679,7 +679,7 @@ def test_help_names_the_box_layout_and_the_default_preset():
 
 def test_a_folder_that_holds_results_is_refused_before_the_video_is_counted(clip, config_file, work, monkeypatch):
     """Opening a video decodes it all to count its frames (minutes for a long one): a refusal comes first."""
-    import annotator.frames
+    import annotator.frame_sources
 
     out = work / "refused_early"
     done = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3, "--quiet")
@@ -688,7 +688,7 @@ def test_a_folder_that_holds_results_is_refused_before_the_video_is_counted(clip
     def counted(*args, **kwargs):
         raise AssertionError("the video was counted before the refusal")
 
-    monkeypatch.setattr(annotator.frames, "_count_video_frames", counted)
+    monkeypatch.setattr(annotator.frame_sources, "_count_video_frames", counted)
     again = invoke(clip, "--box", BOX0, "--config", config_file, "--out", out, "--stop", 3)
     assert again.exit_code == 5 and "already holds results" in again.stderr, again.output
     missing = invoke(work / "missing.mp4", "--box", BOX0, "--out", out)  # a missing input is still named first

@@ -12,7 +12,7 @@ import numpy as np
 from _benchmark_scripts import BENCHMARKS, load_script
 
 from annotator.evaluation.metrics import iou_xywh
-from annotator.otb import read_otb_boxes
+from annotator.otb_format import read_otb_boxes
 from sptpt.params import get_preset, params_from_mapping
 from sptpt.tracker import Tracker
 from sptpt_dev.synthetic import make_clip

@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
 from annotator.evaluation import EvaluationError, evaluate_result_file, evaluate_results_dir, evaluate_sequence
-from annotator.otb import write_otb_boxes
-from annotator.store import STORE_NAME, RunStore, write_store
+from annotator.otb_format import write_otb_boxes
+from annotator.track_store import STORE_NAME, RunStore, write_store
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt_dev.synthetic import make_clip
 

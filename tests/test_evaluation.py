@@ -38,7 +38,7 @@ from annotator.evaluation import (
     success_curve,
     write_report,
 )
-from annotator.otb import OTBFormatError, read_otb_boxes, write_otb_boxes
+from annotator.otb_format import OTBFormatError, read_otb_boxes, write_otb_boxes
 
 OTB_ROOT = Path(__file__).parents[1].parent / "shared" / "otb"
 needs_otb = pytest.mark.skipif(

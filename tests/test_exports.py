@@ -27,7 +27,7 @@ from annotator.exports import (
     write_otb_results,
 )
 from annotator.exports import flags as flags_module
-from annotator.otb import read_otb_boxes
+from annotator.otb_format import read_otb_boxes
 from annotator.tracks import TrackRecorder, TrackResult, VideoInfo
 
 GOLDEN = Path(__file__).parent / "golden" / "exports"

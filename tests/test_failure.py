@@ -26,12 +26,7 @@ from annotator.failure import (
     particle_stats,
     score_track,
 )
-from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
-from annotator.failure.signals import MOTION_SIGNALS
-from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from sptpt.contrast import colour_contrast
-from sptpt.params import get_preset
-from sptpt_dev.failure_fit import (
+from annotator.failure.fit import (
     TARGET_PRECISION,
     TARGET_RECALL,
     THRESHOLD_FLAGS,
@@ -49,6 +44,11 @@ from sptpt_dev.failure_fit import (
     platt,
     video,
 )
+from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
+from annotator.failure.signals import MOTION_SIGNALS
+from annotator.flagging import REASONS, FlagParams, flag_p_fail
+from sptpt.contrast import colour_contrast
+from sptpt.params import get_preset
 from sptpt_dev.synthetic import changing_object, make_clip
 
 FAIL_AT = 12
@@ -503,7 +503,7 @@ def test_fit_model_folds_the_recalibration_into_its_coefficients(monkeypatch):
     assert "calibration" not in raw.info
     # The threshold is chosen on the recalibrated held-out predictions: a recalibration that shifts p_fail up
     # moves the threshold up with it (the same frames flagged), while the raw model's stays unchosen.
-    monkeypatch.setattr("sptpt_dev.failure_fit.platt", lambda p, failed: (1.0, 2.0))
+    monkeypatch.setattr("annotator.failure.fit.platt", lambda p, failed: (1.0, 2.0))
     shifted = fit_model(samples, C=0.1)
     assert np.all(shifted.p_fail(features) > raw.p_fail(features))
     assert raw.threshold == UNCHOSEN_THRESHOLD and "threshold" not in raw.info
@@ -726,7 +726,7 @@ def test_failure_model_script_describes_a_model_without_recalibration_too():
 def test_calibration_bounds_undo_one_shifted_base_rate_and_a_level_of_each_video_only_per_video():
     from _benchmark_scripts import load_script
 
-    from sptpt_dev.failure_fit import Sample
+    from annotator.failure.fit import Sample
 
     fm = load_script("failure_model")
     rng = np.random.default_rng(3)
@@ -857,7 +857,7 @@ def test_both_sequences_of_one_video_are_held_out_together():
 def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_other():
     # Every nested fit (the choice of C, the recalibration, the threshold) must hold out whole videos too. Each
     # sample carries its own value in since_anchor, so the rows a fit sees tell which sequences it trained on.
-    import sptpt_dev.failure_fit as fit
+    import annotator.failure.fit as fit
 
     a, b, c, d = small_samples()
     column = FEATURES.index("since_anchor")
@@ -990,7 +990,7 @@ def test_appearance_counts_where_a_run_parts_from_the_box():
 def test_the_shipped_model_reads_appearance_only_where_a_run_parts():
     """The shipped design (issue #43): no weight on an appearance level, whose normal value depends on the object;
     appearance enters through ncc_memory_parted."""
-    from sptpt_dev.failure_fit import APPEARANCE_LEVELS
+    from annotator.failure.fit import APPEARANCE_LEVELS
 
     model = load_model()
     weights = dict(zip(model.features, model.coef))

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from annotator.frames import (
+from annotator.frame_sources import (
     DEFAULT_FOLDER_FPS,
     DecodeError,
     FrameRangeError,
@@ -530,7 +530,7 @@ def test_exif_orientation_is_applied_as_viewers_apply_it(tmp_path, orientation):
 
 
 def test_the_count_of_a_video_reports_its_progress(video):
-    from annotator.frames import _count_video_frames
+    from annotator.frame_sources import _count_video_frames
 
     seen: list[int] = []
     count, damage = _count_video_frames(Path(video), seen.append)
@@ -563,7 +563,7 @@ def test_tiff_frames_are_turned_once(tmp_path, orientation):
 def test_mixed_orientations_name_the_exif_orientation(tmp_path):
     from PIL import Image
 
-    from annotator.frames import FrameSizeMismatchError
+    from annotator.frame_sources import FrameSizeMismatchError
 
     stored = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
     for k, orientation in enumerate((1, 6)):
@@ -576,7 +576,7 @@ def test_mixed_orientations_name_the_exif_orientation(tmp_path):
 
 
 def test_ctrl_c_during_the_count_stops_ffmpeg(video, monkeypatch):
-    from annotator.frames import _count_video_frames
+    from annotator.frame_sources import _count_video_frames
 
     killed = []
 

@@ -27,7 +27,7 @@ from test_retrack import snapshot
 from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
-from annotator.store import STORE_NAME, read_store
+from annotator.track_store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
 
 USER, PASSWORD, TOKEN = "reviewer@example.com", "sptpt-review-47", "sptpt47token0123456789"
@@ -197,7 +197,7 @@ def test_keyframe_added_through_the_api_comes_back_to_the_pixel_and_only_once(se
     assert data[0]["annotations"][0]["parent_prediction"] == prediction["id"]
     data[0]["annotations"][0].update(parent_prediction=None, prediction=None)
     from annotator.review.imports import read_labelstudio_corrections
-    from annotator.review.run import load_run
+    from annotator.review.loaded_run import load_run
 
     run = load_run(run_dir)
     orphan = tmp_path / "without-parent.json"

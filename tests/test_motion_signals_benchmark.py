@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from annotator.cli import main
-from annotator.store import STORE_NAME, read_store, write_store
+from annotator.track_store import STORE_NAME, read_store, write_store
 from sptpt_dev.synthetic import make_clip
 
 NEW = ("flow_drift", "flow_scale_drift", "ring_with_box", "box_with_background")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from _benchmark_scripts import load_script
 
-from annotator.otb import write_otb_boxes
+from annotator.otb_format import write_otb_boxes
 
 
 def _module():

@@ -15,10 +15,10 @@ import pytest
 
 from annotator.config import resolve_config
 from annotator.failure import SIGNALS, FailureModelError, load_model, score_track
+from annotator.failure.fit import fit_pass_choice
 from annotator.failure.model import PASS_CHOICE_FEATURES, PassChoice, logit
 from annotator.review import ArrayFrames, PassResult, PreviousTrack, merge_passes, retrack_tracks
 from annotator.review.merge import PASS_CHOICE, filled_signals, pass_choice_features, pass_p_fail
-from sptpt_dev.failure_fit import fit_pass_choice
 from sptpt_dev.synthetic import make_clip
 
 K = len(PASS_CHOICE_FEATURES)

@@ -30,10 +30,10 @@ import annotator.pipeline as pipeline_module
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_OK, EXIT_PARTIAL, EXIT_VALUE, ToolError
 from annotator.exports import read_flags_csv
-from annotator.frames import open_frames
-from annotator.job import annotate
-from annotator.otb import read_otb_boxes
-from annotator.report import flagged_spans
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
+from annotator.run import annotate
+from annotator.run_report import flagged_spans
 from annotator.tracks import Target
 from sptpt.results import FrameResult
 
@@ -457,7 +457,7 @@ def test_a_lost_track_asks_for_keyframes_in_flags_csv_the_report_and_run_json(sc
     overlay = open_frames(out / "overlay.mp4")
     assert [read_index(frame) for _, frame in overlay if border_is_red(frame)] == [11, 13, 15, 17]
     # The command line says it too.
-    from annotator.report import keyframe_note
+    from annotator.run_report import keyframe_note
 
     note = keyframe_note(result.run.tracks, out)
     assert note.startswith("track 1 (car) looks lost on most of its frames: box frames 9, 17, 25, 27 (4 frames, ")

@@ -14,7 +14,7 @@ import pytest
 
 from annotator.failure import load_model
 from annotator.flagging import FlagParams
-from annotator.frames import DecodeError
+from annotator.frame_sources import DecodeError
 from annotator.pipeline import (
     FrameMark,
     HeldFrames,

@@ -259,7 +259,7 @@ def test_a_run_says_it_compiles_only_when_the_kernels_are_not_cached(tmp_path, m
     import cv2
 
     import sptpt
-    from annotator import job
+    from annotator import run as job
     from annotator.tracks import Target
     from sptpt_dev.synthetic import make_clip
 

@@ -92,7 +92,7 @@ def test_each_package_names_its_public_api():
             assert getattr(package, name) is not None, name
         with pytest.raises(AttributeError):
             _ = package.not_a_name
-    from annotator.job import annotate
+    from annotator.run import annotate
 
     assert annotator.annotate is annotate  # the command line's own function, not a second one
 

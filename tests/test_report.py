@@ -23,7 +23,7 @@ import pytest
 
 from annotator.flagging import REASONS
 from annotator.pipeline import WorstFrameThumbnails
-from annotator.report import (
+from annotator.run_report import (
     _tick_step,
     by_expected_errors,
     flagged_spans,
@@ -430,7 +430,7 @@ def test_mean_confidence_is_over_the_frames_with_a_box():
 
 
 def test_the_report_and_the_batch_index_share_one_template_environment():
-    from annotator.pages import BATCH_TEMPLATE, REPORT_TEMPLATE, template_environment
+    from annotator.html_pages import BATCH_TEMPLATE, REPORT_TEMPLATE, template_environment
 
     env = template_environment()
     assert template_environment() is env  # built once per process

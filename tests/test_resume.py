@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from annotator import job, pipeline
+from annotator import pipeline
+from annotator import run as job
 from annotator.checkpoint import CHECKPOINT_NAME, read_checkpoint
 from annotator.cli import _with_default_command, app
 from annotator.config import resolve_config
 from annotator.errors import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_OUTPUT, EXIT_USAGE, ToolError
 from annotator.nanotrack import NanoTrackGuide
-from annotator.store import STORE_NAME, read_store
+from annotator.track_store import STORE_NAME, read_store
 from annotator.tracks import Target
 from sptpt_dev.synthetic import make_clip
 
@@ -194,7 +195,7 @@ def test_an_interrupted_batch_item_resumes_on_the_rerun(clip_dir, tmp_path, monk
     import dataclasses
 
     from annotator.batch.plan import BatchRequest, plan_batch
-    from annotator.batch.run import _schedule
+    from annotator.batch.runner import _schedule
     from annotator.batch.workers import run_item
     from annotator.manifest import BatchItem
 

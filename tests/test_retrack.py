@@ -30,9 +30,8 @@ from annotator.exports import read_flags_csv
 from annotator.failure import LOOKAHEAD, load_model
 from annotator.failure.model import PassAgreement
 from annotator.flagging import FlagParams
-from annotator.frames import open_frames
-from annotator.job import annotate
-from annotator.otb import read_otb_boxes
+from annotator.frame_sources import open_frames
+from annotator.otb_format import read_otb_boxes
 from annotator.pipeline import track_source
 from annotator.review import (
     ArrayFrames,
@@ -49,6 +48,7 @@ from annotator.review import (
     same_box,
 )
 from annotator.review.merge import track_p_fail
+from annotator.run import annotate
 from annotator.tracks import Target
 from sptpt_dev.synthetic import make_clip
 
@@ -498,7 +498,7 @@ def csv_row(frame: int, box=None, track="") -> str:
 def test_kept_passes_give_the_boxes_of_passes_run_again_and_spare_their_tracking(out, tmp_path):
     """The run keeps its passes (passes.npz): a re-track reuses those its anchors still start, box for box."""
     from annotator.pass_cache import PASSES_NAME
-    from annotator.store import STORE_NAME, read_store
+    from annotator.track_store import STORE_NAME, read_store
 
     again = tmp_path / "again"
     shutil.copytree(out, again)
@@ -663,7 +663,7 @@ def test_rerendered_report_shows_each_span_by_expected_errors_with_its_worst_fra
     """After a re-track the overlay is drawn again; each span's thumbnail is taken from its highest-p_fail frame."""
     from test_report import parse, seek_seconds, shows_frame
 
-    from annotator.report import by_expected_errors, flagged_spans
+    from annotator.run_report import by_expected_errors, flagged_spans
 
     info = json.loads((out / "run.json").read_text())
     # A model whose doubt grows with the distance from the last human box, so that a span's worst frame is not its
@@ -897,15 +897,15 @@ def test_video_input(tmp_path):
 
 def test_a_verified_video_is_not_decoded_again_to_count_its_frames(tmp_path, monkeypatch):
     """The content hash says the bytes are the run's, so the recorded count stands; without that, ffmpeg counts."""
-    import annotator.frames
+    import annotator.frame_sources
 
     clip, video = _video_run(tmp_path)
     out = tmp_path / "out"
     info = json.loads((out / "run.json").read_text())
     assert info["input"]["damage"] is None and info["input"]["frame_count"] == 12
     counted = []
-    real_count = annotator.frames._count_video_frames
-    monkeypatch.setattr(annotator.frames, "_count_video_frames",
+    real_count = annotator.frame_sources._count_video_frames
+    monkeypatch.setattr(annotator.frame_sources, "_count_video_frames",
                         lambda *a, **k: counted.append(1) or real_count(*a, **k))
     (tmp_path / "fix.csv").write_text(csv_row(4, clip.boxes_xywh[4], 1))
     apply_corrections(out, tmp_path / "fix.csv", show_progress=False)

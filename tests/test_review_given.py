@@ -311,7 +311,7 @@ def test_cvat_file_used_twice_from_the_command_line_changes_nothing_the_second_t
     from test_retrack import snapshot
     from test_review_loop_tools import _run
 
-    from annotator.store import STORE_NAME, read_store
+    from annotator.track_store import STORE_NAME, read_store
 
     out = tmp_path / "out"
     shutil.copytree(cvat_run, out)

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
 from annotator.errors import EXIT_VALUE
-from annotator.store import STORE_NAME, read_store
+from annotator.track_store import STORE_NAME, read_store
 from sptpt_dev.synthetic import make_clip
 
 FORMATS = "otb,coco,flags,report,cvat,mot,labelstudio,yolo"

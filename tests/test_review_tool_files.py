@@ -30,7 +30,7 @@ from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
 from annotator.exports.cvat import MAX_ERROR_PX
-from annotator.store import STORE_NAME, read_store
+from annotator.track_store import STORE_NAME, read_store
 from sptpt.boxes import clip_xywh
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from annotator.failure.fit import Sample
 from annotator.failure.model import FEATURES, model_from_fit
 from benchmarks._right_tracks import (
     LOOK,
@@ -20,7 +21,6 @@ from benchmarks._right_tracks import (
     truth_flagged,
     truth_look,
 )
-from sptpt_dev.failure_fit import Sample
 from sptpt_dev.synthetic import changing_object
 
 

@@ -23,9 +23,9 @@ from typer.testing import CliRunner
 from annotator.commands.retrack import retrack_command
 from annotator.errors import EXIT_INPUT
 from annotator.exports import FILE_EXPORTS, write_exports
-from annotator.job import annotate
 from annotator.review import load_run
-from annotator.store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
+from annotator.run import annotate
+from annotator.track_store import SCHEMA_VERSION, STORE_NAME, RunStore, StoreError, read_store, write_store
 from annotator.tracks import Target, TrackResult, VideoInfo
 from sptpt_dev.synthetic import make_clip
 
@@ -118,7 +118,7 @@ def test_every_export_from_the_store_equals_its_golden_file(tmp_path, name, n_tr
 
 
 def test_every_file_format_is_a_view():
-    from annotator.formats import ALL_FORMATS
+    from annotator.output_files import ALL_FORMATS
 
     assert set(FILE_EXPORTS) == set(ALL_FORMATS) - {"overlay", "report"}
 
@@ -159,7 +159,7 @@ def test_the_store_is_written_whatever_the_formats(tmp_path):
 
 def test_the_store_holds_what_the_exports_hold_at_full_precision(run_dir):
     from annotator.exports import read_flags_csv
-    from annotator.otb import read_otb_boxes
+    from annotator.otb_format import read_otb_boxes
 
     track = load_run(run_dir).tracks[0]
     np.testing.assert_allclose(track.boxes_xywh, read_otb_boxes(run_dir / "seq.txt"), atol=5e-4)

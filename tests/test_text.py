@@ -6,7 +6,7 @@ import codecs
 
 import pytest
 
-from annotator.text import decode_text, read_text
+from annotator.text_input import decode_text, read_text
 
 TEXT = "frame,x,y,w,h\n12,10.5,20,30,40\n"
 

@@ -1,4 +1,4 @@
-"""Batch runs: every item of a manifest through :func:`annotator.job.annotate`, resumably, in parallel.
+"""Batch runs: every item of a manifest through :func:`annotator.run.annotate`, resumably, in parallel.
 
 Where things are
     :mod:`~annotator.batch.plan`
@@ -13,7 +13,7 @@ Where things are
     :mod:`~annotator.batch.outputs`
         The batch-level files in ``OUT``: ``annotations.json`` (merged COCO),
         ``summary.json``, ``failures.jsonl`` and the ``report.html`` index.
-    :mod:`~annotator.batch.run`
+    :mod:`~annotator.batch.runner`
         The entry point :func:`run_batch`, which holds the output folder's
         lock and ties the above together.
 
@@ -41,9 +41,9 @@ from annotator.batch.plan import (
     plan_batch,
     read_run_json,
 )
-from annotator.batch.run import run_batch
+from annotator.batch.runner import run_batch
 from annotator.batch.workers import ItemOutcome, run_item
-from annotator.filenames import BATCH_FILES
+from annotator.output_files import BATCH_FILES
 from annotator.progress import BatchProgress
 
 __all__ = [

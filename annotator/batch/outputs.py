@@ -32,9 +32,9 @@ from annotator.batch.plan import BatchRequest, PlannedItem, normalised_json, rea
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_BATCH_FAILURES, EXIT_OK
 from annotator.exports import DATASET_EXPORTS, ExportOptions, write_dataset_exports
-from annotator.filenames import FAILURES_NAME, REPORT_NAME, SUMMARY_NAME
-from annotator.pages import BATCH_TEMPLATE, template_environment
-from annotator.store import STORE_NAME, RunStore, read_store
+from annotator.html_pages import BATCH_TEMPLATE, template_environment
+from annotator.output_files import FAILURES_NAME, REPORT_NAME, SUMMARY_NAME
+from annotator.track_store import STORE_NAME, RunStore, read_store
 from annotator.version import __version__
 
 

@@ -33,9 +33,8 @@ from typing import Any, Mapping, Sequence
 
 from annotator.config import ConfigError, RunConfig, resolve_config
 from annotator.errors import EXIT_VALUE, ToolError
-from annotator.filenames import RUN_JSON
-from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
 from annotator.manifest import BatchItem, InvalidManifestError, ManifestError
+from annotator.output_files import ALL_FORMATS, DEFAULT_FORMATS, RUN_JSON
 from annotator.provenance import content_hash
 from annotator.tracks import Target
 

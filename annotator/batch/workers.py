@@ -40,10 +40,10 @@ from annotator.batch.plan import ItemJob
 from annotator.checkpoint import CHECKPOINT_NAME
 from annotator.errors import EXIT_INTERNAL, EXIT_OK, EXIT_OUTPUT, ToolError
 from annotator.exports.otb import otb_result_globs
-from annotator.filenames import RUN_JSON
-from annotator.job import previous_outputs
 from annotator.manifest import output_stem
+from annotator.output_files import RUN_JSON
 from annotator.output_folder import remove_staging_folders
+from annotator.run import previous_outputs
 
 _EVENT_INTERVAL = 0.5  # seconds between a worker's frame-count events for one item
 
@@ -143,7 +143,7 @@ def run_item(job: ItemJob, send: Callable[[tuple], None] | None = None) -> ItemO
         Receives progress events ``("start", id, pid, total_frames)`` and
         ``("frames", id, done)``.
     """
-    from annotator.job import annotate
+    from annotator.run import annotate
 
     with _ITEM_LOCK:
         if job.threads is not None:

@@ -9,7 +9,7 @@ import typer
 
 from annotator.commands.common import fail
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError, require_extra
-from annotator.formats import DEFAULT_FORMATS
+from annotator.output_files import DEFAULT_FORMATS
 from annotator.wording import plural
 
 

@@ -10,7 +10,7 @@ import typer
 
 from annotator.commands.common import fail
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
-from annotator.filenames import CALIBRATION_PLOT
+from annotator.output_files import CALIBRATION_PLOT
 from annotator.wording import plural
 
 
@@ -39,7 +39,7 @@ def eval_command(
         write_report,
     )
     from annotator.evaluation.calibration import failure_markdown, failure_summary, plot_calibration
-    from annotator.otb import OTBFormatError
+    from annotator.otb_format import OTBFormatError
 
     pairs: list = []
     try:

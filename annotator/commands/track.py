@@ -10,7 +10,7 @@ import typer
 from annotator.commands.common import fail, one_line_warnings
 from annotator.config import DEFAULT_PRESET
 from annotator.errors import EXIT_OK, EXIT_USAGE, EXIT_VALUE, ToolError
-from annotator.formats import DEFAULT_FORMATS
+from annotator.output_files import DEFAULT_FORMATS
 from annotator.wording import plural
 from sptpt import PRESETS
 
@@ -57,7 +57,7 @@ def track_command(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks."),
 ) -> None:
     """Track objects from their first-frame boxes; write OTB, COCO, flags, overlay video and review report."""
-    from annotator.job import annotate
+    from annotator.run import annotate
 
     try:
         if resume and force:
@@ -143,7 +143,7 @@ def _summary(result, review) -> None:
     typer.echo(f"{plural(result.run.frames_processed, 'frame')} tracked in {result.run.seconds_total:.1f} s; "
                f"{flagged} of {plural(total, 'frame box', 'frame boxes')} flagged for review; "
                f"results in {result.out_dir}", err=True)
-    from annotator.report import keyframe_note
+    from annotator.run_report import keyframe_note
 
     # After corrections that changed the boxes, the review's summary speaks for the re-tracked tracks.
     note = "" if review is not None and review.changed else keyframe_note(result.run.tracks, result.out_dir)

@@ -29,7 +29,7 @@ Partial runs
     :attr:`SequencePair.note` says so. An OTB file has no such record and
     must have one row per ground-truth row.
 
-Every error names the file (and line, via :class:`~annotator.otb.OTBFormatError`)
+Every error names the file (and line, via :class:`~annotator.otb_format.OTBFormatError`)
 or the missing path, and says how to fix it.
 """
 
@@ -51,9 +51,9 @@ from annotator.evaluation.metrics import (
     evaluate_sequence,
 )
 from annotator.flagging import keyframe_rows
-from annotator.otb import OTBFormatError, read_otb_boxes
-from annotator.store import STORE_NAME, StoreError, read_store
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.otb_format import OTBFormatError, read_otb_boxes
+from annotator.text_input import TEXT_ENCODINGS, read_text
+from annotator.track_store import STORE_NAME, StoreError, read_store
 from annotator.tracks import TrackResult
 from annotator.wording import ordinal, plural
 
@@ -288,7 +288,7 @@ def load_sequence_pair(
 
     Raises
     ------
-    annotator.otb.OTBFormatError
+    annotator.otb_format.OTBFormatError
         An unparsable row (the message names the file and line).
     EvaluationError
         The row counts differ (the message names both files).
@@ -378,7 +378,7 @@ def load_dataset_pairs(
         A missing results folder, no result for any sequence, a sequence
         named in ``sequences`` with no result file (all listed at once, each
         with the path expected), or a row-count mismatch.
-    annotator.otb.OTBFormatError
+    annotator.otb_format.OTBFormatError
         An unparsable row, naming the file and line.
     """
     gt_root, results_dir = Path(gt_root), Path(results_dir)

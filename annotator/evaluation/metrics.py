@@ -8,7 +8,7 @@ Conventions
 -----------
 Boxes
     0-based ``xywh`` float arrays of shape ``(N, 4)``, one row per frame, as
-    returned by :func:`annotator.otb.read_otb_boxes`. Every metric here is
+    returned by :func:`annotator.otb_format.read_otb_boxes`. Every metric here is
     invariant to a common translation, so the origin of the file does not
     change any number as long as results and ground truth share it.
 IoU
@@ -125,7 +125,7 @@ def _as_boxes(boxes: np.ndarray, name: str) -> np.ndarray:
     if array.ndim != 2 or array.shape[1] != 4:
         raise EvaluationError(
             f"{name} must be an (N, 4) array of xywh boxes, got shape {array.shape}; "
-            "read OTB files with annotator.otb.read_otb_boxes"
+            "read OTB files with annotator.otb_format.read_otb_boxes"
         )
     return array
 

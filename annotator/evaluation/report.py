@@ -31,7 +31,7 @@ from annotator.evaluation.metrics import (
     DatasetScore,
     EvaluationError,
 )
-from annotator.filenames import PRECISION_PLOT, RESULTS_JSON, RESULTS_MD, SUCCESS_PLOT
+from annotator.output_files import PRECISION_PLOT, RESULTS_JSON, RESULTS_MD, SUCCESS_PLOT
 
 __all__ = [
     "PROTOCOL",

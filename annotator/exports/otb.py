@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import Sequence
 
-from annotator.otb import write_otb_boxes, write_otb_times
+from annotator.otb_format import write_otb_boxes, write_otb_times
 from annotator.tracks import TrackResult
 
 __all__ = ["otb_result_globs", "otb_sequence_names", "write_otb_results"]

@@ -1,7 +1,7 @@
 """Every file export is a view of track stores: ``write_exports(out_dir, store, formats)`` for one run,
 ``write_dataset_exports(out_dir, stores, formats)`` for a batch's merged files.
 
-Each format is a function from the :class:`~annotator.store.RunStore` (or
+Each format is a function from the :class:`~annotator.track_store.RunStore` (or
 the stores of a batch's items) to its files, nothing else: no tracking, no
 reading of other exports. The main command, ``retrack`` and batch all write
 exports through here, so a format added to :data:`FILE_EXPORTS` appears
@@ -24,7 +24,7 @@ from annotator.exports.labelstudio import build_labelstudio_tasks, media_url_for
 from annotator.exports.mot import write_mot
 from annotator.exports.otb import write_otb_results
 from annotator.exports.yolo import write_yolo
-from annotator.filenames import (
+from annotator.output_files import (
     COCO_NAME,
     CVAT_NAME,
     FLAGS_NAME,
@@ -33,7 +33,7 @@ from annotator.filenames import (
     MOT_FOLDER,
     YOLO_FOLDER,
 )
-from annotator.store import RunStore
+from annotator.track_store import RunStore
 
 __all__ = ["DATASET_EXPORTS", "ExportOptions", "FILE_EXPORTS", "LABELSTUDIO_CONFIG", "REVIEW_EXPORTS_KEPT",
            "record_review_exports", "write_dataset_exports", "write_exports"]

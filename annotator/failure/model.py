@@ -82,7 +82,7 @@ import numpy as np
 
 from annotator.errors import EXIT_VALUE
 from annotator.failure.signals import SIGNALS, measured_mean
-from annotator.text import read_given_file
+from annotator.text_input import read_given_file
 
 __all__ = [
     "FEATURES",

@@ -2,10 +2,10 @@
 
 Where things are:
 
-* :mod:`~annotator.review.run`: reading a run back (``run.json`` and the track store).
+* :mod:`~annotator.review.loaded_run`: reading a run back (``run.json`` and the track store).
 * :mod:`~annotator.review.loop`: ``apply_corrections``, the whole loop on an output folder,
   and rewriting every output atomically.
-* :mod:`~annotator.review.frames`: frames decoded again from the recorded input.
+* :mod:`~annotator.review.source_frames`: frames decoded again from the recorded input.
 * :mod:`~annotator.review.segments`: anchors and the segments between them.
 * :mod:`~annotator.review.passes`: the forward and backward tracker passes.
 * :mod:`~annotator.review.merge`: how two passes combine, and the flags after a re-track (a pass's rows, and the
@@ -15,13 +15,13 @@ Where things are:
 
 from __future__ import annotations
 
-from annotator.review.frames import BUFFER_BYTES, SourceFrames
+from annotator.review.loaded_run import LoadedRun, load_run
 from annotator.review.loop import ReviewResult, apply_corrections, correct_run
 from annotator.review.merge import DEFAULT_MERGE, MERGES, NO_SCORING, PassResult, merge_passes, reflag
 from annotator.review.passes import ArrayFrames, FrameProvider, pass_seed
 from annotator.review.retrack import RetrackResult, retrack_tracks
-from annotator.review.run import LoadedRun, load_run
 from annotator.review.segments import AnchorChange, PreviousTrack, Segment, SegmentChange, plan_segments, same_box
+from annotator.review.source_frames import BUFFER_BYTES, SourceFrames
 
 __all__ = [
     "AnchorChange",

@@ -66,7 +66,7 @@ from annotator.corrections import Correction
 from annotator.errors import EXIT_VALUE, InputWarning, ToolError
 from annotator.exports.labelstudio import labelstudio_region_id
 from annotator.exports.review_tools import check_frame_range, visible
-from annotator.text import read_given_file, read_text
+from annotator.text_input import read_given_file, read_text
 from annotator.tracks import TrackResult, VideoInfo
 from annotator.wording import plural
 from sptpt.boxes import clip_xywh, xywh_to_xyxy, xyxy_to_xywh

@@ -6,7 +6,7 @@ on the main command both come down to :func:`apply_corrections`.
 Reading a run back
 ------------------
 ``run.json`` gives the source (path, range, content hash) and the
-configuration; the track store (``tracks.npz``, :mod:`annotator.store`) every
+configuration; the track store (``tracks.npz``, :mod:`annotator.track_store`) every
 per-frame value at full precision: boxes, scores, scoring stages, flags, and
 the anchors (keyframe rows, with who gave them). No export is read. So a
 re-track rewrites rows outside the affected spans bit for bit, and a
@@ -60,7 +60,7 @@ from annotator.atomic import ctrl_c_ignored
 from annotator.corrections import resolve_corrections
 from annotator.errors import EXIT_INPUT, EXIT_OUTPUT, ToolError
 from annotator.exports import ExportOptions
-from annotator.frames import DecodeError
+from annotator.frame_sources import DecodeError
 from annotator.output_folder import folder_lock, remove_staging_folders, staging_folder
 from annotator.pass_cache import PASSES_NAME, keep_anchored, read_pass_cache
 from annotator.pipeline import OverlaySink, render_tracks
@@ -68,12 +68,12 @@ from annotator.progress import Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, run_fingerprint, write_run_files
 from annotator.render import OverlayWriter
-from annotator.review.frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
 from annotator.review.imports import read_run_corrections
+from annotator.review.loaded_run import LoadedRun, load_run
 from annotator.review.merge import DEFAULT_MERGE
 from annotator.review.retrack import RetrackResult, retrack_tracks
-from annotator.review.run import LoadedRun, load_run
-from annotator.store import RunStore
+from annotator.review.source_frames import BUFFER_BYTES, SourceFrames, checks_content_hash, open_run_source
+from annotator.track_store import RunStore
 from annotator.tracks import SpanThumbnail, TrackResult
 from annotator.version import __version__
 from annotator.wording import plural
@@ -110,7 +110,7 @@ class ReviewResult:
         r = self.retrack
         assert r is not None  # changed: a re-track ran
         frames = sum(s.frames for s in r.segments)
-        from annotator.report import keyframe_note
+        from annotator.run_report import keyframe_note
 
         note = keyframe_note(r.tracks, self.out_dir)
         return (f"{plural(len(r.anchors), 'new or changed correction')}; re-tracked "

@@ -28,8 +28,8 @@ from annotator.batch.outputs import BatchResult, write_batch_outputs
 from annotator.batch.plan import BatchRequest, PlannedItem, is_item_finished, plan_batch, read_run_json
 from annotator.batch.workers import ItemOutcome
 from annotator.errors import EXIT_OUTPUT, EXIT_VALUE, ToolError, require_extra
-from annotator.filenames import BATCH_FILES, RUN_JSON
 from annotator.manifest import BatchItem
+from annotator.output_files import BATCH_FILES, RUN_JSON
 from annotator.output_folder import folder_lock
 from annotator.progress import BatchProgress
 

@@ -8,7 +8,7 @@ check the result is reproduced.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
 
@@ -231,6 +231,7 @@ def choose_threshold(held: Sequence[tuple[Sample, np.ndarray]], grid: Sequence[f
         margin = min(hits / failures - TARGET_RECALL, precision - TARGET_PRECISION)
         if best is None or margin >= best[0]:
             best = (margin, threshold)
+    assert best is not None  # the grid is not empty
     return float(best[1])
 
 
@@ -286,7 +287,9 @@ def fit_fold(samples: Sequence[Sample], held_out: str, *, C: float | Sequence[fl
     masked = _masked(samples, drop)
     train = [s for s in masked if video(s.sequence) != held_out]
     held = [s for s in masked if video(s.sequence) == held_out]
-    fold_C = float(C) if np.ndim(C) == 0 else choose_C(train, C, regression=regression)
+    # One C, or a grid to choose from on the training videos (a list or an array).
+    fold_C = float(cast(float, C)) if np.ndim(C) == 0 else choose_C(train, cast(Sequence[float], C),
+                                                                     regression=regression)
     dropped = choose_groups(train, C=fold_C, regression=regression) if select_groups else ()
     model = fit_model(train, C=fold_C, drop=group_features(dropped), calibrate=calibrate, regression=regression,
                       info={"C": fold_C, **({"dropped_groups": list(dropped)} if select_groups else {})})

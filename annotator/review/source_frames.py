@@ -10,9 +10,9 @@ from typing import Iterator
 import numpy as np
 
 from annotator.errors import EXIT_INPUT, ToolError
-from annotator.frames import FrameSource, FrameSourceError, open_frames
+from annotator.frame_sources import FrameSource, FrameSourceError, open_frames
 from annotator.provenance import content_hash
-from annotator.review.run import RUN_JSON, LoadedRun
+from annotator.review.loaded_run import RUN_JSON, LoadedRun
 
 __all__ = ["BUFFER_BYTES", "SourceFrames", "checks_content_hash", "open_run_source"]
 
@@ -27,7 +27,7 @@ class SourceFrames:
     Reading forward continues the live decoder (a video is decoded once for
     all the segments of a re-track); reading backwards, or far ahead in an
     image folder, starts the source again at the first frame wanted
-    (:meth:`~annotator.frames.FrameSource.frames_from`: for a video, ffmpeg
+    (:meth:`~annotator.frame_sources.FrameSource.frames_from`: for a video, ffmpeg
     decodes again from the start of the file but hands over only the frames
     from there on).
     """

@@ -38,16 +38,15 @@ from annotator.errors import (
     ToolError,
 )
 from annotator.exports import ExportOptions
-from annotator.filenames import RUN_FILES, RUN_JSON
-from annotator.formats import ALL_FORMATS, DEFAULT_FORMATS
-from annotator.frames import FrameRangeError, FrameSource, FrameSourceError, VideoSource, open_frames
+from annotator.frame_sources import FrameRangeError, FrameSource, FrameSourceError, VideoSource, open_frames
+from annotator.output_files import ALL_FORMATS, DEFAULT_FORMATS, RUN_FILES, RUN_JSON
 from annotator.output_folder import folder_lock, remove_staging_folders, staging_folder
 from annotator.pass_cache import first_pass
 from annotator.pipeline import TrackingRun, track_source
 from annotator.progress import CountNote, Progress
 from annotator.provenance import content_hash
 from annotator.publish import OVERLAY_NAME, MoveError, move_into_place, write_run_files
-from annotator.store import RunStore
+from annotator.track_store import RunStore
 from annotator.tracks import Target
 from annotator.version import __version__
 from annotator.wording import plural

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.atomic import atomic_open
-from annotator.text import TEXT_ENCODINGS, read_text
+from annotator.text_input import TEXT_ENCODINGS, read_text
 
 __all__ = ["OTBFormatError", "read_otb_boxes", "write_otb_boxes", "write_otb_times"]
 

@@ -1,4 +1,5 @@
-"""The name of every file a run, a re-track, a batch or an eval writes into its output folder.
+"""What a run writes: the output formats (``--formats``), and the name of every file a run, a re-track, a batch
+or an eval writes into its output folder.
 
 Writers and readers (a re-track, a resumed run, a batch reusing finished
 items, ``eval`` finding a run's results) meet on these names, and
@@ -6,6 +7,13 @@ items, ``eval`` finding a run's results) meet on these names, and
 """
 
 from __future__ import annotations
+
+#: Files for the review tools people already use; written only when asked for.
+REVIEW_TOOL_FORMATS = ("cvat", "mot", "labelstudio", "yolo")
+#: What a run writes when --formats is not given.
+DEFAULT_FORMATS = ("otb", "coco", "flags", "overlay", "report")
+#: What --formats accepts. The track store (tracks.npz) is always written and is not a format.
+ALL_FORMATS = (*DEFAULT_FORMATS, *REVIEW_TOOL_FORMATS)
 
 # A run's folder (``sptpt-annotate VIDEO``; a re-track rewrites the same files).
 RUN_JSON = "run.json"  #: what the folder holds; written last, so its presence marks a finished run

@@ -13,10 +13,10 @@ import numpy as np
 
 from annotator.config import ConfigError, RunConfig, check_failure_model
 from annotator.errors import EXIT_INPUT, EXIT_VALUE, ToolError
-from annotator.filenames import RUN_JSON
 from annotator.flagging import FlagParams
+from annotator.output_files import RUN_JSON
 from annotator.review.segments import PreviousTrack
-from annotator.store import STORE_NAME, RunStore, StoreError, read_store
+from annotator.track_store import STORE_NAME, RunStore, StoreError, read_store
 from annotator.tracks import TrackResult, VideoInfo
 from sptpt import params_from_mapping
 

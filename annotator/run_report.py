@@ -11,7 +11,7 @@ from markupsafe import Markup
 
 from annotator.atomic import write_text_atomic
 from annotator.flagging import REASONS, keyframe_rows, spans_from_mask
-from annotator.pages import REPORT_TEMPLATE, template_environment
+from annotator.html_pages import REPORT_TEMPLATE, template_environment
 from annotator.tracks import KEYFRAME_GIVEN, SpanThumbnail, TrackResult
 from annotator.wording import plural
 

@@ -53,7 +53,7 @@ from typing import Sequence
 import numpy as np
 
 from annotator.atomic import atomic_path
-from annotator.filenames import STORE_NAME
+from annotator.output_files import STORE_NAME
 from annotator.tracks import TrackResult, VideoInfo
 
 __all__ = ["SCHEMA_VERSION", "STORE_FORMAT", "STORE_NAME", "RunStore", "StoreError", "read_store", "write_store"]
