@@ -10,7 +10,7 @@ trackers side by side and reports, each frame, one run's box
 stands out most from its surroundings) or the mean box of the runs that
 agree (``"consensus"``).
 The runs never see each other's results, so each run's boxes are exactly what
-that run would have given alone (``tests/test_independent_runs.py`` checks
+that run would have given alone (``tests/sptpt/test_independent_runs.py`` checks
 this). ``benchmarks/_sptpt_runner.py`` stores them (``run_boxes`` in
 ``<Seq>.frames.npz``), so the comparison that separates the choice from the
 luck of the seeds costs no extra tracking: for every seed folder of an

@@ -288,7 +288,7 @@ class TrackerParams:
     estimate, until a frame is accepted again; 0 disables re-detection (paper). The paper searches only
     around its last estimate, which after a loss is on the background: on a synthetic clip where the object
     reappears 90 px away after 10 frames the paper preset never finds it, the robust preset within 10
-    frames (``tests/test_robust.py``). [ours]"""
+    frames (``tests/sptpt/test_robust.py``). [ours]"""
     redetect_particles: int = 0
     """Candidates of the wide re-detection round. [ours]"""
     redetect_sigma: float = 1.0

@@ -3,9 +3,9 @@
 For the scale and translation filters' features (:mod:`sptpt.gradients`). The arithmetic is the one NumPy did
 before these kernels, operation for operation: the C library's ``hypot`` (NumPy's too), the remainder modulo
 pi of Python's and NumPy's sign rule, ``floor``, and sums in pixel order, so the features are bit-identical
-(``tests/test_scale.py`` keeps the NumPy code and compares). The angle itself stays NumPy's ``arctan2``, whose
-SIMD code may round differently from the C library's ``atan2``. NumPy spent most of the filters' feature time
-on the temporaries of these element-wise steps (about fifteen arrays the size of the batch).
+(``tests/_orientation_reference.py`` keeps the NumPy code, ``tests/sptpt/test_scale.py`` compares). The angle itself
+stays NumPy's ``arctan2``, whose SIMD code may round differently from the C library's ``atan2``. NumPy spent most of
+the filters' feature time on the temporaries of these element-wise steps (about fifteen arrays the size of the batch).
 """
 
 from __future__ import annotations

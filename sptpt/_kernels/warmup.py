@@ -12,7 +12,7 @@ finds an index entry whose machine code is not written yet compiles the kernel i
 may compile the same kernel: the result is the same, only that kernel's seconds are not saved.
 
 The kernels are called through the public wrappers on tiny inputs of the dtypes and layouts the tracker passes,
-so they compile exactly the signatures its first frame asks for (``tests/test_warmup.py`` runs the tracker after
+so they compile exactly the signatures its first frame asks for (``tests/sptpt/test_warmup.py`` runs the tracker after
 a warm-up and checks that it compiles nothing).
 """
 
