@@ -59,7 +59,9 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything that decides a run's numbers (:func:`resolve_config` builds one).
+    """Everything that decides a run's numbers.
+
+    :func:`resolve_config` builds one, from the defaults, a config file's values and the command line's.
 
     Attributes
     ----------
