@@ -59,13 +59,29 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything that decides a run's numbers."""
+    """Everything that decides a run's numbers.
+
+    :func:`resolve_config` builds one, from the defaults, a config file's values and the command line's.
+
+    Attributes
+    ----------
+    preset : str
+        The preset the tracker parameters started from.
+    tracker : TrackerParams
+        The tracker's parameters.
+    flags : FlagParams
+        How failure probabilities become flags.
+    seed : int
+        The run's seed; each track's generator derives from it (:func:`seed_for_track`).
+    failure_model : str or None
+        Path of a failure-model JSON; None: the one shipped for the kind of run.
+    """
 
     preset: str
     tracker: TrackerParams
     flags: FlagParams
     seed: int
-    failure_model: str | None = None  # path of a failure-model JSON; None: the one shipped with the package
+    failure_model: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -85,7 +101,23 @@ class RunConfig:
 
 
 def load_config_file(path: str | Path) -> dict[str, Any]:
-    """Read a YAML config file into a mapping, with errors naming the file."""
+    """Read a YAML config file into a mapping, with errors naming the file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A YAML file with ``preset``, ``seed``, ``tracker`` and ``flags`` keys (each optional).
+
+    Returns
+    -------
+    dict
+        The file's values, for :func:`resolve_config`'s ``file_values``.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or unreadable (exit 3), not YAML or not a mapping (4); the message names the file.
+    """
     path = Path(path)
     text = read_given_file(path, what="config file", expected="a YAML file with preset, seed, tracker and flags keys",
                            error=ConfigError)
@@ -114,7 +146,42 @@ def resolve_config(
     flag_overrides: Mapping[str, Any] | None = None,
     failure_model: str | Path | None = None,
 ) -> RunConfig:
-    """Combine defaults, a config file's values and command-line values (highest precedence)."""
+    """Combine defaults, a config file's values and command-line values (highest precedence).
+
+    Parameters
+    ----------
+    file_values : mapping, optional
+        A config file's values (:func:`load_config_file`): ``preset``, ``seed``, ``tracker``, ``flags``,
+        ``failure_model``.
+    source : str
+        What the values are called in error messages (the config file's path).
+    preset : str, optional
+        A preset name (``paper``, ``fast``, ``robust``, ``fused``); by default the file's, else the default preset.
+    seed : int, optional
+        The run's seed; by default the file's, else 0.
+    tracker_overrides, flag_overrides : mapping, optional
+        Tracker parameters and flag settings over the preset's and the file's.
+    failure_model : str or Path, optional
+        A failure-model JSON file; by default the one shipped for the kind of run.
+
+    Returns
+    -------
+    RunConfig
+        Every setting that decides the run's numbers, checked.
+
+    Raises
+    ------
+    ConfigError
+        An unknown key (with the closest valid one), a value of the wrong type or range, or a combination the
+        tracker refuses.
+
+    Examples
+    --------
+    >>> from annotator import resolve_config
+    >>> config = resolve_config({"seed": 3}, preset="fast")
+    >>> config.preset, config.seed
+    ('fast', 3)
+    """
     file_values = dict(file_values or {})
     for key in file_values:
         if key not in _TOP_LEVEL:

@@ -30,7 +30,15 @@ EXIT_INTERRUPTED = 130
 
 
 class ToolError(Exception):
-    """A problem to report as one line and an exit code; never a traceback (unless ``--debug``)."""
+    """A problem to report as one line and an exit code; never a traceback (unless ``--debug``).
+
+    Parameters
+    ----------
+    message : str
+        One line: the input, what was expected, how to fix it.
+    exit_code : int
+        The command line's exit code for it (:data:`EXIT_INPUT`, :data:`EXIT_VALUE`, :data:`EXIT_OUTPUT`, ...).
+    """
 
     def __init__(self, message: str, exit_code: int) -> None:
         super().__init__(message)

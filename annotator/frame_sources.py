@@ -247,6 +247,19 @@ class FrameSource(ABC):
     ``(height, width, 3) uint8`` RGB array. Each iteration decodes the source
     again from its start; memory use does not depend on the source's length.
 
+    Parameters
+    ----------
+    path : Path
+        The video file or image folder.
+    name : str
+        Its sequence name.
+    width, height, frame_count : int
+        Frame size and the number of frames of the whole source.
+    fps : float
+        Frames per second.
+    selection : range
+        The selected source indices (``start``, ``stop``, ``step``).
+
     Attributes
     ----------
     path : Path
@@ -266,6 +279,7 @@ class FrameSource(ABC):
         Source indices of the selected frames.
     start, stop, step : int
         The selection, with ``stop`` clipped to ``frame_count``.
+
     """
 
     kind: str = ""
@@ -865,6 +879,15 @@ def open_frames(
     -----
     Iteration may raise :class:`DecodeError` after the last good frame of a
     truncated or corrupt source; see the module docstring.
+
+    Examples
+    --------
+    >>> from annotator import open_frames
+    >>> source = open_frames("samples/clip.mp4", start=10, stop=16, step=2)
+    >>> source.width, source.height, source.indices.tolist()
+    (320, 240, [10, 12, 14])
+    >>> [(int(index), frame.shape) for index, frame in source]
+    [(10, (240, 320, 3)), (12, (240, 320, 3)), (14, (240, 320, 3))]
     """
     path = Path(path)
     if fps is not None and not (np.isfinite(fps) and fps > 0):

@@ -42,7 +42,23 @@ NO_SCORING = "none"
 
 @dataclass
 class PassResult:
-    """One tracker pass over a segment's interior, rows in increasing position order."""
+    """One tracker pass over a segment's interior, rows in increasing position order.
+
+    Attributes
+    ----------
+    boxes_xywh : numpy.ndarray
+        (n, 4) boxes, 0-based pixels.
+    confidence, log_likelihood : numpy.ndarray
+        (n,) the tracker's confidence and its likelihood of each box.
+    accepted : numpy.ndarray
+        (n,) bool: the tracker's model updated on the row.
+    scoring : numpy.ndarray
+        (n,) the scoring stage of each row.
+    seconds : numpy.ndarray
+        (n,) the tracker's wall time per row.
+    signals, pass_iou, choice : numpy.ndarray
+        As the comments at the fields say.
+    """
 
     boxes_xywh: np.ndarray
     confidence: np.ndarray

@@ -91,7 +91,30 @@ class WorstFrameThumbnails:
 
 @dataclass
 class TrackingRun:
-    """What one pass over a source produced."""
+    """What one pass over a source produced.
+
+    Attributes
+    ----------
+    video : VideoInfo
+        The source.
+    tracks : list of TrackResult
+        One per target, a row per processed frame.
+    frames_processed : int
+        Frames tracked (fewer than selected after a decode error or an interruption).
+    seconds_tracking, seconds_total : float
+        Wall time in the trackers, and in all.
+    decode_error : DecodeError or None
+        Where decoding stopped, if it did.
+    interrupted : bool
+        Ctrl-C stopped the run; the frames before it are kept.
+    thumbnails : list of SpanThumbnail
+        Each flagged span's worst overlay frame, for the report.
+    overlay_path : Path or None
+        The overlay video, when one was rendered.
+    tracker_confidence : dict of int to numpy.ndarray
+        The tracker's own confidence per row, by track id (the tracks' ``confidence`` is ``1 - p_fail``): with
+        the tracks, the forward pass from the first frame that a re-track would otherwise run again.
+    """
 
     video: VideoInfo
     tracks: list[TrackResult]
@@ -102,8 +125,6 @@ class TrackingRun:
     interrupted: bool = False
     thumbnails: list[SpanThumbnail] = field(default_factory=list)
     overlay_path: Path | None = None
-    #: The tracker's own confidence per row, by track id (the tracks' ``confidence`` is ``1 - p_fail``): with the
-    #: tracks, the forward pass from the first frame that a re-track would otherwise run again.
     tracker_confidence: dict[int, np.ndarray] = field(default_factory=dict)
 
 
@@ -145,7 +166,21 @@ def _deferred_interrupt():
 
 
 def seed_for_track(seed: int, track_id: int) -> np.random.Generator:
-    """Each track's generator derives from the run seed and its id, so tracks are independent."""
+    """The random generator of track ``track_id`` in a run with ``seed``: derived from both, so tracks are
+    independent.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed (``--seed``).
+    track_id : int
+        The track's id (1 for the first box).
+
+    Returns
+    -------
+    numpy.random.Generator
+        The generator the tool gives that track's :class:`sptpt.Tracker` as its ``seed``.
+    """
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(track_id)]))
 
 

@@ -212,17 +212,31 @@ def annotate(
         without options (the default preset, seed 0).
     out_dir : path-like, optional
         By default ``<input>_sptpt/`` beside the input.
-    start, stop, step, formats, force, show_progress
-        As the command line's ``--start``, ``--stop``, ``--step``, ``--formats``, ``--force`` and (not)
-        ``--quiet``.
+    start, stop, step : int
+        The source frames to track (``--start``, ``--stop``, ``--step``); ``stop`` None: to the end.
+    formats : sequence of str
+        The outputs to write (``--formats``); the track store is always written.
+    force : bool
+        Replace the results an earlier run left in ``out_dir`` (``--force``).
+    show_progress : bool
+        Progress bars on stderr (not ``--quiet``).
+    corrections : sequence of Correction, optional
+        Only checked here against the frames and tracks the run will have, before any tracking (a correction of a
+        frame outside ``start``/``stop`` fails at once); the caller applies them afterwards with
+        :func:`apply_corrections`.
+    media_url : str, optional
+        The video's URL written into ``labelstudio.json`` (``--media-url``), kept in run.json.
+    resume : bool
+        Go on from the checkpoint of an interrupted run into ``out_dir`` (``--resume``): the boxes are those of an
+        uninterrupted run.
+    progress : callable, optional
+        ``progress(done, in_all)``, called with 0 frames done before the first, then after each (with or without
+        ``show_progress``).
 
-    ``corrections``, when given, are only checked here against the frames and tracks the run will have, before
-    any tracking (a correction of a frame outside ``--start``/``--stop`` fails at once); the caller applies them
-    afterwards with :func:`annotator.review.apply_corrections`. ``media_url`` is the video's URL written into
-    ``labelstudio.json`` (``--media-url``; :class:`annotator.exports.ExportOptions`), kept in run.json.
-
-    ``resume`` (``--resume``): go on from a checkpoint (:mod:`annotator.checkpoint`). ``progress(done, in_all)``,
-    if given, is called with 0 frames done before the first, then after each (with or without ``show_progress``).
+    Returns
+    -------
+    AnnotateResult
+        The output folder, the files written by kind, the run's track store, and how the run ended.
 
     Raises
     ------
@@ -230,6 +244,16 @@ def annotate(
         With the exit code of the problem (see :mod:`annotator.errors`); a
         decode error part-way is not raised but reported in the result's
         ``exit_code`` and ``message``, after the outputs are written.
+
+    Examples
+    --------
+    >>> from annotator import annotate
+    >>> result = annotate("samples/clip.mp4", (136, 129, 48, 40), out_dir="clip_out", stop=5,
+    ...                   formats=("otb", "coco", "flags"), show_progress=False)
+    >>> result.exit_code, sorted(result.outputs)
+    (0, ['coco', 'flags', 'otb', 'passes', 'provenance', 'store'])
+    >>> result.store.track(1).boxes_xywh.shape
+    (5, 4)
     """
     input_path = Path(input_path)
     targets = _as_targets(targets)

@@ -159,11 +159,30 @@ def write_store(path: str | os.PathLike, store: RunStore) -> Path:
 def read_store(path: str | os.PathLike) -> RunStore:
     """Read a track store written by :func:`write_store`.
 
+    Parameters
+    ----------
+    path : str or path-like
+        A run's ``tracks.npz``.
+
+    Returns
+    -------
+    RunStore
+        The video, the frame range and every track with its per-frame values.
+
     Raises
     ------
     StoreError
         The file is missing, truncated or damaged, of an unknown schema
         version, or does not describe valid tracks; the message names the file.
+
+    Examples
+    --------
+    >>> from annotator import annotate, read_store
+    >>> _ = annotate("samples/clip.mp4", (136, 129, 48, 40), out_dir="clip_out", stop=3, formats=("otb",),
+    ...              show_progress=False)
+    >>> store = read_store("clip_out/tracks.npz")
+    >>> store.track(1).boxes_xywh.shape
+    (3, 4)
     """
     path = Path(path)
     redo = "re-run the annotation with --force to rebuild it"

@@ -38,7 +38,17 @@ KEYFRAME_GIVEN = "given"
 
 @dataclass(frozen=True)
 class Target:
-    """One object to label: its first-frame box (0-based ``xywh``), track id and label."""
+    """One object to label.
+
+    Attributes
+    ----------
+    box_xywh : tuple of float
+        Its first-frame box, ``x, y, w, h`` in 0-based pixels.
+    track_id : int
+        The id of its track in every output.
+    label : str
+        Its class name in the exports.
+    """
 
     box_xywh: tuple[float, float, float, float]
     track_id: int
@@ -47,7 +57,17 @@ class Target:
 
 @dataclass(frozen=True)
 class SpanThumbnail:
-    """A small JPEG of an overlay frame, for the review report."""
+    """A small JPEG of an overlay frame, for the review report.
+
+    Attributes
+    ----------
+    track_id : int
+        The track whose flagged span it shows.
+    position, frame_index : int
+        The frame's row in the track and its source index.
+    jpeg_base64 : str
+        The JPEG, base64-encoded for an ``<img src="data:...">``.
+    """
 
     track_id: int
     position: int

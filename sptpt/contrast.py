@@ -32,10 +32,20 @@ _MIN_PIXELS = 100
 
 
 def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
-    """How far the colours in ``box`` (x, y, w, h, px) differ from those around it on an RGB frame, in [0, 1].
+    """How far the colours in ``box`` differ from those around it on an RGB frame, in [0, 1].
 
-    0: the box and its ring hold the same colours; 1: no colour in common. NaN where the box or its ring has
-    fewer than 100 pixels in the frame (too few to compare histograms) or the box is not finite.
+    Parameters
+    ----------
+    frame_rgb : numpy.ndarray
+        (H, W, 3) uint8 RGB.
+    box : numpy.ndarray
+        ``(x, y, w, h)``, 0-based pixels.
+
+    Returns
+    -------
+    float
+        0: the box and its ring hold the same colours; 1: no colour in common. NaN where the box or its ring
+        has fewer than 100 pixels in the frame (too few to compare histograms) or the box is not finite.
     """
     height, width = frame_rgb.shape[:2]
     x, y, w, h = (float(v) for v in box)

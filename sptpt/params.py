@@ -402,7 +402,32 @@ PRESETS["fused"] = dataclasses.replace(PRESETS["robust"], guide_particles=30, gu
 
 
 def get_preset(name: str) -> TrackerParams:
-    """The named preset; an unknown name is an error that lists the valid ones."""
+    """The named preset.
+
+    Parameters
+    ----------
+    name : str
+        ``paper``, ``fast``, ``robust`` or ``fused`` (:data:`PRESETS`).
+
+    Returns
+    -------
+    TrackerParams
+        Its parameters (frozen: change one with :func:`dataclasses.replace`).
+
+    Raises
+    ------
+    ValueError
+        An unknown name; the message lists the valid ones.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from sptpt import preset
+    >>> preset("robust").independent_runs
+    3
+    >>> dataclasses.replace(preset("robust"), n_particles=300).n_particles
+    300
+    """
     try:
         return PRESETS[name]
     except KeyError:
@@ -414,10 +439,25 @@ class UnknownParameterError(ValueError):
 
 
 def params_from_mapping(mapping: Mapping[str, Any], base: TrackerParams | None = None) -> TrackerParams:
-    """Override ``base`` (default: the ``paper`` preset) with the values of a plain mapping.
+    """Override ``base`` with the values of a plain mapping (a configuration file's ``tracker`` section).
 
-    Unknown keys are rejected with the closest valid name; sequences are
-    converted to tuples; types are checked against the field's default.
+    Parameters
+    ----------
+    mapping : mapping
+        Parameter names and values; sequences are converted to tuples, types checked against the field's
+        default.
+    base : TrackerParams, optional
+        The parameters to override; by default the ``paper`` preset.
+
+    Returns
+    -------
+    TrackerParams
+        ``base`` with the mapping's values.
+
+    Raises
+    ------
+    ValueError
+        An unknown key (with the closest valid name), or a value of the wrong type or range.
     """
     base = PRESETS["paper"] if base is None else base
     fields = {f.name: f for f in dataclasses.fields(TrackerParams)}

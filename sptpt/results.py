@@ -23,7 +23,25 @@ def confidence_from_log_likelihood(log_likelihood: float, *, scale: float) -> fl
 
 
 def checked_box(box_xywh, owner: str = "") -> np.ndarray:
-    """One box ``(x, y, w, h)`` as a (4,) float64 array; a ValueError whose message starts with ``owner`` if not."""
+    """One box ``(x, y, w, h)`` as a (4,) float64 array.
+
+    Parameters
+    ----------
+    box_xywh : array-like
+        Four numbers.
+    owner : str
+        What the box belongs to, the start of the error message (``"OverlayItem: "``).
+
+    Returns
+    -------
+    numpy.ndarray
+        The box, (4,) float64.
+
+    Raises
+    ------
+    ValueError
+        ``box_xywh`` is not four numbers.
+    """
     box = np.asarray(box_xywh, dtype=np.float64)
     if box.shape != (4,):
         raise ValueError(f"{owner}box_xywh must have shape (4,), got {box.shape}")
@@ -33,8 +51,24 @@ def checked_box(box_xywh, owner: str = "") -> np.ndarray:
 def checked_particles(particles_xywh, particle_scores, owner: str = "") -> tuple[np.ndarray | None, np.ndarray | None]:
     """Candidate boxes ``(N, 4)`` and their scores ``(N,)`` as float64 arrays, or both None.
 
-    Raises ValueError (its message starts with ``owner``, e.g. ``"OverlayItem: "``) when only one is given or
-    their shapes do not pair up.
+    Parameters
+    ----------
+    particles_xywh : array-like or None
+        ``(N, 4)`` boxes.
+    particle_scores : array-like or None
+        ``(N,)`` scores, one per box.
+    owner : str
+        What they belong to, the start of the error message (``"OverlayItem: "``).
+
+    Returns
+    -------
+    tuple of numpy.ndarray or None
+        ``(boxes, scores)`` as float64 arrays, or ``(None, None)``.
+
+    Raises
+    ------
+    ValueError
+        Only one is given, or their shapes do not pair up.
     """
     if (particles_xywh is None) != (particle_scores is None):
         raise ValueError(f"{owner}particles_xywh and particle_scores come together or not at all")

@@ -230,6 +230,11 @@ class TrackerInspection:
 class Tracker:
     """SPTPT, with got10k's tracker contract.
 
+    With ``params.independent_runs`` R > 1 the tracker follows the object with R independent runs and reports,
+    each frame, what ``params.run_choice`` picks (the more confident run, the one whose box stands out most from
+    its surroundings, or the mean box of the runs that agree, with ``filter_vote`` of a correlation-filter
+    tracker's box too); every run's box is in ``FrameResult.run_boxes_xywh``.
+
     Parameters
     ----------
     params : TrackerParams, optional
@@ -249,19 +254,19 @@ class Tracker:
         and box, then each frame before the runs; its box is where each run draws more candidates and which
         candidates it favours, and, with ``guide_vote``, one more vote. ``FrameResult.guide_box_xywh`` reports it.
 
-    With ``params.independent_runs`` R > 1 the tracker follows the object with R
-    independent runs and reports, each frame, what ``params.run_choice``
-    picks (the more confident run, the one whose box stands out most from its
-    surroundings, or the mean box of the runs that agree, with ``filter_vote``
-    of a correlation-filter tracker's box too); every run's box is in
-    ``FrameResult.run_boxes_xywh``.
-
     Examples
     --------
-    >>> tracker = Tracker(seed=0)                      # doctest: +SKIP
-    >>> tracker.init(first_frame, (10, 20, 40, 30))    # doctest: +SKIP
-    >>> result = tracker.update(next_frame)            # doctest: +SKIP
-    >>> result.box_xywh, result.confidence             # doctest: +SKIP
+    >>> import numpy as np
+    >>> from sptpt import Tracker, preset
+    >>> rng = np.random.default_rng(0)
+    >>> frame = rng.integers(0, 60, (120, 160, 3), dtype=np.uint8)
+    >>> frame[40:70, 50:90] = (200, 40, 40)                 # a red object
+    >>> tracker = Tracker(preset("fast"), seed=0)
+    >>> first = tracker.init(frame, (50, 40, 40, 30))      # (H, W, 3) uint8 RGB; box x, y, w, h, 0-based
+    >>> moved = np.roll(frame, 3, axis=1)                   # the object 3 px to the right
+    >>> result = tracker.update(moved)
+    >>> bool(abs(result.box_xywh[0] - 53) < 3), result.box_xywh.shape
+    (True, (4,))
     """
 
     def __init__(
@@ -591,9 +596,31 @@ class Tracker:
 
 
 def check_params(params: TrackerParams) -> None:
-    """Raise the ValueError a :class:`Tracker` would raise for ``params``, without building one: the checks that
-    need the tracker's code (a superpixel rank above the superpixels a template gets), beyond those
-    ``TrackerParams`` makes itself. A tool validates a configuration with it before any frame is read."""
+    """Raise the ValueError a :class:`Tracker` would raise for ``params``, without building one.
+
+    The checks that need the tracker's code (a superpixel rank above the superpixels a template gets), beyond
+    those ``TrackerParams`` makes itself. A tool validates a configuration with it before any frame is read.
+
+    Parameters
+    ----------
+    params : TrackerParams
+        The parameters to check.
+
+    Raises
+    ------
+    ValueError
+        A combination the tracker cannot run, and how to mend it.
+
+    Examples
+    --------
+    >>> import dataclasses
+    >>> from sptpt import check_params, preset
+    >>> check_params(preset("robust"))
+    >>> check_params(dataclasses.replace(preset("paper"), ranks=(10, 500, 6)))
+    Traceback (most recent call last):
+    ...
+    ValueError: parameter ranks=(10, 500, 6) is invalid: the superpixel rank 500 exceeds ...
+    """
     superpixels = _superpixels_per_template(params)
     if params.ranks[1] > superpixels:
         raise ValueError(f"parameter ranks={params.ranks!r} is invalid: the superpixel rank {params.ranks[1]} exceeds "

@@ -433,6 +433,20 @@ def evaluate_result_file(
         Score the frames a run and its ground truth both hold, when their lengths differ.
     **rules
         ``replace_first`` and ``invalid_pred``, as in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
+
+    Returns
+    -------
+    SequenceScore
+        Success and precision curves, their AUC and precision at 20 px, per-frame IoU and centre error.
+
+    Examples
+    --------
+    >>> from annotator import annotate, evaluate_result_file
+    >>> _ = annotate("samples/clip.mp4", (136, 129, 48, 40), out_dir="clip_out", stop=5, formats=("otb",),
+    ...              show_progress=False)
+    >>> score = evaluate_result_file("clip_out", "samples/clip_groundtruth.txt", overlap=True)
+    >>> score.n_frames, 0.0 <= score.auc <= 1.0
+    (5, True)
     """
     ground_truth = Path(ground_truth)
     name = name or _sequence_name(ground_truth)
@@ -468,16 +482,24 @@ def evaluate_results_dir(
         One result per sequence (see :func:`load_dataset_pairs`).
     tracker : str, optional
         Name for plots and tables; defaults to the results folder's name.
-    sequences, locate, overlap, skipped
-        As in :func:`load_dataset_pairs`.
+    sequences : iterable of str, optional
+        Score only these sequences, each of which must have a result; by default those of ``gt_root`` that have
+        one (a batch that ran part of the root).
+    locate : callable
+        ``(results_dir, name) -> candidate paths``; the first existing file wins.
     pairs : list, optional
         Receives ``(SequencePair, SequenceScore)`` of every sequence (:attr:`SequencePair.note`: scored in part).
+    overlap : bool
+        Score the frames a run and its ground truth both hold, when their lengths differ.
+    skipped : list, optional
+        Receives the sequences of ``gt_root`` left out for having no result (only without ``sequences``).
     **rules
         ``replace_first`` and ``invalid_pred``, as in :func:`~annotator.evaluation.metrics.evaluate_sequence`.
 
     Returns
     -------
     DatasetScore
+        Per-sequence scores and their means, the dataset's success and precision curves.
     """
     results_dir = Path(results_dir)
     loaded = load_dataset_pairs(gt_root, results_dir, sequences=sequences, locate=locate, overlap=overlap,

@@ -83,16 +83,30 @@ __all__ = ["ReviewResult", "apply_corrections"]
 
 @dataclass
 class ReviewResult:
-    """What :func:`apply_corrections` did."""
+    """What :func:`apply_corrections` did.
+
+    Attributes
+    ----------
+    out_dir : Path
+        The run's output folder.
+    retrack : RetrackResult or None
+        The re-track; None when the corrections could not be applied.
+    written : list of Path
+        The files rewritten (none when no correction was new).
+    flagged_before, flagged_after : int
+        Flagged frames of all tracks before and after.
+    overlay_removed : bool
+        The overlay was removed, not re-rendered (``--no-render``): it would show the old boxes.
+    overlay_restored : bool
+        The overlay was rendered again after a ``--no-render`` round had removed it.
+    """
 
     out_dir: Path
     retrack: RetrackResult | None
     written: list[Path] = field(default_factory=list)
     flagged_before: int = 0
     flagged_after: int = 0
-    #: The overlay of the run was removed, not re-rendered (``--no-render``): it would show the old boxes.
     overlay_removed: bool = False
-    #: The overlay was rendered again after a ``--no-render`` round had removed it.
     overlay_restored: bool = False
 
     @property
@@ -175,6 +189,8 @@ def apply_corrections(
     Returns
     -------
     ReviewResult
+        Whether the corrections changed anything, the re-track (its tracks, anchors and changed segments), the
+        files rewritten, and the flagged frames before and after.
 
     Raises
     ------
@@ -182,6 +198,17 @@ def apply_corrections(
         Malformed corrections or ones that do not fit the run (exit 4, naming
         FILE:LINE), missing or inconsistent run files or input (3), an output
         folder that cannot be written (5). The output folder is then unchanged.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> from annotator import annotate, apply_corrections
+    >>> _ = annotate("samples/clip.mp4", (136, 129, 48, 40), out_dir="clip_out", stop=8, formats=("otb", "flags"),
+    ...              show_progress=False)
+    >>> _ = Path("fixes.csv").write_text("frame,x,y,w,h\\n5,140.0,130.0,48.0,40.0\\n")
+    >>> review = apply_corrections("clip_out", "fixes.csv", show_progress=False)
+    >>> review.changed, review.retrack.tracks[0].boxes_xywh[5].tolist()
+    (True, [140.0, 130.0, 48.0, 40.0])
     """
     return correct_run(out_dir, corrections_path, merge=merge, show_progress=show_progress, verify_input=verify_input,
                        rewrite_unchanged=rewrite_unchanged, input_path=input_path, render=render, media_url=media_url)

@@ -90,16 +90,33 @@ __all__ = ["RetrackResult", "retrack_tracks"]
 
 @dataclass
 class RetrackResult:
-    """New tracks, their scoring stages, and what changed."""
+    """New tracks, their scoring stages, and what changed.
+
+    Attributes
+    ----------
+    tracks : list of TrackResult
+        Every track after the re-track, in the run's order.
+    scoring : dict of int to numpy.ndarray
+        Per track id, each row's scoring stage.
+    anchors : list of AnchorChange
+        The anchors the corrections added or changed.
+    segments : list of SegmentChange
+        What re-tracking each segment changed.
+    frames_tracked : int
+        Tracker calls (init and update) over all passes.
+    seconds : float
+        Wall time of the re-track.
+    passes : dict
+        The raw passes of each re-tracked segment, ``(track_id, start, stop) -> (forward, backward or None)``, for
+        comparing merge methods without tracking again (benchmarks).
+    """
 
     tracks: list[TrackResult]
     scoring: dict[int, np.ndarray]
     anchors: list[AnchorChange]
     segments: list[SegmentChange]
-    frames_tracked: int  # tracker calls (init and update) over all passes
+    frames_tracked: int
     seconds: float
-    #: The raw passes of each re-tracked segment, ``(track_id, start, stop) -> (forward, backward or None)``,
-    #: for comparing merge methods without tracking again (benchmarks).
     passes: dict[tuple[int, int, int], tuple[PassResult, PassResult | None]] = field(default_factory=dict)
 
     @property

@@ -77,14 +77,30 @@ class Segment:
 
 @dataclass(frozen=True)
 class SegmentChange:
-    """What re-tracking one segment changed, for the report and run.json."""
+    """What re-tracking one segment changed, for the report and run.json.
+
+    Attributes
+    ----------
+    track_id : int
+        The segment's track.
+    first_frame, last_frame : int
+        Source indices of the first re-tracked row (the anchor when it is new) and the last.
+    frames : int
+        Rows rewritten.
+    mean_iou : float
+        IoU of the new boxes with the previous ones (NaN rows count as 0); NaN without previous boxes.
+    moved : int
+        Rows whose new box has IoU < 0.5 with the previous one.
+    flagged_before, flagged_after : int
+        Flagged rows of the segment before and after.
+    """
 
     track_id: int
-    first_frame: int  # source index of the first re-tracked row (the anchor when it is new)
+    first_frame: int
     last_frame: int
-    frames: int  # rows rewritten
-    mean_iou: float  # IoU of the new boxes with the previous ones (NaN rows count as 0); NaN without previous
-    moved: int  # rows whose new box has IoU < 0.5 with the previous one
+    frames: int
+    mean_iou: float
+    moved: int
     flagged_before: int
     flagged_after: int
 
@@ -93,13 +109,29 @@ class SegmentChange:
 
 @dataclass(frozen=True)
 class AnchorChange:
-    """A new or changed anchor."""
+    """A new or changed anchor.
+
+    Attributes
+    ----------
+    track_id : int
+        The track it anchors.
+    position, frame : int
+        Its row in the track and its source index.
+    box_before : tuple of float or None
+        The row's box before (the tracker's or a previous anchor's); None if the object was outside.
+    box_after : tuple of float or None
+        The person's box; None: the object is absent.
+    was_anchor : bool
+        The row was an anchor already.
+    where : str
+        Where the correction came from (``FILE:LINE``).
+    """
 
     track_id: int
     position: int
     frame: int
-    box_before: Box | None  # the row's box before (tracker's or previous anchor's); None if it was outside
-    box_after: Box | None  # None: absent
+    box_before: Box | None
+    box_after: Box | None
     was_anchor: bool
     where: str
 

@@ -65,7 +65,13 @@ def _cached(dispatcher) -> bool:
 
 
 def kernels_cached() -> bool:
-    """Whether every kernel the tracker's first frame calls is already in numba's on-disk cache."""
+    """Whether every kernel the tracker's first frame calls is already in numba's on-disk cache.
+
+    Returns
+    -------
+    bool
+        True when a tracker's first frame will load every kernel instead of compiling one.
+    """
     return all(_cached(dispatcher) for dispatcher in _dispatchers())
 
 
@@ -155,12 +161,19 @@ def _child_command() -> list[str] | None:
 def compile_kernels(*, wait: bool = True) -> subprocess.Popen | None:
     """Compile the tracker's kernels into numba's on-disk cache, unless they are there already.
 
-    ``wait=True`` compiles them here (after a child this process started has ended) and returns None when done.
-    ``wait=False`` starts a child process that compiles them, the ones the tracker needs last first, and returns
-    it at once: a tracker started next compiles from the other end and loads what the child has finished. It
-    returns None and starts nothing where the child would not help: every kernel cached, one core, numba's JIT
-    disabled, or no interpreter to start; and the same child while one this process started still runs. The
-    child ends by itself; it may go on compiling after a short run has ended.
+    Parameters
+    ----------
+    wait : bool
+        True: compile them here (after a child this process started has ended). False: start a child process
+        that compiles them, the ones the tracker needs last first, and return at once: a tracker started next
+        compiles from the other end and loads what the child has finished.
+
+    Returns
+    -------
+    subprocess.Popen or None
+        The child, with ``wait=False``; it ends by itself and may go on compiling after a short run has ended.
+        None with ``wait=True``, and where a child would not help: every kernel cached, one core, numba's JIT
+        disabled, or no interpreter to start. While a child this process started still runs, that child.
     """
     global _CHILD
     running = _CHILD is not None and _CHILD.poll() is None
