@@ -106,6 +106,20 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 # be identical so that both see the same frames (module docstring).
 _DECODE_OPTIONS = ["-map", "0:v:0", "-fps_mode", "passthrough", "-xerror"]
 
+# Reading pass only: options that bound the decoder's memory while the tool tracks (issue #69). The pass runs
+# beside the tracker for the whole run, so its memory is part of the run's peak; one decoded frame takes 8 ms of
+# CPU at 1920x1080, far below a tracked frame's 100 ms, so neither option slows the run. Measured at 1080p with a
+# reader taking 10-20 frames/s: 197 MiB as ffmpeg chooses, 122 MiB with both.
+# ``-threads 1`` (input): one decoding thread instead of frame threading (one decoding context and its frames per
+# core). It changes no frame: FFmpeg's frame-threaded H.264 decoding is bit-exact, and on a file damaged part-way
+# the same number of frames arrived before ``-xerror`` stopped ffmpeg in every trial (the counting pass, where
+# memory does not matter and speed does, keeps its threads).
+_READ_INPUT_OPTIONS = ["-threads", "1"]
+# ``-thread_queue_size 1`` (output, ffmpeg >= 6; imageio-ffmpeg >= 0.8 bundles 9): at most one raw frame queued to
+# the pipe's muxer instead of ffmpeg's 8, which at 1080p RGB is 6 MiB a frame. The pipe and the queued frame still
+# keep the next frame ready before the tracker asks for it.
+_READ_OUTPUT_OPTIONS = ["-thread_queue_size", "1"]
+
 _REPAIR_HINT = (
     "re-copy the complete file, or re-encode it with `ffmpeg -i IN -c:v libx264 OUT.mp4` "
     "(which skips damaged frames, so later frame numbers shift)"
@@ -410,8 +424,9 @@ class VideoSource(FrameSource):
         frame_bytes = self.height * self.width * 3
         selecting, head = _selection_filter(wanted)
         reader = imageio_ffmpeg.read_frames(
-            str(self.path), pix_fmt="rgb24", input_params=_SELECTION_INPUT_OPTIONS if selecting else [],
-            output_params=[*_DECODE_OPTIONS, *selecting],
+            str(self.path), pix_fmt="rgb24",
+            input_params=[*_READ_INPUT_OPTIONS, *(_SELECTION_INPUT_OPTIONS if selecting else [])],
+            output_params=[*_DECODE_OPTIONS, *_READ_OUTPUT_OPTIONS, *selecting],
         )
         delivered = 0  # frames received after ``head`` (the k-th is source frame wanted[k])
         last_good = -1

@@ -8,8 +8,9 @@ progress lines report, so memory can be read against the frames done.
 
     python -m benchmarks.long_video --sequence David --frames 10000 --size 1920x1080 --work /tmp/long
 
-Prints the wall time, frames/s, peak memory, memory at the 1,000th frame and at the end, and the outputs' sizes;
-the samples go to ``WORK/memory.csv``.
+Prints the wall time, frames/s, peak memory, memory at the 1,000th frame and at the end, the peak of each process
+(the tool, its decoder, its overlay encoder), and the outputs' sizes; the samples go to ``WORK/memory.csv``.
+``--stop 1500`` tracks the first 1,500 frames only, enough to show the peak and whether it stays flat.
 """
 
 from __future__ import annotations
@@ -54,20 +55,42 @@ def make_video(sequence: str, frames: int, size: tuple[int, int], path: Path) ->
     return box
 
 
-def _tree_rss_mib(pid: int) -> float:
-    """Resident memory of ``pid`` and its descendants (the overlay's ffmpeg, the compile child), MiB."""
-    total, todo = 0, [pid]
+#: The processes of a run, as :func:`_rss_by_process` names them.
+ROLES = ("tool", "decoder", "encoder", "other")
+
+
+def _role(command: list[str]) -> str:
+    """What a child process of the run is, by its command line: the ffmpeg that decodes the frames the tool tracks,
+    the ffmpeg that encodes the overlay (libx264), or another (the open-time counting pass, the compile child)."""
+    if not command or "ffmpeg" not in Path(command[0]).name:
+        return "other"
+    if "libx264" in command:
+        return "encoder"
+    return "other" if "null" in command else "decoder"  # the counting pass writes to the null muxer
+
+
+def _rss_by_process(pid: int) -> dict[str, float]:
+    """Resident memory of ``pid`` and its descendants by :data:`ROLES`, MiB (issue #69: which process holds it)."""
+    totals, todo = dict.fromkeys(ROLES, 0.0), [pid]
     while todo:
         p = todo.pop()
         try:
             status = Path(f"/proc/{p}/status").read_text()
-            total += int(re.search(r"VmRSS:\s+(\d+)", status).group(1))
+            rss = int(re.search(r"VmRSS:\s+(\d+)", status).group(1)) / 1024.0
+            command = Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace").split("\0")
+            role = "tool" if p == pid else _role(command)
             for task in Path(f"/proc/{p}/task").iterdir():
                 children = (task / "children").read_text().split()
                 todo += [int(c) for c in children]
         except (OSError, AttributeError):
             continue
-    return total / 1024.0
+        totals[role] += rss
+    return totals
+
+
+def _tree_rss_mib(pid: int) -> float:
+    """Resident memory of ``pid`` and its descendants (the decoder, the overlay's encoder, the compile child), MiB."""
+    return sum(_rss_by_process(pid).values())
 
 
 def main() -> None:
@@ -76,6 +99,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10000)
     parser.add_argument("--size", default="1920x1080")
     parser.add_argument("--work", type=Path, default=Path("/tmp/long"))
+    parser.add_argument("--stop", type=int, default=None,
+                        help="track only the frames before this one (the tool's --stop): the peak and its flatness "
+                             "show within the first 1,500 frames, in a tenth of the time")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     args.work.mkdir(parents=True, exist_ok=True)
@@ -84,10 +110,14 @@ def main() -> None:
     box = make_video(args.sequence, args.frames, size, video)
     print(f"video {video} ({video.stat().st_size / 2**20:.0f} MiB) ready after {time.perf_counter() - tic:.0f} s")
     out = args.work / "run"
-    tool = str(Path(sys.executable).with_name("sptpt-annotate"))
-    command = [tool, str(video), "--box", ",".join(f"{v:.3f}" for v in box), "--out", str(out), "--force"]
+    # The command line of this source tree (the console script runs whichever tree is installed).
+    tool = [sys.executable, "-m", "annotator.cli"]
+    command = [*tool, str(video), "--box", ",".join(f"{v:.3f}" for v in box), "--out", str(out), "--force"]
+    if args.stop is not None:
+        command += ["--stop", str(args.stop)]
+    frames = args.frames if args.stop is None else min(args.stop, args.frames)
     started = time.perf_counter()
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=HERE.parent)
     done = [0]
 
     def read_progress() -> None:
@@ -100,22 +130,26 @@ def main() -> None:
     reader.start()
     samples = []
     while proc.poll() is None:
-        samples.append((time.perf_counter() - started, done[0], _tree_rss_mib(proc.pid)))
+        samples.append((time.perf_counter() - started, done[0], _rss_by_process(proc.pid)))
         time.sleep(2.0)
     wall = time.perf_counter() - started
     reader.join(timeout=5)
-    (args.work / "memory.csv").write_text("seconds,frames_done,rss_mib\n" + "".join(
-        f"{t:.1f},{f},{m:.1f}\n" for t, f, m in samples))
+    (args.work / "memory.csv").write_text("seconds,frames_done,rss_mib," + ",".join(f"{r}_mib" for r in ROLES)
+                                          + "\n" + "".join(
+        f"{t:.1f},{f},{sum(m.values()):.1f}," + ",".join(f"{m[r]:.1f}" for r in ROLES) + "\n"
+        for t, f, m in samples))
     if proc.returncode != 0:
         raise SystemExit(f"run failed ({proc.returncode}): {proc.stdout.read()[-2000:]}")
-    rss = np.array([m for _, _, m in samples])
-    after = [m for _, f, m in samples if f >= 1000]
+    rss = np.array([sum(m.values()) for _, _, m in samples])
+    after = [sum(m.values()) for _, f, m in samples if f >= 1000]
     at_1000 = after[0] if after else float("nan")
-    tracked = [m for _, f, m in samples if 0 < f < args.frames]
-    print(f"{args.frames} frames at {args.size}: {wall:.0f} s whole process, {args.frames / wall:.2f} frames/s")
+    tracking = [m for _, f, m in samples if 0 < f < frames]
+    print(f"{frames} frames at {args.size}: {wall:.0f} s whole process, {frames / wall:.2f} frames/s")
     print(f"peak resident memory {rss.max():.0f} MiB; at frame 1000 {at_1000:.0f} MiB; largest while tracking "
           f"after frame 1000 {max(after[:-1] or [float('nan')]):.0f} MiB; last sample {rss[-1]:.0f} MiB; "
-          f"samples while tracking: {len(tracked)}")
+          f"samples while tracking: {len(tracking)}")
+    print("peak while tracking by process: " + ", ".join(
+        f"{role} {max((m[role] for m in tracking), default=float('nan')):.0f} MiB" for role in ROLES))
     for name in ("overlay.mp4", "report.html", "tracks.npz", "annotations.json", "flags.csv", "run.json"):
         path = out / name
         print(f"  {name}: {path.stat().st_size / 2**20:.1f} MiB" if path.exists() else f"  {name}: missing")

@@ -33,3 +33,20 @@ def test_a_resized_sequence_keeps_its_ground_truth_on_the_object(tmp_path, monke
 def test_the_memory_probe_reads_this_process():
     long_video = load_script("long_video")
     assert 10 < long_video._tree_rss_mib(os.getpid()) < 100_000
+
+
+def test_the_memory_probe_tells_the_decoder_from_the_encoder():
+    """Issue #69 needs each process's share: the children are told apart by their command lines, as
+    imageio-ffmpeg and the frame counter start them."""
+    long_video = load_script("long_video")
+    ffmpeg = "/site-packages/imageio_ffmpeg/binaries/ffmpeg-linux-x86_64-v9.0.2"
+    decoder = [ffmpeg, "-threads", "1", "-i", "in.mp4", "-map", "0:v:0", "-f", "image2pipe", "-pix_fmt", "rgb24",
+               "-vcodec", "rawvideo", "-"]
+    encoder = [ffmpeg, "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", "1920x1080", "-pix_fmt", "rgb24", "-i",
+               "-", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "overlay.mp4"]
+    counter = [ffmpeg, "-nostdin", "-i", "in.mp4", "-map", "0:v:0", "-f", "null", "-progress", "pipe:1", "-"]
+    compile_child = ["/usr/bin/python3", "-c", "from sptpt import compile_kernels"]
+    assert [long_video._role(c) for c in (decoder, encoder, counter, compile_child, [])] == [
+        "decoder", "encoder", "other", "other", "other"]
+    mine = long_video._rss_by_process(os.getpid())
+    assert set(mine) == set(long_video.ROLES) and mine["tool"] > 10
