@@ -66,8 +66,9 @@ class FlagParams:
 
     threshold: float | None = None
     """Flag frames with ``p_fail`` above this; ``None`` takes the failure model's, chosen when it was fitted for a
-    recall of 0.8 and a precision of 0.7 on videos it did not learn from (``annotator.failure.fit.choose_threshold``;
-    the shipped model's is the ``threshold`` of its file). [ours, benchmarks/RESULTS.md "Failure probability and flags"]"""
+    recall of 0.8 and a precision of 0.7 on videos it did not learn from
+    (``annotator.failure.fit.choose_threshold``; the shipped model's is the ``threshold`` of its file).
+    [ours, benchmarks/RESULTS.md "Failure probability and flags"]"""
     review_budget: float | None = None
     """Percent of each track's frames to flag, the most doubtful first, instead of the threshold. [ours]"""
     merge_gap: int = 5
