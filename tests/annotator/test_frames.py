@@ -196,10 +196,9 @@ def test_a_selection_of_joined_clips_of_two_sizes_is_the_full_decode(tmp_path):
             np.testing.assert_array_equal(frame, full[index])
 
 
-def test_a_selection_has_ffmpeg_write_at_once_and_stop_at_its_last_frame(video, monkeypatch):
-    """imageio-ffmpeg waits only 10 s for ffmpeg's output header, written with the first frame out, so frame 0
-    always goes out (and is dropped); and the filter holds back its last frames until the end of the file unless
-    ffmpeg stops after them. Both are too slow to show on a test clip: the options are checked."""
+@pytest.fixture()
+def reader_calls(monkeypatch):
+    """The keyword arguments of every ``imageio_ffmpeg.read_frames`` call the test makes, in order."""
     calls = []
     real = imageio_ffmpeg.read_frames
 
@@ -208,30 +207,29 @@ def test_a_selection_has_ffmpeg_write_at_once_and_stop_at_its_last_frame(video, 
         return real(path, **kwargs)
 
     monkeypatch.setattr(imageio_ffmpeg, "read_frames", spy)
+    return calls
+
+
+def test_a_selection_has_ffmpeg_write_at_once_and_stop_at_its_last_frame(video, reader_calls):
+    """imageio-ffmpeg waits only 10 s for ffmpeg's output header, written with the first frame out, so frame 0
+    always goes out (and is dropped); and the filter holds back its last frames until the end of the file unless
+    ffmpeg stops after them. Both are too slow to show on a test clip: the options are checked."""
     got = [index for index, _ in open_frames(video, start=20, stop=26, step=2)]
     assert got == [20, 22, 24]
-    options = calls[-1]["output_params"]
+    options = reader_calls[-1]["output_params"]
     assert options[options.index("-frames:v") + 1] == "4"  # frame 0 and the three selected
     assert options[options.index("-vf") + 1].startswith("select=eq(n\\,0)+")
-    assert calls[-1]["input_params"][-2:] == ["-reinit_filter", "0"]
+    assert reader_calls[-1]["input_params"][-2:] == ["-reinit_filter", "0"]
 
 
-def test_the_reading_decoder_runs_with_bounded_memory_and_gives_the_same_frames(video, monkeypatch):
+def test_the_reading_decoder_runs_with_bounded_memory_and_gives_the_same_frames(video, reader_calls):
     """The decoder that runs beside the tracker has one thread and queues at most one frame (issue #69: at 1080p
     197 MiB without, 122 MiB with); its frames are those of ffmpeg with its own choice of threads and queue."""
     reader = imageio_ffmpeg.read_frames(str(video))
     next(reader)
     plain = [np.frombuffer(b, np.uint8).reshape(HEIGHT, WIDTH, 3) for b in reader]
-    calls = []
-    real = imageio_ffmpeg.read_frames
-
-    def spy(path, **kwargs):
-        calls.append(kwargs)
-        return real(path, **kwargs)
-
-    monkeypatch.setattr(imageio_ffmpeg, "read_frames", spy)
     got = [frame for _, frame in open_frames(video)]
-    inputs, outputs = calls[-1]["input_params"], calls[-1]["output_params"]
+    inputs, outputs = reader_calls[-1]["input_params"], reader_calls[-1]["output_params"]
     assert inputs[inputs.index("-threads") + 1] == "1"
     assert outputs[outputs.index("-thread_queue_size") + 1] == "1"
     assert len(got) == len(plain) == N_FRAMES
