@@ -78,7 +78,7 @@ from annotator.tracks import SpanThumbnail, TrackResult
 from annotator.version import __version__
 from annotator.wording import plural
 
-__all__ = ["ReviewResult", "apply_corrections"]
+__all__ = ["ReviewResult", "apply_corrections", "correct_run"]
 
 
 @dataclass
@@ -221,32 +221,26 @@ def correct_run(out_dir: str | os.PathLike, corrections_path: str | os.PathLike,
     """:func:`apply_corrections`, for the tool's own callers: ``input_checked`` says the caller has just read the
     input and recorded its content hash in run.json (``track --corrections`` right after the run), so it counts
     as verified without ``verify_input`` reading it again."""
-    out_dir = Path(out_dir)
+    out_dir, corrections_path = Path(out_dir), Path(corrections_path)
     with folder_lock(out_dir):
         remove_staging_folders(out_dir)  # under the folder's lock, any staging folder is a dead run's
-        return _correct_locked(out_dir, Path(corrections_path), merge=merge, show_progress=show_progress,
-                               verify_input=verify_input, rewrite_unchanged=rewrite_unchanged, input_path=input_path,
-                               input_checked=input_checked, render=render, media_url=media_url)
-
-
-def _correct_locked(out_dir: Path, corrections_path: Path, *, merge: str, show_progress: bool, verify_input: bool,
-                    rewrite_unchanged: bool, input_path: str | os.PathLike | None, input_checked: bool,
-                    render: bool, media_url: str | None) -> ReviewResult:
-    run, resolved = _run_and_corrections(out_dir, corrections_path, media_url)
-    provider, checked = _open_input(run, verify_input=verify_input, input_path=input_path,
-                                    input_checked=input_checked)
-    result = ReviewResult(out_dir=out_dir, retrack=None, flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
-    # The passes this run already ran and that its anchors still start: the re-track runs only the others.
-    passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
-    try:
-        result.retrack = retrack = _retrack(run, resolved, provider, merge=merge, passes=passes,
-                                            show_progress=show_progress)
-        result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
-        _rewrite_if_needed(result, retrack, run, provider, corrections_path, merge=merge, show_progress=show_progress,
-                           passes=passes, render=render, always=rewrite_unchanged or media_url is not None)
-    finally:
-        provider.close()
-    return result
+        run, resolved = _run_and_corrections(out_dir, corrections_path, media_url)
+        provider, checked = _open_input(run, verify_input=verify_input, input_path=input_path,
+                                        input_checked=input_checked)
+        result = ReviewResult(out_dir=out_dir, retrack=None,
+                              flagged_before=sum(int(t.flagged.sum()) for t in run.tracks))
+        # The passes this run already ran and that its anchors still start: the re-track runs only the others.
+        passes = read_pass_cache(out_dir / PASSES_NAME, run_fingerprint(run.info)) if checked else None
+        try:
+            result.retrack = retrack = _retrack(run, resolved, provider, merge=merge, passes=passes,
+                                                show_progress=show_progress)
+            result.flagged_after = sum(int(t.flagged.sum()) for t in retrack.tracks)
+            _rewrite_if_needed(result, retrack, run, provider, corrections_path, merge=merge,
+                               show_progress=show_progress, passes=passes, render=render,
+                               always=rewrite_unchanged or media_url is not None)
+        finally:
+            provider.close()
+        return result
 
 
 def _run_and_corrections(out_dir: Path, corrections_path: Path, media_url: str | None) -> tuple[LoadedRun, dict]:
