@@ -52,14 +52,11 @@ from annotator.version import __version__
 from annotator.wording import plural
 from sptpt.boxes import clip_xyxy, lies_outside, xywh_to_xyxy
 
-__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs",
-           "remove_staging_folders", "RESULT_FILES"]
+__all__ = ["ALL_FORMATS", "DEFAULT_FORMATS", "AnnotateResult", "annotate", "default_output_dir", "previous_outputs"]
 
 #: Said when the first frame takes long and numba's cache lacks the tracker's kernels: on the first run after
 #: installing, numba compiles them (README: the figure measured) and caches them beside the package.
 COMPILING_NOTE = "compiling the tracker's kernels (once per install; cached for later runs)..."
-# Files whose presence means a folder already holds a run's results.
-RESULT_FILES = RUN_FILES
 #: Where a run cut short (Ctrl-C, a decode error) goes when the output folder already holds a finished run.
 INCOMPLETE_DIR = "incomplete"
 
@@ -111,7 +108,7 @@ def _check_output_dir(out_dir: Path, *, force: bool, resume: bool = False) -> No
         if interrupted is not None:
             raise ToolError(f"output folder {out_dir} holds a run {interrupted}: --resume to continue, --force to "
                             "start again", EXIT_OUTPUT)
-        existing = [name for name in RESULT_FILES if (out_dir / name).exists()]
+        existing = [name for name in RUN_FILES if (out_dir / name).exists()]  # a folder holding a run's results
         if existing:
             raise ToolError(f"output folder {out_dir} already holds results ({', '.join(existing)}): "
                             "pass --force to overwrite them or choose another --out", EXIT_OUTPUT)
@@ -471,7 +468,7 @@ def _first_run_info(result: AnnotateResult, source: FrameSource, targets: Sequen
 
 def previous_outputs(out_dir: Path) -> set[str]:
     """Result files of an earlier run in ``out_dir``: the fixed names, and the files its run.json lists."""
-    names = set(RESULT_FILES) - {RUN_JSON}
+    names = set(RUN_FILES) - {RUN_JSON}
     try:
         listed = json.loads((out_dir / RUN_JSON).read_text(encoding="utf-8"))["outputs"]
         names |= {str(name) for files in listed.values() for name in files}
