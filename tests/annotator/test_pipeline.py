@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -397,6 +398,7 @@ def test_a_failure_following_up_a_frame_stops_tracking_soon_and_leaves_no_file(s
 
     def failing_next(self, frame_rgb, box_xywh, **kwargs):
         if read_index(frame_rgb) == 9:
+            time.sleep(0.5)  # a slow follow-up: tracking gets as far ahead as it is allowed to
             raise RuntimeError("signal failure")
         return real_next(self, frame_rgb, box_xywh, **kwargs)
 
@@ -406,7 +408,10 @@ def test_a_failure_following_up_a_frame_stops_tracking_soon_and_leaves_no_file(s
     with pytest.raises(RuntimeError, match="signal failure"):
         annotate(clip, TARGETS[:1], CONFIG, out_dir=out, show_progress=False)
     tracked = [k for _, call, k in scripted.log[start:] if call == "update"]
-    assert 9 in tracked and max(tracked) <= 12  # tracking stops a few frames after the failure, not at 29
+    # Worst case (a slow follow-up thread, as on a busy CI machine): frame 9's error is seen once the follow-ups
+    # of 10 and 11 wait behind it, and by then FRAMES_AHEAD more frames (12, 13) are with the trackers.
+    waiting_behind = 2
+    assert 9 in tracked and max(tracked) <= 9 + waiting_behind + pipeline_module.FRAMES_AHEAD  # not 29
     assert list(out.iterdir()) == []
 
 
