@@ -20,6 +20,7 @@ import dataclasses
 import signal
 import threading
 import time
+from array import array
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -269,7 +270,7 @@ class TrackRecords:
         self._recorders = {t.track_id: TrackRecorder(t.track_id, t.label) for t in targets}
         self._meters = {t.track_id: SignalMeter() for t in targets}
         self._flaggers = {t.track_id: TrackDoubt(model, flags) for t in targets}
-        self._confidence: dict[int, list[float]] = {t.track_id: [] for t in targets}
+        self._confidence: dict[int, array[float]] = {t.track_id: array("d") for t in targets}
         self._marks: dict[int, dict[int, FrameMark]] = {t.track_id: {} for t in targets}
 
     def add(self, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult],

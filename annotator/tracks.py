@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+from array import array
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol, Sequence, TypeVar
@@ -385,6 +387,12 @@ class TrackResult:
                 and all(same(v, other.signals[k]) for k, v in self.signals.items()))
 
 
+#: TrackRecorder's numeric columns and their ``array`` type codes (boxes flat, four per row); bools as bytes.
+_NUMBER_COLUMNS = {"frame_indices": "q", "boxes_xywh": "d", "confidence": "d", "log_likelihood": "d",
+                   "accepted": "b", "flagged": "b", "keyframe": "b", "outside": "b", "seconds": "d", "occluded": "b"}
+_TEXT_COLUMNS = ("reasons", "scoring", "keyframe_source")
+
+
 class TrackRecorder:
     """Collects one track frame by frame; :meth:`to_result` freezes it into a :class:`TrackResult`.
 
@@ -402,11 +410,26 @@ class TrackRecorder:
     def __init__(self, track_id: int = 1, label: str = "object") -> None:
         self.track_id = track_id
         self.label = label
-        self._rows: list[tuple] = []
-        self._signals: dict[str, list[float]] = {}
+        # One typed column per field, not a tuple of Python objects per row: a run keeps every row until it
+        # ends, and a checkpoint pickles them all every CHECKPOINT_EVERY frames, so a row's size is what a long
+        # video pays (about 0.3 KiB a row here against 1.2 KiB as tuples and lists of floats; issue #69).
+        self._numbers: dict[str, array[Any]] = {name: array(code) for name, code in _NUMBER_COLUMNS.items()}
+        self._texts: dict[str, list[str]] = {name: [] for name in _TEXT_COLUMNS}
+        self._signals: dict[str, array[float]] = {}
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return len(self._numbers["frame_indices"])
+
+    def __setstate__(self, state: dict) -> None:
+        """Read a recorder pickled as rows of tuples (checkpoints written before the columns) as columns."""
+        rows = state.pop("_rows", None)
+        signals = state.pop("_signals")
+        self.__dict__.update(state)
+        if rows is not None:
+            self.__init__(state["track_id"], state["label"])  # type: ignore[misc]
+            for row in rows:
+                self._add_row(*row)
+        self._signals = {name: array("d", values) for name, values in signals.items()}
 
     def append(
         self,
@@ -431,22 +454,36 @@ class TrackRecorder:
         ``scoring`` and ``keyframe_source`` default as in :class:`TrackResult`;
         ``signals`` must name the same signals on every row (missing ones are NaN).
         """
+        n = len(self)
         for name, value in (signals or {}).items():
-            column = self._signals.setdefault(name, [math.nan] * len(self._rows))
+            column = self._signals.setdefault(name, array("d", [math.nan]) * n)
             column.append(float(value))
-        box = np.asarray(box_xywh, dtype=np.float64).reshape(4)
         if scoring is None:
             scoring = "none" if outside else "init" if keyframe else "subspace"
         if keyframe_source is None:
             keyframe_source = KEYFRAME_GIVEN if keyframe else ""
-        self._rows.append(
-            (int(frame_index), box, float(confidence), float(log_likelihood), bool(accepted), bool(flagged),
-             str(reason), bool(keyframe), bool(outside), float(seconds), bool(occluded), str(scoring),
-             str(keyframe_source))
-        )  # fmt: skip
+        self._add_row(frame_index, box_xywh, confidence, log_likelihood, accepted, flagged, reason, keyframe,
+                      outside, seconds, occluded, scoring, keyframe_source)
         for column in self._signals.values():
-            if len(column) < len(self._rows):
+            if len(column) < n + 1:
                 column.append(math.nan)
+
+    def _add_row(self, frame_index, box_xywh, confidence, log_likelihood, accepted, flagged, reason, keyframe,
+                 outside, seconds, occluded, scoring, keyframe_source) -> None:
+        numbers, texts = self._numbers, self._texts
+        numbers["frame_indices"].append(int(frame_index))
+        numbers["boxes_xywh"].extend(np.asarray(box_xywh, dtype=np.float64).reshape(4).tolist())
+        numbers["confidence"].append(float(confidence))
+        numbers["log_likelihood"].append(float(log_likelihood))
+        numbers["accepted"].append(bool(accepted))
+        numbers["flagged"].append(bool(flagged))
+        texts["reasons"].append(sys.intern(str(reason)))
+        numbers["keyframe"].append(bool(keyframe))
+        numbers["outside"].append(bool(outside))
+        numbers["seconds"].append(float(seconds))
+        numbers["occluded"].append(bool(occluded))
+        texts["scoring"].append(sys.intern(str(scoring)))
+        texts["keyframe_source"].append(sys.intern(str(keyframe_source)))
 
     def set_flag(self, position: int, flagged: bool, reason: str) -> None:
         """Set the flag of the row at ``position`` (0-based in append order) once it is final.
@@ -454,35 +491,31 @@ class TrackRecorder:
         The tracking loop decides a frame's flag a few frames after it was
         tracked (:class:`annotator.failure.TrackDoubt`), and reports it by that position.
         """
-        row = list(self._rows[position])
-        row[5], row[6] = bool(flagged), str(reason)
-        self._rows[position] = tuple(row)
+        self._numbers["flagged"][position] = bool(flagged)
+        self._texts["reasons"][position] = sys.intern(str(reason))
 
     def set_failure(self, position: int, p_fail: float) -> None:
         """Record the row's failure probability: signal ``p_fail``, and confidence ``1 - p_fail``."""
-        row = list(self._rows[position])
-        row[2] = 1.0 - float(p_fail)
-        self._rows[position] = tuple(row)
-        self._signals.setdefault("p_fail", [math.nan] * len(self._rows))[position] = float(p_fail)
+        self._numbers["confidence"][position] = 1.0 - float(p_fail)
+        self._signals.setdefault("p_fail", array("d", [math.nan]) * len(self))[position] = float(p_fail)
 
     def to_result(self) -> TrackResult:
-        rows = self._rows
-        col = list(zip(*rows)) if rows else [()] * 13
+        numbers, texts = self._numbers, self._texts
         return TrackResult(
             track_id=self.track_id,
             label=self.label,
-            frame_indices=np.asarray(col[0], dtype=np.int64),
-            boxes_xywh=np.asarray(col[1], dtype=np.float64).reshape(-1, 4),
-            confidence=np.asarray(col[2], dtype=np.float64),
-            log_likelihood=np.asarray(col[3], dtype=np.float64),
-            accepted=np.asarray(col[4], dtype=bool),
-            flagged=np.asarray(col[5], dtype=bool),
-            reasons=tuple(col[6]),
-            keyframe=np.asarray(col[7], dtype=bool),
-            outside=np.asarray(col[8], dtype=bool),
-            seconds=np.asarray(col[9], dtype=np.float64),
-            occluded=np.asarray(col[10], dtype=bool),
-            scoring=tuple(col[11]),
-            keyframe_source=tuple(col[12]),
-            signals={name: np.asarray(values, dtype=np.float64) for name, values in self._signals.items()},
+            frame_indices=np.array(numbers["frame_indices"], dtype=np.int64),
+            boxes_xywh=np.array(numbers["boxes_xywh"], dtype=np.float64).reshape(-1, 4),
+            confidence=np.array(numbers["confidence"], dtype=np.float64),
+            log_likelihood=np.array(numbers["log_likelihood"], dtype=np.float64),
+            accepted=np.array(numbers["accepted"], dtype=bool),
+            flagged=np.array(numbers["flagged"], dtype=bool),
+            reasons=tuple(texts["reasons"]),
+            keyframe=np.array(numbers["keyframe"], dtype=bool),
+            outside=np.array(numbers["outside"], dtype=bool),
+            seconds=np.array(numbers["seconds"], dtype=np.float64),
+            occluded=np.array(numbers["occluded"], dtype=bool),
+            scoring=tuple(texts["scoring"]),
+            keyframe_source=tuple(texts["keyframe_source"]),
+            signals={name: np.array(values, dtype=np.float64) for name, values in self._signals.items()},
         )

@@ -249,6 +249,49 @@ def test_recorder_builds_the_same_track():
     assert kept.frame_indices.tolist() == [0, 2, 4] and len(TrackRecorder().to_result()) == 0
 
 
+def _recorded(n: int = 6) -> TrackRecorder:
+    """A recorder of ``n`` rows whose signals start on row 2 and whose failures and flags come later."""
+    recorder = TrackRecorder(track_id=3, label="car")
+    for i in range(n):
+        recorder.append(10 + i, [i, 2.5 * i, 30, 20], confidence=0.5, log_likelihood=-i / 3, accepted=i % 2 == 0,
+                        seconds=0.01 * i, keyframe=i == 0, signals={"ncc_first": i / 7} if i >= 2 else None)
+    for i in range(n - 2):
+        recorder.set_failure(i, i / 10)
+    recorder.set_flag(1, True, "doubt:guide")
+    return recorder
+
+
+def test_recorder_columns_pad_late_signals_and_take_later_failures():
+    track = _recorded().to_result()
+    np.testing.assert_array_equal(track.signals["ncc_first"], [np.nan, np.nan, 2 / 7, 3 / 7, 4 / 7, 5 / 7])
+    np.testing.assert_array_equal(track.signals["p_fail"], [0.0, 0.1, 0.2, 0.3, np.nan, np.nan])
+    np.testing.assert_array_equal(track.confidence, [1.0, 0.9, 0.8, 0.7, 0.5, 0.5])
+    assert track.flagged.tolist() == [False, True, False, False, False, False]
+    assert track.reasons[1] == "doubt:guide" and track.scoring[:2] == ("init", "subspace")
+    assert track.frame_indices.dtype == np.int64 and track.boxes_xywh.shape == (6, 4)
+    assert track.boxes_xywh[3].tolist() == [3.0, 7.5, 30.0, 20.0]
+
+
+def test_recorder_pickles_as_checkpoints_keep_it_and_reads_rows_of_older_checkpoints():
+    import pickle
+
+    recorder = _recorded()
+    assert pickle.loads(pickle.dumps(recorder)).to_result().equals(recorder.to_result())
+    # A checkpoint written before the columns held one tuple per row and lists of floats.
+    track = recorder.to_result()
+    old = TrackRecorder.__new__(TrackRecorder)
+    old.__dict__.update(track_id=3, label="car", _signals={k: v.tolist() for k, v in track.signals.items()}, _rows=[
+        (int(track.frame_indices[i]), track.boxes_xywh[i], float(track.confidence[i]), float(track.log_likelihood[i]),
+         bool(track.accepted[i]), bool(track.flagged[i]), track.reasons[i], bool(track.keyframe[i]),
+         bool(track.outside[i]), float(track.seconds[i]), bool(track.occluded[i]), track.scoring[i],
+         track.keyframe_source[i]) for i in range(len(track))])
+    resumed = pickle.loads(pickle.dumps(old))
+    assert resumed.to_result().equals(track)
+    resumed.append(99, [1, 1, 5, 5], confidence=1.0, log_likelihood=0.0, accepted=True, seconds=0.0,
+                   signals={"ncc_first": 0.5})
+    assert len(resumed) == 7 and np.isnan(resumed.to_result().signals["p_fail"][-1])
+
+
 def _walker_fields(**changes):
     walker = make_tracks()[0]
     fields = {k: getattr(walker, k) for k in walker.__dataclass_fields__}
