@@ -29,6 +29,7 @@ from typing import Iterator, Sequence
 import cv2
 import numpy as np
 
+from annotator.allocator import release_freed_memory
 from annotator.checkpoint import CHECKPOINT_EVERY, Checkpoint, write_checkpoint
 from annotator.config import RunConfig
 from annotator.errors import EXIT_INPUT, ToolError
@@ -550,6 +551,7 @@ def _track_and_submit(frames, targets: Sequence[Target], in_flight: FramesAhead,
             if end.frames_tracked == 0 and not len(in_flight):
                 in_flight.add_tracked(frame_index, frame, *track_frame(in_flight.trackers, targets, frame,
                                                                        first=True))
+                release_freed_memory()  # the start's temporaries (k-means, the learned tracker's start)
             else:
                 in_flight.add(frame_index, frame)
             taken_from_source += 1
@@ -561,6 +563,7 @@ def _track_and_submit(frames, targets: Sequence[Target], in_flight: FramesAhead,
                 while submitted:  # every frame measured and flagged
                     submitted.popleft().result()
                 checkpoint(end, frame_index)
+                release_freed_memory()
         else:
             end.interrupted = True
         for taken in in_flight.settled(final=True):  # the frames decoded before the loop ended

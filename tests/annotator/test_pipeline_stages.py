@@ -233,6 +233,21 @@ def test_track_frames_raises_the_first_follow_up_error():
         track_frames([(k, frame(k)) for k in range(20)], TARGETS, scripted_trackers([]), failing)
 
 
+
+def test_track_frames_gives_freed_memory_back_after_the_first_frame_and_after_each_checkpoint(monkeypatch):
+    """What the start and a checkpoint free is no frame's working set (annotator.allocator): the loop trims the
+    heap right after those points, and at no other frame."""
+    events: list = []
+    monkeypatch.setattr("annotator.pipeline.release_freed_memory", lambda: events.append("trim"))
+    track_frames([(k, frame(k)) for k in range(7)], TARGETS, scripted_trackers([]),
+                 lambda position, *rest: events.append(position),
+                 checkpoint=lambda end, index: events.append(f"checkpoint {end.frames_tracked}"), checkpoint_every=3)
+    first = events.index("trim")
+    assert first < events.index(0) or events[:first] == [0]  # after frame 0 was tracked, before frame 1 is
+    assert events.count("trim") == 3
+    assert events[events.index("checkpoint 3") + 1] == "trim" and events[events.index("checkpoint 6") + 1] == "trim"
+
+
 # --------------------------------------------------------------------------- measuring and flagging
 
 
