@@ -422,14 +422,13 @@ class TrackRecorder:
 
     def __setstate__(self, state: dict) -> None:
         """Read a recorder pickled as rows of tuples (checkpoints written before the columns) as columns."""
-        rows = state.pop("_rows", None)
-        signals = state.pop("_signals")
-        self.__dict__.update(state)
-        if rows is not None:
-            self.__init__(state["track_id"], state["label"])  # type: ignore[misc]
-            for row in rows:
-                self._add_row(*row)
-        self._signals = {name: array("d", values) for name, values in signals.items()}
+        if "_rows" not in state:
+            self.__dict__.update(state)
+            return
+        self.__init__(state["track_id"], state["label"])  # type: ignore[misc]
+        for row in state["_rows"]:
+            self._add_row(*row)
+        self._signals = {name: array("d", values) for name, values in state["_signals"].items()}
 
     def append(
         self,
