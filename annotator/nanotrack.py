@@ -99,9 +99,12 @@ def _new_tracker():
 
 
 def _bgr(rgb: np.ndarray) -> np.ndarray:
-    if rgb.ndim == 2:
-        return cv2.cvtColor(rgb, cv2.COLOR_GRAY2BGR)
-    return np.ascontiguousarray(rgb[:, :, ::-1])
+    """The frame in OpenCV's channel order, a new array.
+
+    ``cvtColor``, not ``np.ascontiguousarray(rgb[:, :, ::-1])``: the same pixels, but numpy copies a reversed
+    channel axis one byte at a time, 9 ms a 1920x1080 frame against 0.2 ms (issue #69: cost that grew with the frame).
+    """
+    return cv2.cvtColor(rgb, cv2.COLOR_GRAY2BGR if rgb.ndim == 2 else cv2.COLOR_RGB2BGR)
 
 
 def guide_for(params) -> NanoTrackGuide | None:

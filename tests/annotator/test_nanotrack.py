@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from _tracker_clips import jumping_clip
 
-from annotator.nanotrack import NanoTrackGuide, guide_for, nanotrack_weights
+from annotator.nanotrack import NanoTrackGuide, _bgr, guide_for, nanotrack_weights
 from sptpt.boxes import iou_xywh
 from sptpt.params import get_preset
 
@@ -51,6 +51,15 @@ def test_a_copy_caught_up_on_the_same_frames_goes_on_to_the_bit():
         assert score_a == score_b
     with pytest.raises(RuntimeError, match="not behind"):
         copy.catch_up(frames[0])
+
+
+def test_the_guide_sees_the_frame_s_own_pixels_in_opencv_s_channel_order():
+    rgb = np.random.default_rng(0).integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    for frame in (rgb, rgb[3:30, 5:41]):  # a whole frame and a view into one
+        bgr = _bgr(frame)
+        assert bgr.shape == frame.shape and bgr.flags.c_contiguous
+        np.testing.assert_array_equal(bgr, frame[:, :, ::-1])
+    np.testing.assert_array_equal(_bgr(rgb[:, :, 1]), np.repeat(rgb[:, :, 1, None], 3, axis=2))
 
 
 def test_only_presets_that_use_a_guide_get_one():
