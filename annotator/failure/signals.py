@@ -422,6 +422,12 @@ class MotionMeter:
         points = np.concatenate([grid, near, far]).reshape(-1, 1, 2).astype(np.float32)
         prev_grey = self._prev_grey
         assert prev_grey is not None  # set with the previous box
+        # Measured on the window of both images around the points, not on whole frames: the flow's pyramids and
+        # their cost follow the object (issue #69). Every figure below is a difference of points, so the window's
+        # corner need not be added back.
+        x0, y0, x1, y1 = flow_window(points.reshape(-1, 2), width, height)
+        points -= np.array([x0, y0], dtype=np.float32)
+        prev_grey, grey = prev_grey[y0:y1, x0:x1], grey[y0:y1, x0:x1]
         forward, ok_f, _ = cv2.calcOpticalFlowPyrLK(prev_grey, grey, points, None, **_LK)
         back, ok_b, _ = cv2.calcOpticalFlowPyrLK(grey, prev_grey, forward, None, **_LK)
         ok_all = (ok_f.ravel() == 1) & (ok_b.ravel() == 1)
@@ -448,6 +454,28 @@ class MotionMeter:
                    "flow_fb": float(min(median_fb / size, 10.0)), "flow_kept": float(kept.mean())}
         reliable = ok_all & (fb_all <= FB_LIMIT * size)
         return signals, (float(dx), float(dy), scale), _extent_shares(flows, reliable, box_move, g, n, size)
+
+
+#: How far past its points the flow's window reaches, px: a point that moves up to :data:`FLOW_REACH` px
+#: (far beyond what Lucas-Kanade resolves with these options: its 15 px window at pyramid level 2 reaches 32 px)
+#: sees the same pixels and pyramids as on the whole frame. Those reach 42 px around it: the window and its
+#: bilinear taps, 9 px of the top level, 4 px each, and the two 5-tap pyrDown steps under them, 6 px.
+FLOW_REACH = 64
+_FLOW_MARGIN = FLOW_REACH + 48
+
+
+def flow_window(points: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
+    """``(x0, y0, x1, y1)``: the part of a ``width x height`` image the flow of ``(n, 2)`` ``points`` looks at.
+
+    It holds every pixel the flow of a point that moves up to :data:`FLOW_REACH` px reads, on every pyramid level,
+    so the flow on the window is the flow on the whole image to within its stopping step (0.03 px: the points'
+    smaller coordinates round otherwise, which can take one step more or less). Its corner lies on a multiple of
+    4, so that the pyramid's levels 1 and 2 sample the same pixels.
+    """
+    low = np.floor(points.min(axis=0)) - _FLOW_MARGIN
+    high = np.ceil(points.max(axis=0)) + _FLOW_MARGIN + 1
+    x0, y0 = (max(int(v) // 4 * 4, 0) for v in low)
+    return x0, y0, min(int(high[0]), width), min(int(high[1]), height)
 
 
 def _inside(points: np.ndarray, width: int, height: int) -> np.ndarray:

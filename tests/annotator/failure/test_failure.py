@@ -996,3 +996,83 @@ def test_the_shipped_model_reads_appearance_only_where_a_run_parts():
     weights = dict(zip(model.features, model.coef))
     assert all(weights[name] == 0.0 for name in APPEARANCE_LEVELS)
     assert weights["ncc_memory_parted"] > 0 or weights["ncc_memory_parted_w5"] > 0
+
+
+def _large_scene(speed: tuple[float, float], start: tuple[int, int], frames: int = 6):
+    """A textured object (40 x 32 px) moving at ``speed`` over a textured 640 x 400 background from ``start``,
+    with boxes that lag behind it by a growing amount: the flow points see the object, its edge and the
+    background."""
+    rng = np.random.default_rng(11)
+    background = cv2.GaussianBlur(rng.integers(0, 256, (400, 640, 3), dtype=np.uint8), (0, 0), 1.5)
+    texture = cv2.GaussianBlur(rng.integers(0, 256, (32, 40, 3), dtype=np.uint8), (0, 0), 1.0)
+    shown, boxes = [], []
+    for k in range(frames):
+        x, y = start[0] + speed[0] * k, start[1] + speed[1] * k
+        frame = background.copy()
+        frame[int(y):int(y) + 32, int(x):int(x) + 40] = texture
+        shown.append(frame)
+        boxes.append([x - 1.5 * k, y + 0.5 * k, 40.0, 32.0])
+    return shown, np.array(boxes, dtype=np.float64)
+
+
+@pytest.mark.parametrize("speed,start", [((3.0, 2.0), (300, 180)), ((24.0, -17.0), (200, 300)),
+                                         ((-5.0, -4.0), (30, 26)), ((6.0, 5.0), (560, 330))])
+def test_the_flow_on_its_window_is_the_flow_on_the_whole_frame(monkeypatch, speed, start):
+    """The flow looks at a window around its points (cost that follows the object, not the frame); the signals
+    are those of the whole frame, to the points' stopping step: in the middle, moving fast, and at the corners."""
+    import annotator.failure.signals as signals
+
+    frames, boxes = _large_scene(speed, start)
+    seen: list[tuple[int, ...]] = []
+    real_flow = cv2.calcOpticalFlowPyrLK
+
+    def spying(prev, nxt, *args, **kwargs):
+        seen.append(prev.shape)
+        return real_flow(prev, nxt, *args, **kwargs)
+
+    monkeypatch.setattr(signals.cv2, "calcOpticalFlowPyrLK", spying)
+    windowed = _motion(frames, boxes)
+    assert all(h * w < 400 * 640 / 2 for h, w in seen)  # the window, not the frame
+    seen.clear()
+    monkeypatch.setattr(signals, "flow_window", lambda points, width, height: (0, 0, width, height))
+    whole = _motion(frames, boxes)
+    assert set(seen) == {(400, 640)}
+    for name, values in whole.items():
+        np.testing.assert_allclose(windowed[name], values, rtol=0, atol=1e-3, equal_nan=True, err_msg=name)
+
+
+@pytest.mark.parametrize("speed,start", [((3.0, 2.0), (300, 180)), ((24.0, -17.0), (200, 300)),
+                                         ((6.0, 5.0), (420, 200))])
+def test_the_flow_window_reaches_far_enough_that_more_image_changes_no_point(speed, start):
+    """To the bit: the points tracked on the window and on the window extended to the image's right and bottom
+    edges (the same corner, so the same coordinates). A window 12 px past the points fails this. (Against the
+    whole frame, a point's coordinates differ by the corner, and its rounding can change where Lucas-Kanade
+    stops: the signal test above.)"""
+    from annotator.failure.signals import _LK, flow_window, grey_of
+
+    frames, boxes = _large_scene(speed, start)
+    prev, grey = grey_of(frames[0]), grey_of(frames[1])
+    x, y, w, h = boxes[0]
+    rings = [(x + w / 2 + f * w / 2 * np.cos(t), y + h / 2 + f * h / 2 * np.sin(t))
+             for f in (0.5, 1.3, 2.2) for t in np.linspace(0, 2 * np.pi, 24, endpoint=False)]
+    points = np.array([p for p in rings if 0 <= p[0] <= 639 and 0 <= p[1] <= 399], dtype=np.float32)
+    x0, y0, x1, y1 = flow_window(points, 640, 400)
+    assert x1 < 640 or y1 < 400
+    shifted = (points - np.array([x0, y0], dtype=np.float32)).reshape(-1, 1, 2)
+    part = cv2.calcOpticalFlowPyrLK(prev[y0:y1, x0:x1], grey[y0:y1, x0:x1], shifted, None, **_LK)
+    extended = cv2.calcOpticalFlowPyrLK(prev[y0:, x0:], grey[y0:, x0:], shifted, None, **_LK)
+    assert (extended[1] == 1).mean() > 0.8
+    np.testing.assert_array_equal(part[1], extended[1])
+    np.testing.assert_array_equal(part[0], extended[0])
+
+
+def test_the_flow_window_holds_the_points_and_their_reach_and_no_more():
+    from annotator.failure.signals import FLOW_REACH, flow_window
+
+    points = np.array([[900.3, 500.7], [1000.2, 610.1]])
+    x0, y0, x1, y1 = flow_window(points, 1920, 1080)
+    assert x0 % 4 == 0 and y0 % 4 == 0
+    assert x0 <= 900 - FLOW_REACH - 42 and y0 <= 500 - FLOW_REACH - 42
+    assert x1 >= 1001 + FLOW_REACH + 42 and y1 >= 611 + FLOW_REACH + 42
+    assert (x1 - x0) * (y1 - y0) < 1920 * 1080 / 10  # a small object's flow reads a tenth of an HD frame
+    assert flow_window(np.array([[3.0, 5.0], [630.0, 470.0]]), 640, 480) == (0, 0, 640, 480)
