@@ -11,6 +11,7 @@ turn and in one call:
 * OpenCV CSRT (one thread, whole process: ``benchmarks/_peer_runner.py`` in ``benchmarks/_env``).
 
     python -m benchmarks.video_sizes --sequences David,Coke --frames 300 --work /tmp/vsizes
+    python -m benchmarks.video_sizes --sizes 320x240,1920x1080 --repeats 3   # medians of 3 rounds in turn
 
 Prints one Markdown table; the rows go into RESULTS.md by hand with the command.
 """
@@ -72,23 +73,35 @@ def _size_mib(path: Path) -> float:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) / 2**20
 
 
-def measure(sequence: str, frames: int, size: tuple[int, int], work: Path, peer_python: Path) -> dict:
+def measure(sequence: str, frames: int, size: tuple[int, int], work: Path, peer_python: Path, repeats: int) -> dict:
+    """One row: ``repeats`` rounds of ours without the overlay, ours with it and CSRT, in turn; times are medians,
+    the ratio to CSRT the median of each round's own ratio (the VM's speed drifts between rounds)."""
     folder, box = make_sized(sequence, frames, size, work)
     runs = work / "runs" / f"{size[0]}x{size[1]}" / sequence
     shutil.rmtree(runs, ignore_errors=True)
     tool = str(Path(sys.executable).with_name("sptpt-annotate"))
     box_text = ",".join(f"{v:.3f}" for v in box)
-    plain, plain_mib = _timed([tool, str(folder), "--box", box_text, "--no-render", "--formats", "otb,flags",
-                               "--out", str(runs / "plain"), "-q"])
-    full, full_mib = _timed([tool, str(folder), "--box", box_text, "--out", str(runs / "full"), "-q"])
-    args = {"tracker": "csrt", "seq_dir": str(folder), "out_dir": str(runs / "csrt"), "name": sequence}
-    csrt, csrt_mib = _timed([str(peer_python), str(HERE / "_peer_runner.py"), json.dumps(args)])
+    plain, plain_mib, full, full_mib, csrt = [], [], [], [], []
+    for _ in range(repeats):
+        seconds, mib = _timed([tool, str(folder), "--box", box_text, "--no-render", "--formats", "otb,flags",
+                               "--out", str(runs / "plain"), "--force", "-q"])
+        plain.append(seconds)
+        plain_mib.append(mib)
+        seconds, mib = _timed([tool, str(folder), "--box", box_text, "--out", str(runs / "full"), "--force", "-q"])
+        full.append(seconds)
+        full_mib.append(mib)
+        args = {"tracker": "csrt", "seq_dir": str(folder), "out_dir": str(runs / "csrt"), "name": sequence}
+        csrt.append(_timed([str(peer_python), str(HERE / "_peer_runner.py"), json.dumps(args)])[0])
     n = len(list((folder / "img").iterdir()))
-    return {"sequence": sequence, "size": f"{size[0]}x{size[1]}", "frames": n,
-            "seconds": plain, "fps": n / plain, "ratio_csrt": csrt / plain, "peak_mib": plain_mib,
-            "auc": _auc(runs / "plain", folder), "overlay_seconds": full - plain, "full_peak_mib": full_mib,
+    ratios = np.array(csrt) / np.array(plain)
+    return {"sequence": sequence, "size": f"{size[0]}x{size[1]}", "frames": n, "repeats": repeats,
+            "seconds": float(np.median(plain)), "fps": n / float(np.median(plain)),
+            "ratio_csrt": float(np.median(ratios)), "ratio_range": (float(ratios.min()), float(ratios.max())),
+            "peak_mib": float(np.median(plain_mib)), "auc": _auc(runs / "plain", folder),
+            "overlay_seconds": float(np.median(np.array(full) - np.array(plain))),
+            "full_peak_mib": float(np.median(full_mib)),
             "overlay_mib": (runs / "full" / "overlay.mp4").stat().st_size / 2**20,
-            "outputs_mib": _size_mib(runs / "full"), "csrt_seconds": csrt}
+            "outputs_mib": _size_mib(runs / "full"), "csrt_seconds": float(np.median(csrt))}
 
 
 def main() -> None:
@@ -96,19 +109,25 @@ def main() -> None:
     parser.add_argument("--sequences", default="David,Coke")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--work", type=Path, default=Path("/tmp/vsizes"))
+    parser.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES),
+                        help="frame sizes, WxH, comma-separated (default: all four)")
+    parser.add_argument("--repeats", type=int, default=1, help="rounds of the three runs per row, in turn")
     args = parser.parse_args()
+    sizes = [tuple(int(v) for v in text.split("x")) for text in args.sizes.split(",")]
     from benchmarks.otb_benchmark import ensure_peer_env
 
     peer_python = ensure_peer_env()
-    rows = [measure(s, args.frames, size, args.work, peer_python)
-            for s in args.sequences.split(",") for size in SIZES]
-    print("| sequence | size | frames | s (--no-render) | frames/s | x CSRT | peak MiB | AUC | overlay + report s "
-          "| peak MiB with overlay | overlay MiB | outputs MiB |")
+    rows = [measure(s, args.frames, size, args.work, peer_python, args.repeats)
+            for s in args.sequences.split(",") for size in sizes]
+    print("| sequence | size | frames | s (--no-render) | frames/s | x CSRT (range) | peak MiB | AUC "
+          "| overlay + report s | peak MiB with overlay | overlay MiB | outputs MiB |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
+        low, high = r["ratio_range"]
         print(f"| {r['sequence']} | {r['size']} | {r['frames']} | {r['seconds']:.1f} | {r['fps']:.2f} | "
-              f"{r['ratio_csrt']:.3f} | {r['peak_mib']:.0f} | {r['auc']:.3f} | {r['overlay_seconds']:.1f} | "
-              f"{r['full_peak_mib']:.0f} | {r['overlay_mib']:.1f} | {r['outputs_mib']:.1f} |")
+              f"{r['ratio_csrt']:.3f} ({low:.3f}-{high:.3f}) | {r['peak_mib']:.0f} | {r['auc']:.3f} | "
+              f"{r['overlay_seconds']:.1f} | {r['full_peak_mib']:.0f} | {r['overlay_mib']:.1f} | "
+              f"{r['outputs_mib']:.1f} |")
     (args.work / "rows.json").write_text(json.dumps(rows, indent=1))
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -28,6 +29,35 @@ def test_a_resized_sequence_keeps_its_ground_truth_on_the_object(tmp_path, monke
     assert image.shape == (90, 160)
     x, y, w, h = 20, int(round(31.5)), 40, 15  # the second frame's box, 0-based
     assert image[y + 2:y + h - 2, x + 2:x + w - 2].mean() > 200 and image[:y - 3].mean() < 30
+
+
+def test_a_row_takes_the_median_of_its_rounds_and_of_each_round_s_ratio(tmp_path, monkeypatch):
+    sizes = load_script("video_sizes")
+    folder = tmp_path / "Seq"
+    (folder / "img").mkdir(parents=True)
+    for k in range(10):
+        (folder / "img" / f"{k:04d}.jpg").touch()
+    monkeypatch.setattr(sizes, "make_sized", lambda *args: (folder, [1.0, 2.0, 3.0, 4.0]))
+    monkeypatch.setattr(sizes, "_auc", lambda out, folder: 0.5)
+    # Three rounds of (ours plain, ours with the overlay, CSRT): the second round's machine is twice as slow.
+    times = iter([(10, 300), (12, 320), (5, 100), (20, 310), (24, 330), (10, 100), (11, 290), (14, 340), (4, 100)])
+    commands = []
+
+    def timed(command):
+        commands.append(command)
+        if "--out" in command and "--no-render" not in command:
+            out = Path(command[command.index("--out") + 1])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "overlay.mp4").write_bytes(b"x" * 2**20)
+        return next(times)
+
+    monkeypatch.setattr(sizes, "_timed", timed)
+    row = sizes.measure("Seq", 10, (160, 90), tmp_path / "work", Path("python"), repeats=3)
+    assert len(commands) == 9 and all("--force" in c for c in commands[0::3] + commands[1::3])
+    assert row["seconds"] == 11 and row["fps"] == 10 / 11 and row["csrt_seconds"] == 5
+    assert row["ratio_csrt"] == 0.5 and row["ratio_range"] == (4 / 11, 0.5)  # each round's own ratio
+    assert row["overlay_seconds"] == 3 and row["peak_mib"] == 300 and row["full_peak_mib"] == 330
+    assert row["overlay_mib"] == 1.0
 
 
 def test_the_memory_probe_reads_this_process():
