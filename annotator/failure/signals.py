@@ -472,8 +472,11 @@ def flow_window(points: np.ndarray, width: int, height: int) -> tuple[int, int, 
     smaller coordinates round otherwise, which can take one step more or less). Its corner lies on a multiple of
     4, so that the pyramid's levels 1 and 2 sample the same pixels.
     """
-    low = np.floor(points.min(axis=0)) - _FLOW_MARGIN
-    high = np.ceil(points.max(axis=0)) + _FLOW_MARGIN + 1
+    finite = points[np.isfinite(points).all(axis=1)]
+    if not len(finite):  # a box without coordinates: Lucas-Kanade loses its points, on any image
+        return 0, 0, width, height
+    low = np.floor(finite.min(axis=0)) - _FLOW_MARGIN
+    high = np.ceil(finite.max(axis=0)) + _FLOW_MARGIN + 1
     x0, y0 = (max(int(v) // 4 * 4, 0) for v in low)
     return x0, y0, min(int(high[0]), width), min(int(high[1]), height)
 

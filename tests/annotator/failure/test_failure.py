@@ -1076,3 +1076,16 @@ def test_the_flow_window_holds_the_points_and_their_reach_and_no_more():
     assert x1 >= 1001 + FLOW_REACH + 42 and y1 >= 611 + FLOW_REACH + 42
     assert (x1 - x0) * (y1 - y0) < 1920 * 1080 / 10  # a small object's flow reads a tenth of an HD frame
     assert flow_window(np.array([[3.0, 5.0], [630.0, 470.0]]), 640, 480) == (0, 0, 640, 480)
+    assert flow_window(np.array([[900.3, 500.7], [np.nan, 5.0]]), 1920, 1080)[:2] == (x0, y0)
+    assert flow_window(np.full((4, 2), np.nan), 640, 480) == (0, 0, 640, 480)
+
+
+def test_a_box_without_coordinates_loses_the_flow_as_it_did_on_the_whole_frame():
+    from annotator.failure.signals import MotionMeter
+
+    grey = np.random.default_rng(0).integers(0, 256, (240, 320), dtype=np.uint8)
+    meter = MotionMeter()
+    meter.first(grey, np.array([10.0, 10.0, 40.0, 40.0]))
+    meter.next(grey, np.array([np.nan, 10.0, 40.0, 40.0]))
+    after = meter.next(grey, np.array([10.0, 10.0, 40.0, 40.0]))  # from the box without coordinates
+    assert (after["flow_iou"], after["flow_fb"], after["flow_kept"]) == (0.0, 1.0, 0.0)
