@@ -456,11 +456,11 @@ class MotionMeter:
         return signals, (float(dx), float(dy), scale), _extent_shares(flows, reliable, box_move, g, n, size)
 
 
-#: How far past its points the flow's window reaches, px: a point that moves up to :data:`FLOW_REACH` px
-#: (far beyond what Lucas-Kanade resolves with these options: its 15 px window at pyramid level 2 reaches 32 px)
-#: sees the same pixels and pyramids as on the whole frame. Those reach 42 px around it: the window and its
-#: bilinear taps, 9 px of the top level, 4 px each, and the two 5-tap pyrDown steps under them, 6 px.
+#: How far a point may move and still see, in the flow's window, the same pixels and pyramids as on the whole
+#: frame, px: beyond what Lucas-Kanade resolves with these options (its 15 px window at pyramid level 2 spans 32 px).
 FLOW_REACH = 64
+# What a point's flow reads around it, in full-size pixels: its window, bilinear taps and derivative at level 2
+# (9 px of that level, 4 px each: 36) and the two 5-tap pyrDown steps that level is made by (6): 42, rounded up.
 _FLOW_MARGIN = FLOW_REACH + 48
 
 
@@ -468,9 +468,10 @@ def flow_window(points: np.ndarray, width: int, height: int) -> tuple[int, int, 
     """``(x0, y0, x1, y1)``: the part of a ``width x height`` image the flow of ``(n, 2)`` ``points`` looks at.
 
     It holds every pixel the flow of a point that moves up to :data:`FLOW_REACH` px reads, on every pyramid level,
-    so the flow on the window is the flow on the whole image to within its stopping step (0.03 px: the points'
-    smaller coordinates round otherwise, which can take one step more or less). Its corner lies on a multiple of
-    4, so that the pyramid's levels 1 and 2 sample the same pixels.
+    and its corner lies on a multiple of 4, so that the pyramid's levels 1 and 2 sample the same pixels: more image
+    changes no point. Against the whole image, the points' coordinates are smaller by the corner and round
+    otherwise, which can change where Lucas-Kanade stops: by hundredths of a pixel where it converges, by more on
+    points it does not converge on (whose forward-backward error already marks them unreliable).
     """
     finite = points[np.isfinite(points).all(axis=1)]
     if not len(finite):  # a box without coordinates: Lucas-Kanade loses its points, on any image
