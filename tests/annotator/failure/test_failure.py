@@ -878,19 +878,20 @@ def test_no_fit_inside_the_folds_trains_on_one_sequence_of_a_video_without_the_o
     assert {1.0, 2.0, 3.0} in seen and {3.0, 4.0} in seen  # folds without D, and without J
 
 
-def _moving_scene(frames: int = 16, speed=(3.0, 2.0)):
-    """Frames of a textured object (40 x 32 px) moving at ``speed`` px a frame over a still textured background,
-    and its true boxes: textures everywhere, so every flow point has something to track."""
+def _moving_scene(frames: int = 16, speed=(3.0, 2.0), *, shape=(180, 240), start=(60, 60), lag=(0.0, 0.0)):
+    """Frames (``shape``) of a textured object (40 x 32 px) moving at ``speed`` px a frame from ``start`` over a
+    still textured background, and its boxes, ``lag`` px a frame further behind it each frame (none: its true
+    boxes): textures everywhere, so every flow point has something to track."""
     rng = np.random.default_rng(7)
-    background = cv2.GaussianBlur(rng.integers(0, 256, (180, 240, 3), dtype=np.uint8), (0, 0), 1.5)
+    background = cv2.GaussianBlur(rng.integers(0, 256, (*shape, 3), dtype=np.uint8), (0, 0), 1.5)
     texture = cv2.GaussianBlur(rng.integers(0, 256, (32, 40, 3), dtype=np.uint8), (0, 0), 1.0)
     shown, boxes = [], []
     for k in range(frames):
-        x, y = 60 + speed[0] * k, 60 + speed[1] * k
+        x, y = start[0] + speed[0] * k, start[1] + speed[1] * k
         frame = background.copy()
         frame[int(y):int(y) + 32, int(x):int(x) + 40] = texture
         shown.append(frame)
-        boxes.append([int(x), int(y), 40.0, 32.0])
+        boxes.append([int(x) - lag[0] * k, int(y) - lag[1] * k, 40.0, 32.0])
     return shown, np.array(boxes, dtype=np.float64)
 
 
@@ -998,21 +999,10 @@ def test_the_shipped_model_reads_appearance_only_where_a_run_parts():
     assert weights["ncc_memory_parted"] > 0 or weights["ncc_memory_parted_w5"] > 0
 
 
-def _large_scene(speed: tuple[float, float], start: tuple[int, int], frames: int = 6):
-    """A textured object (40 x 32 px) moving at ``speed`` over a textured 640 x 400 background from ``start``,
-    with boxes that lag behind it by a growing amount: the flow points see the object, its edge and the
-    background."""
-    rng = np.random.default_rng(11)
-    background = cv2.GaussianBlur(rng.integers(0, 256, (400, 640, 3), dtype=np.uint8), (0, 0), 1.5)
-    texture = cv2.GaussianBlur(rng.integers(0, 256, (32, 40, 3), dtype=np.uint8), (0, 0), 1.0)
-    shown, boxes = [], []
-    for k in range(frames):
-        x, y = start[0] + speed[0] * k, start[1] + speed[1] * k
-        frame = background.copy()
-        frame[int(y):int(y) + 32, int(x):int(x) + 40] = texture
-        shown.append(frame)
-        boxes.append([x - 1.5 * k, y + 0.5 * k, 40.0, 32.0])
-    return shown, np.array(boxes, dtype=np.float64)
+def _large_scene(speed: tuple[float, float], start: tuple[int, int]):
+    """Six 640 x 400 frames of :func:`_moving_scene` with boxes that fall behind the object: the flow points see
+    the object, its edge and the background."""
+    return _moving_scene(6, speed, shape=(400, 640), start=start, lag=(1.5, -0.5))
 
 
 @pytest.mark.parametrize("speed,start", [((3.0, 2.0), (300, 180)), ((24.0, -17.0), (200, 300)),
