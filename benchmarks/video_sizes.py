@@ -25,6 +25,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Callable, NoReturn
 
 import cv2
 import numpy as np
@@ -104,6 +105,14 @@ def measure(sequence: str, frames: int, size: tuple[int, int], work: Path, peer_
             "outputs_mib": _size_mib(runs / "full"), "csrt_seconds": float(np.median(csrt))}
 
 
+def parse_size(text: str, error: Callable[[str], NoReturn]) -> tuple[int, int]:
+    """``WxH`` as ``(W, H)``; anything else goes to ``error`` (argparse's: one line, exit code 2)."""
+    match = re.fullmatch(r"\s*(\d+)x(\d+)\s*", text)
+    if match is None or min(int(match[1]), int(match[2])) < 2:
+        error(f"--sizes: {text!r} is not a frame size; expected WxH with both at least 2, e.g. 1920x1080")
+    return int(match[1]), int(match[2])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sequences", default="David,Coke")
@@ -113,7 +122,9 @@ def main() -> None:
                         help="frame sizes, WxH, comma-separated (default: all four)")
     parser.add_argument("--repeats", type=int, default=1, help="rounds of the three runs per row, in turn")
     args = parser.parse_args()
-    sizes = [tuple(int(v) for v in text.split("x")) for text in args.sizes.split(",")]
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
+    sizes = [parse_size(text, parser.error) for text in args.sizes.split(",")]
     from benchmarks.otb_benchmark import ensure_peer_env
 
     peer_python = ensure_peer_env()
