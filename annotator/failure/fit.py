@@ -7,6 +7,7 @@ check the result is reproduced.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence, cast
 
@@ -88,6 +89,7 @@ def standardised(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return (X - mean) / scale, mean, scale
 
 
+@functools.cache  # asked at the first fit, not at import: scikit-learn takes a second to import
 def _l1_penalty() -> dict[str, Any]:
     """The keyword that makes LogisticRegression's penalty L1: ``l1_ratio=1`` from scikit-learn 1.8 (which
     deprecates ``penalty``), ``penalty="l1"`` before (where ``l1_ratio`` alone is ignored: a silent L2 fit)."""
@@ -96,8 +98,6 @@ def _l1_penalty() -> dict[str, Any]:
     major, minor = (int(part) for part in sklearn.__version__.split(".")[:2])
     return {"l1_ratio": 1.0} if (major, minor) >= (1, 8) else {"penalty": "l1"}
 
-
-_L1 = _l1_penalty()
 
 #: How a fit turns features ``X`` (n, d), labels ``y`` (n,) and a regularisation ``C`` into
 #: ``(mean, scale, coef, intercept)``: :func:`l1_fit` in the product; a benchmark passes another to compare.
@@ -116,7 +116,7 @@ def l1_fit(X: np.ndarray, y: np.ndarray, C: float) -> tuple[np.ndarray, np.ndarr
     # constant column of intercept_scaling; at 100 the penalty on it is negligible. Its coordinate descent visits
     # the features in a random order: random_state fixes it, so a refit on the same data gives the same file.
     model = LogisticRegression(C=C, solver="liblinear", intercept_scaling=100.0, max_iter=10000, random_state=0,
-                               **_L1)
+                               **_l1_penalty())
     model.fit(Z, y.astype(int))
     return mean, scale, model.coef_[0].astype(np.float64), float(model.intercept_[0])
 

@@ -303,8 +303,9 @@ def test_same_seed_same_boxes(choice, filter_vote):
         tracker.init(clip.frames[0], clip.boxes_xywh[0])
         return np.array([tracker.update(frame).box_xywh for frame in clip.frames[1:]])
 
-    np.testing.assert_array_equal(boxes(4), boxes(4))
-    assert not np.array_equal(boxes(4), boxes(5))
+    first = boxes(4)
+    np.testing.assert_array_equal(first, boxes(4))
+    assert not np.array_equal(first, boxes(5))
 
 
 def test_update_before_init_and_a_bad_count_are_refused():

@@ -18,7 +18,7 @@ from _paths import GOLDEN as GOLDEN_ROOT
 from _tracker_clips import GAP, boxes_around, reappearing_clip, render_clip
 
 from sptpt.boxes import iou_xywh
-from sptpt.params import get_preset
+from sptpt.params import PRESETS, get_preset
 from sptpt.tracker import Tracker
 from sptpt_dev.synthetic import make_clip
 
@@ -117,11 +117,18 @@ def test_preset_boxes_are_unchanged(preset):
     # When make_clip stopped rendering with OpenCV (whose warpAffine differs between OpenCV 4 and 5), the clip
     # changed in 1 value in 100,000, by 1 grey level: seven presets gave their recorded boxes on it, and
     # robust-two-runs, robust-three-runs and robust boxes that moved by under 0.001 px, re-recorded then.
-    clip = make_clip(40, seed=3)
+    # The presets are followed over all 40 recorded frames, and so is robust-whole-search, whose boxes part from
+    # robust's (the shortlist's) only at frame 23. The other earlier stages of robust, which no preset is, over
+    # their first 20 (tracking is causal: a recording's first rows are what the clip's first frames give): there
+    # each already lies 0.58 px or more from every other stage's boxes, so a change to one of their switches shows.
+    frames = 40 if preset in PRESETS or preset == "robust-whole-search" else 20
+    clip = make_clip(40, seed=3)  # the clip's path depends on its length: the recorded clip, cut
     golden = golden_boxes_file(preset)
-    boxes = track(clip.frames, clip.boxes_xywh[0], preset, 5)
+    boxes = track(clip.frames[:frames], clip.boxes_xywh[0], preset, 5)
     # Tolerance only for floating-point reassociation in faster kernels; any algorithmic change moves boxes by pixels.
-    np.testing.assert_allclose(boxes, np.loadtxt(golden), rtol=0, atol=1e-6,
+    recorded = np.loadtxt(golden)
+    assert len(recorded) == 40, golden
+    np.testing.assert_allclose(boxes, recorded[:frames], rtol=0, atol=1e-6,
                                err_msg=f"{golden.name}, BLAS kernels {blas_architecture()}")
 
 
