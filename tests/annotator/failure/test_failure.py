@@ -685,6 +685,16 @@ def test_a_damaged_failure_model_file_is_refused_before_any_work(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_the_fitting_module_imports_scikit_learn_only_to_fit():
+    """A benchmark that refuses a bad option should not first spend a second importing scikit-learn."""
+    import subprocess
+    import sys
+
+    code = "import sys, annotator.failure.fit; print('sklearn' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.stdout.strip() == "False", done.stderr
+
+
 @pytest.mark.parametrize("value, message", [
     ("abc", "expected a number or comma-separated numbers such as 1,0.1,0.01,0.003,0.001,0.0003,0.0001"),
     ("0,1", "every value must be a finite number > 0"),
