@@ -7,7 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from _benchmark_scripts import load_script
+from _benchmark_scripts import load_script, run_benchmark
 
 
 def test_a_resized_sequence_keeps_its_ground_truth_on_the_object(tmp_path, monkeypatch):
@@ -61,14 +61,9 @@ def test_a_row_takes_the_median_of_its_rounds_and_of_each_round_s_ratio(tmp_path
 
 
 def test_bad_sizes_and_repeats_get_one_line_and_exit_code_2():
-    import subprocess
-    import sys
-
-    root = Path(__file__).resolve().parents[2]
     for args, words in ((["--sizes", "320x240,320x"], "'320x' is not a frame size"),
                         (["--sizes", "1x5"], "'1x5' is not a frame size"), (["--repeats", "0"], "at least 1, got 0")):
-        done = subprocess.run([sys.executable, "-m", "benchmarks.video_sizes", *args], cwd=root, capture_output=True,
-                              text=True)
+        done = run_benchmark("video_sizes", *args)
         assert done.returncode == 2 and words in done.stderr.splitlines()[-1], args
     assert load_script("video_sizes").parse_size("1920x1080", print) == (1920, 1080)
 
