@@ -291,7 +291,9 @@ def test_a_worker_killed_mid_item_is_replaced_and_its_item_retried(dataset, long
     worker = wait_until(running_worker, proc)
     victim = in_progress(out)[1][0].name
     worker.kill()
-    assert proc.wait(90) == 0, proc.stdout.read()
+    if proc.wait(90) != 0:  # pytest would cut the batch's output short in the assertion's message; say all of it
+        pytest.fail(f"batch exit {proc.returncode}: {proc.stdout.read().decode(errors='replace')}\n"
+                    f"summary: {(out / 'summary.json').read_text() if (out / 'summary.json').is_file() else 'none'}")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["counts"]["done"] == 3
     row = next(r for r in summary["items"] if r["id"] == victim)
