@@ -8,6 +8,7 @@ prints them, in a copy of ``samples/``, and checks the figures it quotes.
 
 from __future__ import annotations
 
+import csv
 import re
 import shlex
 import shutil
@@ -15,9 +16,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from annotator.evaluation import evaluate_result_file
+from annotator.otb_format import read_otb_boxes
+from sptpt.boxes import iou_xywh
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -93,4 +97,17 @@ def test_readme_quick_start_scores_and_flags_the_sample_as_it_says(sample):
     # NanoTrack's CNN runs in OpenCV's DNN module, whose arithmetic differs a little between OpenCV releases: the
     # figure was measured on the newest (0.908); the lowest version pyproject allows gives 0.902.
     assert abs(float(quoted[1]) - result.auc) <= 0.01
-    assert "0 of 100 frame boxes flagged" in done.stdout + done.stderr  # "its report flags no frame"
+    run = sample / "samples" / "clip_sptpt"
+    with open(run / "flags.csv", newline="") as f:
+        flagged = {int(row["frame"]) for row in csv.DictReader(f) if row["flagged"] == "1"}
+    truth = read_otb_boxes(sample / "samples" / "clip_groundtruth.txt")
+    wrong = {int(k) for k in np.flatnonzero(iou_xywh(read_otb_boxes(run / "clip.txt"), truth) < 0.5)}
+    assert wrong <= flagged, "every wrong box of the sample is flagged"
+    assert len(flagged) <= 5, "and little else"
+    assert f"{len(flagged)} of 100 frame boxes flagged" in done.stdout + done.stderr
+    span = re.search(r"on frame (\d+) where the look-alike covers the object, is flagged, in frames (\d+)-(\d+)\.",
+                     " ".join(README.split()))
+    assert span, "the README says which frames the default flags"
+    if abs(float(quoted[1]) - result.auc) < 0.0005:  # the OpenCV the README's figures were measured with
+        assert wrong == {int(span[1])}
+        assert flagged == set(range(int(span[2]), int(span[3]) + 1))
