@@ -46,6 +46,15 @@ c. Only then the shipped model (section "failure-model", held out by video)::
    segments' right frames against 3). The refit on both is measured by
    ``--runs 'benchmarks/_runs/failure/*/robust-s*' --otb ../shared/otb ../shared/otb_extra --quick``.
 
+   The default preset's model, ``annotator/data/failure_model_guided.json`` (runs with NanoTrack beside SPTPT;
+   ``--write`` picks the file by the runs' preset), from the ``fused`` runs of step 1 (``--preset fused``, out
+   ``.../fused-sS``), with C chosen per fold from the grid since 2026-12-07 (RESULTS.md, "The fused preset")::
+
+       python -m benchmarks.failure_model --runs 'benchmarks/_runs/failure/otb/fused-s*' --otb ../shared/otb \\
+           --no-worth --write
+
+   then its ``pass_choice`` section: ``python -m benchmarks.pass_choice --generate``, then ``--write``.
+
 Step c reads every item's track store and ground truth (every frame of every sequence; before 2026-11-27 (5th
 session) the runs stopped at frame 150), and reports, on held-out videos only (each sequence scored by a
 model fitted on the other videos: Jogging.1 and Jogging.2 are one video, held out together; until the 6th
