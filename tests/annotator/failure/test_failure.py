@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import zlib
 
 import cv2
 import numpy as np
 import pytest
+from _paths import ROOT
 from typer.testing import CliRunner
 
 from annotator.cli import _with_default_command, app
@@ -401,6 +403,25 @@ def test_runs_with_and_without_a_learned_tracker_each_get_the_model_fitted_on_th
     assert not plain.coef[guide_features].any() and guided.coef[guide_features].any()
     assert get_preset(plain.info["data"]["preset"]).uses_guide is False
     assert get_preset(guided.info["data"]["preset"]).uses_guide is True
+
+
+def _groups_read(model) -> set[str]:
+    from annotator.failure.model import FEATURE_GROUPS
+    return {FEATURE_GROUPS[name] for name, weight in zip(FEATURES, model.coef) if weight != 0}
+
+
+def test_the_flag_reasons_page_names_the_groups_each_shipped_model_reads():
+    # docs/flags.md tells users which doubt:<group> reasons they will see; a refit that changes the model's
+    # non-zero weights must change the page too (it went stale once, when the guided model was refitted).
+    text = " ".join((ROOT / "docs" / "flags.md").read_text(encoding="utf-8").split())
+    said = {}
+    for who, pattern in (("fused", r"`fused`'s model reads the ([a-z, ]+?) groups"),
+                         ("other", r"The model of the other presets reads the ([a-z, ]+?) groups")):
+        found = re.search(pattern, text)
+        assert found, f"docs/flags.md no longer says which groups {who}'s model reads"
+        said[who] = set(re.split(r", | and ", found[1].replace(" and ", ", ")))
+    assert said["fused"] == _groups_read(load_model(guided=True))
+    assert said["other"] == _groups_read(load_model())
 
 
 @pytest.mark.parametrize("edit, fragment", [
