@@ -8,7 +8,6 @@ prints them, in a copy of ``samples/``, and checks the figures it quotes.
 
 from __future__ import annotations
 
-import csv
 import re
 import shlex
 import shutil
@@ -20,8 +19,7 @@ import numpy as np
 import pytest
 
 from annotator.evaluation import evaluate_result_file
-from annotator.otb_format import read_otb_boxes
-from sptpt.boxes import iou_xywh
+from annotator.exports import read_flags_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -97,11 +95,9 @@ def test_readme_quick_start_scores_and_flags_the_sample_as_it_says(sample):
     # NanoTrack's CNN runs in OpenCV's DNN module, whose arithmetic differs a little between OpenCV releases: the
     # figure was measured on the newest (0.908); the lowest version pyproject allows gives 0.902.
     assert abs(float(quoted[1]) - result.auc) <= 0.01
-    run = sample / "samples" / "clip_sptpt"
-    with open(run / "flags.csv", newline="") as f:
-        flagged = {int(row["frame"]) for row in csv.DictReader(f) if row["flagged"] == "1"}
-    truth = read_otb_boxes(sample / "samples" / "clip_groundtruth.txt")
-    wrong = {int(k) for k in np.flatnonzero(iou_xywh(read_otb_boxes(run / "clip.txt"), truth) < 0.5)}
+    table = read_flags_csv(sample / "samples" / "clip_sptpt" / "flags.csv")
+    flagged = {int(frame) for frame in table.frame[table.flagged]}
+    wrong = {int(k) for k in np.flatnonzero(result.ious < 0.5)}  # the run starts at frame 0: position = frame
     assert wrong <= flagged, "every wrong box of the sample is flagged"
     assert len(flagged) <= 5, "and little else"
     assert f"{len(flagged)} of 100 frame boxes flagged" in done.stdout + done.stderr

@@ -361,6 +361,12 @@ class FailureModel:
         z = self.intercept + self._contributions(features).sum(axis=1)
         return sigmoid(z)
 
+    @property
+    def weighed_groups(self) -> list[str]:
+        """The :data:`FEATURE_GROUPS` groups with a feature of non-zero weight, sorted: the ``doubt:<group>``
+        reasons this model can give (docs/flags.md lists them per shipped model)."""
+        return sorted({FEATURE_GROUPS[f] for f, c in zip(self.features, self.coef) if c != 0.0})
+
     def main_group(self, features: np.ndarray) -> list[str]:
         """Per row, the :data:`FEATURE_GROUPS` group whose features raise the log-odds most.
 
@@ -369,8 +375,7 @@ class FailureModel:
         (``--review-budget`` flags such frames too) that the model does not read.
         """
         contrib = self._contributions(features)
-        groups = sorted({FEATURE_GROUPS[f] for f, c in zip(self.features, self.coef) if c != 0.0}) or \
-            sorted(set(FEATURE_GROUPS.values()))
+        groups = self.weighed_groups or sorted(set(FEATURE_GROUPS.values()))
         by_group = np.stack([contrib[:, [i for i, f in enumerate(self.features) if FEATURE_GROUPS[f] == g]].sum(axis=1)
                              for g in groups], axis=1)
         return [groups[int(k)] for k in np.argmax(by_group, axis=1)]

@@ -405,11 +405,6 @@ def test_runs_with_and_without_a_learned_tracker_each_get_the_model_fitted_on_th
     assert get_preset(guided.info["data"]["preset"]).uses_guide is True
 
 
-def _groups_read(model) -> set[str]:
-    from annotator.failure.model import FEATURE_GROUPS
-    return {FEATURE_GROUPS[name] for name, weight in zip(FEATURES, model.coef) if weight != 0}
-
-
 def test_the_flag_reasons_page_names_the_groups_each_shipped_model_reads():
     # docs/flags.md tells users which doubt:<group> reasons they will see; a refit that changes the model's
     # non-zero weights must change the page too (it went stale once, when the guided model was refitted).
@@ -420,8 +415,8 @@ def test_the_flag_reasons_page_names_the_groups_each_shipped_model_reads():
         found = re.search(pattern, text)
         assert found, f"docs/flags.md no longer says which groups {who}'s model reads"
         said[who] = set(re.split(r", | and ", found[1].replace(" and ", ", ")))
-    assert said["fused"] == _groups_read(load_model(guided=True))
-    assert said["other"] == _groups_read(load_model())
+    assert said["fused"] == set(load_model(guided=True).weighed_groups)
+    assert said["other"] == set(load_model().weighed_groups)
 
 
 @pytest.mark.parametrize("edit, fragment", [
