@@ -15,7 +15,9 @@ What a Python user imports::
 :func:`params_from_mapping` from a configuration's values; :data:`PRESETS` names them all). The ``fused``
 preset also takes a learned tracker beside SPTPT, a :class:`Guide` (``Tracker(preset("fused"), guide=...)``; the
 tool's is ``annotator.NanoTrackGuide``). :func:`colour_contrast` measures how a box's colours stand out from
-its surroundings; :func:`checked_box` and :func:`checked_particles` check a result's arrays.
+its surroundings; :func:`kmeans_centroids` is the k-means a tracker learns its dictionary with (the default of
+``Tracker(kmeans=...)``, which takes any :data:`KMeansFunction`); :func:`checked_box` and
+:func:`checked_particles` check a result's arrays.
 
 Box geometry (corners, clipping, overlap) is the public module :mod:`sptpt.boxes`. Every other module is the
 library's inside and may change.
@@ -27,8 +29,8 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 __all__ = ["PRESETS", "FrameResult", "Guide", "Tracker", "TrackerParams", "check_params", "checked_box",
-           "checked_particles", "colour_contrast", "compile_kernels", "kernels_cached", "params_from_mapping", "preset",
-           "TrackerInspection"]
+           "checked_particles", "colour_contrast", "compile_kernels", "kernels_cached", "KMeansFunction",
+           "kmeans_centroids", "params_from_mapping", "preset", "TrackerInspection"]
 
 # Where each public name lives, as (module, name there). Imported on first use: ``import sptpt.boxes`` (the tool
 # does, at start-up) should not load the tracker and numba.
@@ -45,6 +47,8 @@ _HOMES = {
     "colour_contrast": ("sptpt.contrast", "colour_contrast"),
     "compile_kernels": ("sptpt._kernels.warmup", "compile_kernels"),
     "kernels_cached": ("sptpt._kernels.warmup", "kernels_cached"),
+    "KMeansFunction": ("sptpt._kmeans", "KMeansFunction"),
+    "kmeans_centroids": ("sptpt._kmeans", "kmeans_centroids"),
     "params_from_mapping": ("sptpt.params", "params_from_mapping"),
     "preset": ("sptpt.params", "get_preset"),
 }
@@ -63,6 +67,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # the same names, for type checkers and editors
     from sptpt._kernels.warmup import compile_kernels, kernels_cached
+    from sptpt._kmeans import KMeansFunction, kmeans_centroids
     from sptpt.contrast import colour_contrast
     from sptpt.params import PRESETS, TrackerParams, params_from_mapping
     from sptpt.params import get_preset as preset

@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from sptpt._kernels.lasso import nonnegative_lasso
+from sptpt._kmeans import KMeansFunction, kmeans_centroids
 from sptpt._validation import positive_int as _positive_int
 
 __all__ = ["learn_dictionary", "encode_nonnegative", "encode_tensors", "kkt_residual"]
@@ -55,6 +56,7 @@ def learn_dictionary(
     *,
     rng: np.random.Generator,
     n_init: int = 1,
+    kmeans: KMeansFunction = kmeans_centroids,
 ) -> np.ndarray:
     """Learn the codebook: k-means++ centroids of ``features``, L2-normalised.
 
@@ -78,6 +80,10 @@ def learn_dictionary(
     n_init : int, optional
         k-means restarts, the best inertia kept. 1 matches TPT's single
         ``fkmeans`` run.
+    kmeans : callable, optional
+        What runs the k-means: ``kmeans(features, n_clusters, n_init, seed)``
+        returns the centroids. In this process by default; the tool runs
+        the same function in a child process (``annotator.kmeans_child``).
 
     Returns
     -------
@@ -94,8 +100,6 @@ def learn_dictionary(
         If ``features`` is not a non-empty finite 2-D array or ``n_atoms`` /
         ``n_init`` is not positive.
     """
-    from sklearn.cluster import KMeans  # heavy import, only needed on frame 1
-
     features = _as_matrix(features, "features")
     if features.shape[0] == 0 or features.shape[1] == 0:
         raise ValueError(f"features must be a non-empty (M, B) array, got shape {features.shape}")
@@ -109,8 +113,7 @@ def learn_dictionary(
     n_distinct = np.unique(features, axis=0).shape[0]
     n_clusters = min(n_atoms, n_distinct)
     seed = int(rng.integers(0, 2**31 - 1))
-    kmeans = KMeans(n_clusters=n_clusters, init="k-means++", n_init=n_init, random_state=seed)
-    centroids = kmeans.fit(features).cluster_centers_.astype(np.float64, copy=False)
+    centroids = np.asarray(kmeans(features, n_clusters, n_init, seed), dtype=np.float64)
     norms = np.linalg.norm(centroids, axis=1, keepdims=True)
     atoms = np.divide(centroids, norms, out=np.zeros_like(centroids), where=norms > 0.0)
     return np.ascontiguousarray(atoms.T)

@@ -33,6 +33,7 @@ import numpy as np
 from threadpoolctl import OpenBLASController, ThreadpoolController
 
 from sptpt._kernels import InOrder, map_on_threads, on_own_threads
+from sptpt._kmeans import KMeansFunction, kmeans_centroids
 from sptpt.affine import box_xywh_from_states, state_from_box_xywh, template_labels_to_frame, warp_candidates
 from sptpt.boxes import iou_xywh, lies_outside, mean_box
 from sptpt.coding import encode_tensors, learn_dictionary
@@ -253,6 +254,11 @@ class Tracker:
         (``guide_particles``, ``guide_prior``, ``guide_vote``: the ``fused`` preset). It is given the first frame
         and box, then each frame before the runs; its box is where each run draws more candidates and which
         candidates it favours, and, with ``guide_vote``, one more vote. ``FrameResult.guide_box_xywh`` reports it.
+    kmeans : callable, optional
+        What runs the k-means of each run's dictionary on the first frame: ``kmeans(features, n_clusters, n_init,
+        seed)`` returns the centroids, and must equal the default (scikit-learn's, in this process) to the bit.
+        The tool passes one that runs the same function in a child process, to keep scikit-learn's memory out of
+        the tracking process.
 
     Examples
     --------
@@ -276,6 +282,7 @@ class Tracker:
         seed: int | np.random.Generator | None = None,
         stage_timer: StageTimer | None = None,
         guide: Guide | None = None,
+        kmeans: KMeansFunction = kmeans_centroids,
     ) -> None:
         self.params = get_preset("paper") if params is None else params
         if not isinstance(self.params, TrackerParams):
@@ -289,13 +296,13 @@ class Tracker:
         p, timer = self.params, stage_timer or _no_timer
         if p.independent_runs == 1:
             # One run draws from the tracker's own stream, so a one-run preset's boxes depend on nothing else.
-            self._runs = [_Run(p, rng, timer)]
+            self._runs = [_Run(p, rng, timer, kmeans)]
         else:
             # Each run gets a random stream of its own, seeded from the tracker's; whether a frame is easy is the
             # tracker's call (``easy_after``), passed to each run's update as its share of the candidates.
             single = dataclasses.replace(p, independent_runs=1, easy_after=0)
             child_seeds = rng.integers(0, 2**63 - 1, size=p.independent_runs)
-            self._runs = [_Run(single, np.random.default_rng(int(s)), timer) for s in child_seeds]
+            self._runs = [_Run(single, np.random.default_rng(int(s)), timer, kmeans) for s in child_seeds]
         # Draws no random numbers, so the runs are the same with it and without it.
         voting = p.filter_vote and voting_allowed(p)
         self._filter_voter = FilterTracker(p.template_size) if voting else None
@@ -693,10 +700,12 @@ def _on_one_kernel_thread(call: Callable[[], object]) -> object:
 class _Run:
     """One SPTPT run: its random stream, dictionary, candidates, models and state."""
 
-    def __init__(self, params: TrackerParams, rng: np.random.Generator, time: StageTimer) -> None:
+    def __init__(self, params: TrackerParams, rng: np.random.Generator, time: StageTimer,
+                 kmeans: KMeansFunction) -> None:
         self.params = p = params
         self._rng = rng
         self._time = time
+        self._kmeans = kmeans
         check_params(p)
         self.n_superpixels = _superpixels_per_template(p)
         self._sigma = np.asarray(p.motion_sigma, dtype=np.float64)
@@ -712,7 +721,8 @@ class _Run:
         shifted[:, :2] += _INIT_SHIFTS
         features, labels = self._features(rgb, shifted)
         self._dictionary = learn_dictionary(
-            features.reshape(-1, features.shape[-1]), p.n_atoms, rng=self._rng, n_init=p.kmeans_restarts
+            features.reshape(-1, features.shape[-1]), p.n_atoms, rng=self._rng, n_init=p.kmeans_restarts,
+            kmeans=self._kmeans,
         )
         unshifted = int(np.flatnonzero((_INIT_SHIFTS == 0).all(axis=1))[0])
         self._first_codes = self._code(features[unshifted : unshifted + 1])[0]
