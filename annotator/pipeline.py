@@ -36,6 +36,7 @@ from annotator.errors import EXIT_INPUT, ToolError
 from annotator.failure import SignalMeter, TrackDoubt, score_track
 from annotator.flagging import FlagParams, FlagResult, flag_p_fail, spans_from_mask, with_keyframe_request
 from annotator.frame_sources import DecodeError, FrameSource
+from annotator.kmeans_child import DICTIONARY_KMEANS
 from annotator.nanotrack import guide_for
 from annotator.progress import Progress
 from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
@@ -230,6 +231,8 @@ def track_frame(trackers: dict[int, Tracker], targets: Sequence[Target], frame: 
             # Details always: the candidates' scores are a failure signal.
             results[tid] = trackers[tid].update(frame, details=True)
         seconds[tid] = time.perf_counter() - tic
+    if first:  # every tracker has its dictionary: the k-means child's memory is not kept while tracking
+        DICTIONARY_KMEANS.close()
     return results, seconds
 
 
@@ -623,7 +626,7 @@ def track_source(
     model = config.load_failure_model()
     if resume is None:
         trackers = {t.track_id: Tracker(config.tracker, seed=seed_for_track(config.seed, t.track_id),
-                                        guide=guide_for(config.tracker)) for t in targets}
+                                        guide=guide_for(config.tracker), kmeans=DICTIONARY_KMEANS) for t in targets}
         online = FlagParams(threshold=config.flags.threshold, merge_gap=config.flags.merge_gap,
                             min_span=config.flags.min_span)
         records = TrackRecords(targets, model, online, budget=config.flags.review_budget is not None,

@@ -159,7 +159,8 @@ LAYERS: list[tuple[str, list[str]]] = [
                      "annotator.html_pages", "annotator.box_input", "annotator.output_folder"]),
     ("what a run is made of", ["annotator.tracks", "annotator.track_store", "annotator.checkpoint",
                                "annotator.frame_sources", "annotator.progress", "annotator.render",
-                               "annotator.otb_format", "annotator.corrections", "annotator.nanotrack"]),
+                               "annotator.otb_format", "annotator.corrections", "annotator.nanotrack",
+                               "annotator.kmeans_child"]),
     ("doubt and settings", ["annotator.flagging", "annotator.failure", "annotator.config"]),
     # Fitting the failure model scores its folds as evaluation does: above it, though inside annotator.failure.
     ("views of a store", ["annotator.exports", "annotator.evaluation", "annotator.run_report",

@@ -14,6 +14,7 @@ from typing import Iterator, Protocol, Sequence
 import numpy as np
 
 from annotator.failure import SIGNALS, SignalMeter
+from annotator.kmeans_child import DICTIONARY_KMEANS
 from annotator.nanotrack import guide_for
 from annotator.pass_cache import CachedPass, PassKey, PassResult, pass_key
 from annotator.pipeline import FramesAhead, seed_for_track
@@ -154,7 +155,7 @@ class SegmentRun:
     def _tracker_for(self, position: int, direction: int) -> Tracker:
         first = position == 0
         rng = pass_seed(self.seed, self.segment.track_id, int(self.frame_indices[position]), direction, first=first)
-        return Tracker(self.params, seed=rng, guide=guide_for(self.params))
+        return Tracker(self.params, seed=rng, guide=guide_for(self.params), kmeans=DICTIONARY_KMEANS)
 
     def feed(self, position: int, frame: np.ndarray) -> None:
         s = self.segment

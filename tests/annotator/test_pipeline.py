@@ -96,7 +96,7 @@ class ScriptedTracker:
     log: list[tuple[float, str, int]] = []  # (first-frame x, call, source index read from the pixels)
     fail_at: int | None = None  # source index at which update() raises
 
-    def __init__(self, params, seed, guide=None) -> None:
+    def __init__(self, params, seed, guide=None, kmeans=None) -> None:
         assert isinstance(seed, np.random.Generator)
         self.params = params
         self.pending: list = []
