@@ -39,7 +39,7 @@ from annotator.frame_sources import DecodeError, FrameSource
 from annotator.kmeans_child import DICTIONARY_KMEANS
 from annotator.nanotrack import guide_for
 from annotator.progress import Progress
-from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, items_from_tracks
+from annotator.render import OverlayItem, OverlayRenderer, OverlayWriter, i420_to_rgb, items_from_tracks, rgb_to_i420
 from annotator.tracks import KEYFRAME_GIVEN, SpanThumbnail, Target, TrackRecorder, TrackResult, VideoInfo
 from sptpt import FrameResult, Tracker, compile_kernels
 
@@ -385,24 +385,30 @@ class HeldFrames:
 
     With a review budget the boxes show ``p_fail`` but no review mark: which frames the budget flags is known only
     at the end.
+
+    A frame is held in YUV 4:2:0 (:func:`~annotator.render.rgb_to_i420`), the format the overlay is encoded in:
+    at 1920x1080 about ten frames wait at once, and each takes 3 MiB instead of RGB's 6 (issue #69). It is drawn
+    on its RGB again, then converted once more to be encoded.
     """
 
     def __init__(self, records: TrackRecords, sink: OverlaySink) -> None:
         self.records, self.sink = records, sink
-        self._held: collections.deque = collections.deque()  # (position, frame_index, frame, {track: FrameResult})
+        # (position, frame_index, the frame's I420 planes, its (height, width), {track: FrameResult})
+        self._held: collections.deque = collections.deque()
 
     def add(self, position: int, frame_index: int, frame: np.ndarray, results: dict[int, FrameResult]) -> None:
-        self._held.append((position, frame_index, frame, results))
+        self._held.append((position, frame_index, rgb_to_i420(frame), frame.shape[:2], results))
         self.drain()
 
     def drain(self, *, final: bool = False) -> None:
         """Draw every held frame whose marks are final; with ``final`` (the records finished), all of them."""
         while self._held:
-            position, frame_index, frame, results = self._held[0]
+            position, frame_index, planes, (height, width), results = self._held[0]
             marks = self.records.take_marks(position, final=final)
             if marks is None:
                 return
             self._held.popleft()
+            frame = i420_to_rgb(planes, width, height)
             # The live run's only keyframe is the user's first-frame box; corrections come in a re-track.
             items = [OverlayItem.from_frame_result(
                 result, track_id=tid, flagged=marks[tid].flagged and not self.records.budget,

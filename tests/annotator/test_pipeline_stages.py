@@ -7,6 +7,7 @@ sink a writer that keeps the frames it is given.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from _paths import DATA
@@ -24,6 +25,7 @@ from annotator.pipeline import (
     track_frame,
     track_frames,
 )
+from annotator.render import i420_to_rgb, rgb_to_i420
 from sptpt.results import FrameResult
 
 SCORE_ONLY_MODEL = DATA / "score_only_failure_model.json"
@@ -322,6 +324,20 @@ def test_held_frames_reach_the_overlay_in_order_once_their_marks_are_final():
     assert len(kept.frames) == 2
     held.drain(final=True)
     assert len(kept.frames) == 4
+
+
+def test_held_frames_wait_in_yuv420_and_are_drawn_on_their_rgb_again():
+    """A held frame takes half an RGB frame's memory (issue #69); what is drawn is its 4:2:0 round trip, odd
+    sizes included."""
+    records, kept = DecidedUpTo(), KeptFrames()
+    held = HeldFrames(records, OverlaySink(kept))  # no items, no flag: nothing is drawn
+    rng = np.random.default_rng(5)
+    odd = cv2.resize(rng.integers(0, 256, (8, 9, 3)).astype(np.uint8), (W + 1, H + 1))
+    held.add(0, 0, odd, {})
+    (planes_held,) = [entry[2] for entry in held._held]
+    assert planes_held.nbytes * 2 <= odd.nbytes + 3 * (W + H + 3)
+    held.drain(final=True)
+    np.testing.assert_array_equal(kept.frames[0], i420_to_rgb(rgb_to_i420(odd), W + 1, H + 1))
 
 
 def test_streamed_and_rerendered_overlays_choose_the_same_thumbnails():
