@@ -17,6 +17,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from annotator import frame_sources
 from annotator.frame_sources import (
     DEFAULT_FOLDER_FPS,
     DecodeError,
@@ -219,22 +220,108 @@ def test_a_selection_has_ffmpeg_write_at_once_and_stop_at_its_last_frame(video, 
     options = reader_calls[-1]["output_params"]
     assert options[options.index("-frames:v") + 1] == "4"  # frame 0 and the three selected
     assert options[options.index("-vf") + 1].startswith("select=eq(n\\,0)+")
+    assert "scale=" not in options[options.index("-vf") + 1]  # a small clip: ffmpeg's RGB
     assert reader_calls[-1]["input_params"][-2:] == ["-reinit_filter", "0"]
 
 
-def test_the_reading_decoder_runs_with_bounded_memory_and_gives_the_same_frames(video, reader_calls):
-    """The decoder that runs beside the tracker has one thread and queues at most one frame (issue #69: at 1080p
-    197 MiB without, 122 MiB with); its frames are those of ffmpeg with its own choice of threads and queue."""
-    reader = imageio_ffmpeg.read_frames(str(video))
-    next(reader)
-    plain = [np.frombuffer(b, np.uint8).reshape(HEIGHT, WIDTH, 3) for b in reader]
+def ffmpeg_rgb(path) -> list[np.ndarray]:
+    """Every frame of ``path`` as ffmpeg itself turns it into RGB (its own choice of threads and queues)."""
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    width, height = meta["size"]
+    return [np.frombuffer(b, np.uint8).reshape(height, width, 3) for b in reader]
+
+
+def assert_ffmpegs_colours(got: list[np.ndarray], expected: list[np.ndarray], mean: float = 1.5) -> None:
+    """The frames are ffmpeg's RGB up to the rounding of a 4:2:0 conversion of its own (about one level)."""
+    assert len(got) == len(expected) and all(g.shape == e.shape for g, e in zip(got, expected))
+    error = np.abs(np.stack(got).astype(int) - np.stack(expected))
+    assert error.mean() <= mean and np.percentile(error, 99) <= 16, (error.mean(), np.percentile(error, 99))
+
+
+@pytest.fixture
+def yuv_from_any_size(monkeypatch):
+    """Small test clips piped as YUV as an HD video is."""
+    monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
+
+
+def test_the_reading_decoder_runs_with_bounded_memory_and_gives_ffmpegs_frames(video, reader_calls,
+                                                                                yuv_from_any_size):
+    """The decoder that runs beside the tracker has one thread, queues at most one frame and pipes an HD 4:2:0
+    video as YUV 4:2:0 (issue #69: at 1080p 197 MiB as ffmpeg chooses, 122 MiB with one thread and one queued
+    frame, 79 MiB with YUV too); its frames are ffmpeg's RGB within rounding, writable, in order."""
     got = [frame for _, frame in open_frames(video)]
-    inputs, outputs = reader_calls[-1]["input_params"], reader_calls[-1]["output_params"]
+    call = reader_calls[-1]
+    inputs, outputs = call["input_params"], call["output_params"]
     assert inputs[inputs.index("-threads") + 1] == "1"
     assert outputs[outputs.index("-thread_queue_size") + 1] == "1"
-    assert len(got) == len(plain) == N_FRAMES
-    for frame, expected in zip(got, plain):
-        np.testing.assert_array_equal(frame, expected)
+    assert call["pix_fmt"] == "yuv420p" and call["bits_per_pixel"] == 12
+    assert outputs[outputs.index("-vf") + 1] == "scale=out_color_matrix=bt601:out_range=tv"
+    assert "-reinit_filter" not in inputs  # only a selection needs it
+    assert [read_index(f) for f in got] == list(range(N_FRAMES))
+    assert all(f.flags.writeable and f.dtype == np.uint8 for f in got)
+    assert_ffmpegs_colours(got, ffmpeg_rgb(video))
+
+
+@pytest.fixture(scope="module")
+def tagged_videos(tmp_path_factory):
+    """Colourful 64x48 clips with the tags of HD and phone video, and two that keep ffmpeg's RGB."""
+    root = tmp_path_factory.mktemp("tagged")
+    exe = imageio_ffmpeg.get_ffmpeg_exe()
+    made = {}
+    for name, size, pix_fmt, tags in (
+            ("bt709", "64x48", "yuv420p", ["-colorspace", "bt709", "-color_range", "tv"]),
+            ("bt709_full", "64x48", "yuvj420p", ["-colorspace", "bt709", "-color_range", "pc"]),
+            ("yuv444", "64x48", "yuv444p", []),
+            ("odd", "63x47", "yuv444p", [])):
+        matrix = "bt709" if tags else "bt601"
+        full = "pc" if "pc" in tags else "tv"
+        path = root / f"{name}.mp4"
+        subprocess.run(
+            [exe, "-v", "error", "-f", "lavfi", "-i", f"testsrc2=size={size}:rate=10", "-frames:v", "6", "-vf",
+             f"scale=out_color_matrix={matrix}:out_range={full},format={pix_fmt}", "-c:v", "libx264", "-crf", "10",
+             *tags, str(path)],
+            check=True,
+        )  # fmt: skip
+        made[name] = path
+    return made
+
+
+@pytest.mark.parametrize("name", ["bt709", "bt709_full"])
+def test_a_piped_yuv_video_keeps_its_own_colours(tagged_videos, name, yuv_from_any_size):
+    """A BT.709 video (most HD video), full range too (some phones): ffmpeg first brings it to the BT.601
+    limited range OpenCV's conversion assumes, so its frames are ffmpeg's RGB within rounding (without that step
+    they are 3.8 levels off on average on the full-range clip, against 0.8)."""
+    source = open_frames(tagged_videos[name])
+    assert source.pipes_yuv
+    assert_ffmpegs_colours([f for _, f in source], ffmpeg_rgb(tagged_videos[name]))
+
+
+def test_a_selection_of_a_piped_yuv_video_converts_only_the_frames_selected(video, reader_calls, yuv_from_any_size):
+    got = [(index, read_index(frame)) for index, frame in open_frames(video, start=20, stop=26, step=2)]
+    assert got == [(20, 20), (22, 22), (24, 24)]
+    chain = reader_calls[-1]["output_params"][reader_calls[-1]["output_params"].index("-vf") + 1]
+    assert chain.startswith("select=eq(n\\,0)+") and chain.endswith(",scale=out_color_matrix=bt601:out_range=tv")
+
+
+def test_small_frames_keep_ffmpegs_rgb_to_the_bit(video):
+    """Below HD the decoder's buffers are small: the frames stay ffmpeg's own RGB."""
+    source = open_frames(video)
+    assert not source.pipes_yuv
+    for (_, frame), want in zip(source, ffmpeg_rgb(video)):
+        np.testing.assert_array_equal(frame, want)
+
+
+@pytest.mark.parametrize("name", ["yuv444", "odd"])
+def test_videos_yuv_420_cannot_carry_keep_ffmpegs_rgb(tagged_videos, name, yuv_from_any_size):
+    """A 4:4:4 video would lose colour in 4:2:0, and an odd size has no 4:2:0 frame: ffmpeg's RGB, to the bit."""
+    source = open_frames(tagged_videos[name])
+    assert not source.pipes_yuv
+    got = [f for _, f in source]
+    expected = ffmpeg_rgb(tagged_videos[name])
+    assert len(got) == len(expected) == 6
+    for frame, want in zip(got, expected):
+        np.testing.assert_array_equal(frame, want)
 
 
 def test_a_selection_of_a_variable_frame_rate_video_counts_frames_not_time(video, tmp_path):
