@@ -121,16 +121,15 @@ _READ_INPUT_OPTIONS = ["-threads", "1"]
 # keep the next frame ready before the tracker asks for it.
 _READ_OUTPUT_OPTIONS = ["-thread_queue_size", "1"]
 
-# Reading pass of an 8-bit 4:2:0 video of even size and at least HD's pixels (nearly every camera and phone video
-# of today): ffmpeg pipes its frames
-# as YUV 4:2:0, half the bytes of RGB, and the tool turns them into RGB (OpenCV, BT.601 limited range, chroma
-# repeated over each 2x2 block as ffmpeg's own conversion does). Its buffers then hold half-size frames: at
-# 1920x1080 the decoder holds 79 MiB instead of 121 (issue #69). The filter first brings every video's colours to
-# what OpenCV's conversion assumes, BT.601 limited range, from its own tags (BT.709 for most HD video, full range
-# for some phones), so the RGB is ffmpeg's own within rounding: 0.9-1.0 levels on average, 3-5 at most, on an
-# untagged, a BT.709 and a full-range BT.709 1080p clip. Other sources (4:2:2, 4:4:4, more than 8 bits, odd sizes)
-# stay on ffmpeg's RGB, which loses none of their colour; so do smaller frames, whose decoder buffers are small
-# (about 3 MiB of RGB at 320x240) and whose RGB then stays ffmpeg's own to the bit.
+# Reading pass of an 8-bit 4:2:0 video of even size and at least HD's pixels (nearly every camera and phone video of
+# today): ffmpeg pipes its frames as YUV 4:2:0, half the bytes of RGB, and the tool turns them into RGB (OpenCV, BT.601
+# limited range, chroma repeated over each 2x2 block as ffmpeg's own conversion does). Its buffers then hold half-size
+# frames: at 1920x1080 the decoder holds 79 MiB instead of 121 (issue #69). The filter first brings every video's
+# colours to what OpenCV's conversion assumes, BT.601 limited range, from its own tags (BT.709 for most HD video, full
+# range for some phones), so the RGB is ffmpeg's own within rounding: 0.9-1.0 levels on average, 3-5 at most, on an
+# untagged, a BT.709 and a full-range BT.709 1080p clip. Other sources (4:2:2, 4:4:4, more than 8 bits, odd sizes) stay
+# on ffmpeg's RGB, which loses none of their colour; so do smaller frames, whose decoder buffers are small (about 3 MiB
+# of RGB at 320x240) and whose RGB then stays ffmpeg's own to the bit.
 _PIPE_YUV_SOURCES = frozenset({"yuv420p", "yuvj420p"})
 _PIPE_YUV_MIN_PIXELS = 1280 * 720
 _PIPE_YUV_FILTER = "scale=out_color_matrix=bt601:out_range=tv"
@@ -440,12 +439,13 @@ class VideoSource(FrameSource):
             return
         shape = (self.height * 3 // 2, self.width) if self.pipes_yuv else (self.height, self.width, 3)
         frame_bytes = int(np.prod(shape))
-        selecting, head = _selection_filter(wanted, _PIPE_YUV_FILTER if self.pipes_yuv else None)
+        filtering, head = _selection_filter(wanted, _PIPE_YUV_FILTER if self.pipes_yuv else None)
+        selects = wanted.start != 0 or wanted.step != 1
         reader = imageio_ffmpeg.read_frames(
             str(self.path), pix_fmt="yuv420p" if self.pipes_yuv else "rgb24",
             bits_per_pixel=12 if self.pipes_yuv else 24,
-            input_params=[*_READ_INPUT_OPTIONS, *(_SELECTION_INPUT_OPTIONS if wanted != range(len(wanted)) else [])],
-            output_params=[*_DECODE_OPTIONS, *_READ_OUTPUT_OPTIONS, *selecting],
+            input_params=[*_READ_INPUT_OPTIONS, *(_SELECTION_INPUT_OPTIONS if selects else [])],
+            output_params=[*_DECODE_OPTIONS, *_READ_OUTPUT_OPTIONS, *filtering],
         )
         delivered = 0  # frames received after ``head`` (the k-th is source frame wanted[k])
         last_good = -1

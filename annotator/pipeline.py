@@ -388,7 +388,7 @@ class HeldFrames:
 
     A frame is held in YUV 4:2:0 (:func:`~annotator.render.rgb_to_i420`), the format the overlay is encoded in:
     at 1920x1080 about ten frames wait at once, and each takes 3 MiB instead of RGB's 6 (issue #69). It is drawn
-    on its RGB again, then converted once more to be encoded.
+    on its RGB again, so what is drawn goes through 4:2:0 once, in the encoder, and the picture under it twice.
     """
 
     def __init__(self, records: TrackRecords, sink: OverlaySink) -> None:

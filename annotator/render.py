@@ -507,26 +507,39 @@ class OverlayRenderer:
         cv2.putText(out, text, (x0 + pad, y0 + pad + th), font, scale, (255, 255, 255), weight, cv2.LINE_AA)
 
 
+# U and V of BT.601 limited range (ITU-R BT.601, 8 bits: 16..240 around 128) from R, G, B and 1, for cv2.transform.
+_RGB_TO_UV = np.array([[-37.797, -74.203, 112.0, 128 * 255], [112.0, -93.786, -18.214, 128 * 255]]) / 255
+
+
 def rgb_to_i420(frame_rgb: np.ndarray) -> np.ndarray:
     """An ``(H, W, 3) uint8`` RGB frame as the ``(3 * H' / 2, W')`` uint8 planes of YUV 4:2:0 (I420: Y, then U and V
-    at half size each way, from each 2x2 block's top-left pixel; BT.601, limited range: as FFmpeg converts RGB to
-    ``yuv420p`` by default), ``H'`` and ``W'`` the even sizes the format needs: an odd frame is first padded by
-    repeating its last row and/or column.
+    at half size each way; BT.601, limited range, as FFmpeg converts RGB by default; each 2x2 block's chroma from
+    its mean colour), ``H'`` and ``W'`` the even sizes the format needs: an odd frame is first padded by repeating
+    its last row and/or column.
 
-    Half the bytes of the RGB frame. The overlay's frames are encoded in this format anyway, so it is how frames
-    waiting to be drawn are held and how they go to the encoder (issue #69: at 1920x1080, 3 MiB a frame less).
+    Half the bytes of the RGB frame: how the frames waiting to be drawn are held (issue #69: at 1920x1080, 3 MiB a
+    frame less). OpenCV's own I420 conversion takes each block's chroma from its top-left pixel alone, which loses
+    or doubles a 1-pixel colour detail depending on where it falls; so only its Y plane is kept. (FFmpeg's own
+    conversion filters the chroma over a few more pixels still.)
     """
     height, width = frame_rgb.shape[:2]
     if height % 2 or width % 2:
         frame_rgb = np.pad(frame_rgb, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge")
-    return cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2YUV_I420)
+    frame_rgb = np.ascontiguousarray(frame_rgb)
+    planes = cv2.cvtColor(frame_rgb, cv2.COLOR_RGB2YUV_I420)
+    rows, cols = frame_rgb.shape[0] // 2, frame_rgb.shape[1] // 2
+    block_means = cv2.resize(frame_rgb, (cols, rows), interpolation=cv2.INTER_AREA)  # exact 2x2 means, rounded
+    chroma = cv2.transform(block_means, _RGB_TO_UV).reshape(rows, cols, 2)
+    u_and_v = planes[2 * rows:].reshape(2, rows, cols)  # a view: U's plane, then V's
+    u_and_v[0], u_and_v[1] = chroma[..., 0], chroma[..., 1]
+    return planes
 
 
 def i420_to_rgb(planes: np.ndarray, width: int, height: int) -> np.ndarray:
     """The ``(height, width, 3) uint8`` RGB frame of :func:`rgb_to_i420`'s planes (its padding cut off again).
 
-    Not the frame that went in: each 2x2 block has one chroma and every value is rounded, which leaves about 41 dB
-    of PSNR on a 1080p frame of OTB's David, as FFmpeg's own round trip does; the overlay is encoded so anyway.
+    Not the frame that went in: each 2x2 block has one chroma and every value is rounded, about what the overlay's
+    own encoding in 4:2:0 loses (about 41 dB of PSNR on a 1080p frame of OTB's David).
     """
     rgb = cv2.cvtColor(planes, cv2.COLOR_YUV2RGB_I420)
     return rgb if rgb.shape[:2] == (height, width) else np.ascontiguousarray(rgb[:height, :width])
@@ -540,9 +553,9 @@ def i420_to_rgb(planes: np.ndarray, width: int, height: int) -> np.ndarray:
 # 20 ms, 9.2 MiB, 40.8 dB (``ultrafast`` has no look-ahead and no B-frames, which x264 holds frames for). The
 # file is about twice as large; the CPU saved is the tracker's on a 2-core machine.
 _ENCODER_OPTIONS = ("-threads", "1")
-# The frames go to the encoder as ``yuv420p`` (:func:`rgb_to_i420`), the format it encodes: ffmpeg converts none and
-# its buffers hold frames of half an RGB frame's size (at 1080p the encoder 88 -> 81 MiB on a synthetic stream, 94
-# -> 86 MiB over the first 1,500 frames of the 10,000-frame benchmark). Its queue options changed nothing there.
+# The drawn frames go to the encoder as RGB, so that what is drawn (1-pixel particle dots, outlines, text) gets
+# ffmpeg's own filtered 4:2:0 conversion. Sent as ``yuv420p`` converted here, the encoder held 7-8 MiB less at 1080p,
+# but OpenCV's conversion is coarser on such details (HISTORY.md). Its queue options changed no memory.
 
 
 class _Abort(BaseException):
@@ -621,7 +634,7 @@ class OverlayWriter:
             encoder = imageio_ffmpeg.write_frames(
                 str(tmp),
                 self.padded_size,
-                pix_fmt_in="yuv420p",
+                pix_fmt_in="rgb24",
                 pix_fmt_out="yuv420p",
                 fps=self.fps,
                 codec="libx264",
@@ -649,7 +662,10 @@ class OverlayWriter:
                 f"frame must be ({self.height}, {self.width}, 3) uint8 RGB like the writer's size, "
                 f"got {frame.dtype} {frame.shape}"
             )
-        self._encoder.send(rgb_to_i420(frame))  # padded to ``padded_size``
+        if self.padded_size != (self.width, self.height):
+            pad = ((0, self.padded_size[1] - self.height), (0, self.padded_size[0] - self.width), (0, 0))
+            frame = np.pad(frame, pad, mode="edge")
+        self._encoder.send(np.ascontiguousarray(frame))
         self.frames_written += 1
 
     # Never True: an exception raised in the with-block always propagates, so a type checker may take a `return`

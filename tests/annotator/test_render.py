@@ -317,19 +317,18 @@ def test_writer_launches_the_encoder_with_bounded_memory(tmp_path, monkeypatch):
         assert options[options.index("-preset") + 1] == preset
         assert options[options.index("-threads") + 1] == "1"
         assert options[options.index("-crf") + 1] == "23"
-        assert formats[-1] == "yuv420p"  # converted by rgb_to_i420, not by ffmpeg
+        assert formats[-1] == "rgb24"  # what is drawn gets ffmpeg's own 4:2:0 conversion
 
 
 def reference_i420(rgb: np.ndarray) -> np.ndarray:
     """BT.601 limited-range YUV 4:2:0 by its definition (ITU-R BT.601, 8-bit: Y in 16..235, U and V in 16..240),
-    the chroma of each 2x2 block from its top-left pixel, as FFmpeg's own RGB to yuv420p conversion takes it;
-    planes stacked as I420."""
+    the chroma of each 2x2 block the mean of its four pixels' chroma; planes stacked as I420."""
     r, g, b = (rgb[..., c].astype(float) for c in range(3))
     y = 16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255
     u = 128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255
     v = 128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255
     h, w = rgb.shape[:2]
-    half = [c[::2, ::2] for c in (u, v)]
+    half = [c.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3)) for c in (u, v)]
     return np.concatenate([y.ravel(), half[0].ravel(), half[1].ravel()])
 
 
@@ -340,6 +339,8 @@ def test_i420_planes_follow_bt601_and_come_back_to_the_frame(height, width):
     rng = np.random.default_rng(3)
     coarse = rng.integers(40, 216, (height // 12 + 2, width // 12 + 2, 3)).astype(np.uint8)
     rgb = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)  # smooth, as frames are
+    rgb[:, 5] = (255, 0, 0)  # 1-pixel colour lines at odd places keep their share of their blocks' colour
+    rgb[7, :] = (0, 255, 0)
     planes = rgb_to_i420(rgb)
     even_h, even_w = height + height % 2, width + width % 2
     assert planes.dtype == np.uint8 and planes.shape == (even_h * 3 // 2, even_w)
@@ -348,9 +349,10 @@ def test_i420_planes_follow_bt601_and_come_back_to_the_frame(height, width):
     luma = even_h * even_w
     assert np.abs(planes.ravel()[:luma].astype(float) - expected[:luma]).max() <= 1.0
     assert np.abs(planes.ravel()[luma:].astype(float) - expected[luma:]).max() <= 1.0
-    back = i420_to_rgb(planes, width, height)
-    assert back.shape == rgb.shape and back.dtype == np.uint8 and back.flags.c_contiguous
-    error = back.astype(float) - rgb
+    smooth = cv2.resize(coarse, (width, height), interpolation=cv2.INTER_CUBIC)
+    back = i420_to_rgb(rgb_to_i420(smooth), width, height)
+    assert back.shape == smooth.shape and back.dtype == np.uint8 and back.flags.c_contiguous
+    error = back.astype(float) - smooth
     assert 10 * np.log10(255 ** 2 / (error ** 2).mean()) > 28  # 31 dB here (strong colour gradients)
 
 
