@@ -553,6 +553,9 @@ def i420_to_rgb(planes: np.ndarray, width: int, height: int) -> np.ndarray:
 # 20 ms, 9.2 MiB, 40.8 dB (``ultrafast`` has no look-ahead and no B-frames, which x264 holds frames for). The
 # file is about twice as large; the CPU saved is the tracker's on a 2-core machine.
 _ENCODER_OPTIONS = ("-threads", "1")
+# ffmpeg turns the RGB frames into BT.601 limited-range YUV; the file says so. Untagged, players take HD video for
+# BT.709 and show its colours slightly off (reds and greens most).
+_COLOUR_TAGS = ("-colorspace", "smpte170m", "-color_range", "tv")
 # The drawn frames go to the encoder as RGB, so that what is drawn (1-pixel particle dots, outlines, text) gets
 # ffmpeg's own filtered 4:2:0 conversion. Sent as ``yuv420p`` converted here, the encoder held 7-8 MiB less at 1080p,
 # but OpenCV's conversion is coarser on such details (HISTORY.md). Its queue options changed no memory.
@@ -642,7 +645,7 @@ class OverlayWriter:
                 macro_block_size=1,
                 ffmpeg_log_level="error",
                 output_params=["-crf", str(self.crf), "-preset", self.preset, *_ENCODER_OPTIONS,
-                               "-movflags", "+faststart"],
+                               *_COLOUR_TAGS, "-movflags", "+faststart"],
             )
             encoder.send(None)  # starts ffmpeg
         except BaseException:

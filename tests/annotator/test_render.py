@@ -284,7 +284,7 @@ def test_overlay_video_decodes_to_the_same_frames_with_marks_visible(tmp_path):
 
     meta, frames = decode(path)
     assert len(frames) == n and meta["size"] == (98, 74) and meta["codec"] == "h264"
-    assert meta["pix_fmt"].startswith("yuv420p")
+    assert meta["pix_fmt"].startswith("yuv420p(tv, smpte170m")  # BT.601, as converted: players need not guess
     blue = np.array(DEFAULT_PALETTE[0], float)
     for k, frame in enumerate(frames):
         frame = frame[:height, :width].astype(float)
