@@ -18,10 +18,12 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import subprocess
 import sys
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
-from typing import Generator, Literal, Sequence, cast
+from typing import IO, Literal, Sequence, cast
 
 import cv2
 import imageio_ffmpeg
@@ -559,10 +561,21 @@ _COLOUR_TAGS = ("-colorspace", "smpte170m", "-color_range", "tv")
 # The drawn frames go to the encoder as RGB, so that what is drawn (1-pixel particle dots, outlines, text) gets
 # ffmpeg's own filtered 4:2:0 conversion. Sent as ``yuv420p`` converted here, the encoder held 7-8 MiB less at 1080p,
 # but OpenCV's conversion is coarser on such details (HISTORY.md). Its queue options changed no memory.
+# glibc's malloc in the encoder: a fixed mmap threshold (glibc's default value; setting it stops glibc from raising
+# it). Each frame's buffers (6 MiB of RGB, 3 MiB of YUV) then go back to the system when freed. With the threshold
+# raised, as glibc does after the first such buffer is freed, they stay in the heap of each of ffmpeg's threads:
+# 96-98 -> 70 MiB at 1080p (ultrafast, one thread, 200 frames), for 1-3 ms more CPU a frame of page faults.
+_ENCODER_MALLOC_TUNABLE = "glibc.malloc.mmap_threshold=131072"
 
 
-class _Abort(BaseException):
-    """Thrown into imageio-ffmpeg's writer to make it kill ffmpeg instead of finishing the file."""
+def _encoder_environment() -> dict[str, str]:
+    """The tool's environment with :data:`_ENCODER_MALLOC_TUNABLE` added to the user's own glibc tunables (a user's
+    mmap threshold wins). Other C libraries ignore the variable."""
+    env = dict(os.environ)
+    tunables = env.get("GLIBC_TUNABLES", "")
+    if "glibc.malloc.mmap_threshold=" not in tunables:
+        env["GLIBC_TUNABLES"] = f"{tunables}:{_ENCODER_MALLOC_TUNABLE}" if tunables else _ENCODER_MALLOC_TUNABLE
+    return env
 
 
 class OverlayWriter:
@@ -580,8 +593,8 @@ class OverlayWriter:
     of the file is the ``k``-th frame written. ``yuv420p`` needs even width
     and height: an odd frame is padded by repeating its last column and/or
     row, so pixel coordinates are unchanged (``padded_size`` says the size on
-    disk). ``macro_block_size=1`` keeps imageio-ffmpeg from rescaling to a
-    multiple of 16.
+    disk). The frames go to ffmpeg's standard input as RGB; the encoder's
+    memory settings are at ``_ENCODER_OPTIONS`` in this module.
 
     The video is encoded to a temporary file beside ``path`` and renamed onto
     it on a clean exit; an exception inside the block, or no frame written,
@@ -625,7 +638,7 @@ class OverlayWriter:
         self.crf, self.preset = int(crf), preset
         self.frames_written = 0
         self._stack: contextlib.ExitStack | None = None
-        self._encoder: Generator[None, np.ndarray | None, None] | None = None  # imageio_ffmpeg.write_frames
+        self._encoder: subprocess.Popen | None = None  # ffmpeg, fed the frames on its stdin
         self._tmp: Path | None = None
 
     def __enter__(self) -> OverlayWriter:
@@ -633,25 +646,24 @@ class OverlayWriter:
             raise RuntimeError(f"OverlayWriter for {self.path} is already open; use it in one with-block")
         stack = contextlib.ExitStack()
         tmp = stack.enter_context(atomic_path(self.path))
+        width, height = self.padded_size
+        command = [
+            imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-v", "error",
+            "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}",
+            "-r", str(Fraction(self.fps).limit_denominator()),  # a rational: 30000/1001 stays exact
+            "-i", "-", "-an",
+            "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", str(self.crf), "-preset", self.preset,
+            *_ENCODER_OPTIONS, *_COLOUR_TAGS, "-movflags", "+faststart", str(tmp),
+        ]
         try:
-            encoder = imageio_ffmpeg.write_frames(
-                str(tmp),
-                self.padded_size,
-                pix_fmt_in="rgb24",
-                pix_fmt_out="yuv420p",
-                fps=self.fps,
-                codec="libx264",
-                quality=None,  # rate control is set below
-                macro_block_size=1,
-                ffmpeg_log_level="error",
-                output_params=["-crf", str(self.crf), "-preset", self.preset, *_ENCODER_OPTIONS,
-                               *_COLOUR_TAGS, "-movflags", "+faststart"],
-            )
-            encoder.send(None)  # starts ffmpeg
+            # A process group of its own: Ctrl-C reaches the tool, which stops ffmpeg itself (``__exit__``), not
+            # ffmpeg, which would finish a partial file. ffmpeg's messages go to the tool's stderr.
+            process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                       env=_encoder_environment(), process_group=0)
         except BaseException:
-            if not stack.__exit__(*sys.exc_info()):
-                raise
-        self._stack, self._encoder, self._tmp = stack, encoder, tmp
+            stack.__exit__(*sys.exc_info())  # removes the temporary file; atomic_path suppresses nothing
+            raise
+        self._stack, self._encoder, self._tmp = stack, process, tmp
         self.frames_written = 0
         return self
 
@@ -668,7 +680,11 @@ class OverlayWriter:
         if self.padded_size != (self.width, self.height):
             pad = ((0, self.padded_size[1] - self.height), (0, self.padded_size[0] - self.width), (0, 0))
             frame = np.pad(frame, pad, mode="edge")
-        self._encoder.send(np.ascontiguousarray(frame))
+        try:
+            cast(IO[bytes], self._encoder.stdin).write(np.ascontiguousarray(frame).data)
+        except BrokenPipeError:
+            raise OSError(f"{self.path}: ffmpeg stopped taking frames after {self.frames_written} (see its messages "
+                          f"above); expected it to encode the overlay - check disk space") from None
         self.frames_written += 1
 
     # Never True: an exception raised in the with-block always propagates, so a type checker may take a `return`
@@ -678,22 +694,22 @@ class OverlayWriter:
         self._stack = self._encoder = self._tmp = None
         if stack is None:
             return False
+        assert encoder is not None and tmp is not None  # set with the stack
         if exc_type is not None:
-            _abort(encoder)
+            _kill(encoder)
             stack.__exit__(exc_type, exc, tb)  # removes the temporary file; atomic_path suppresses nothing
             return False
-        assert encoder is not None and tmp is not None  # set with the stack
         try:
             if self.frames_written == 0:
                 raise ValueError(f"{self.path}: no frame was written; an overlay video needs at least one frame")
-            encoder.close()  # ffmpeg flushes the encoder, then rewrites the file for faststart
-            # imageio-ffmpeg does not report ffmpeg's exit status; an empty file is how a failure shows.
-            if not tmp.is_file() or tmp.stat().st_size == 0:
-                raise OSError(
-                    f"{self.path}: ffmpeg wrote no video (see its messages above); expected an MP4 - check disk space"
-                )
+            with contextlib.suppress(BrokenPipeError):  # ffmpeg gone: its exit status says why
+                cast(IO[bytes], encoder.stdin).close()
+            status = encoder.wait()  # ffmpeg flushes the encoder, then rewrites the file for faststart
+            if status != 0 or not tmp.is_file() or tmp.stat().st_size == 0:
+                raise OSError(f"{self.path}: ffmpeg failed (exit status {status}, see its messages above); "
+                              f"expected it to write an MP4 - check disk space")
         except BaseException:
-            _abort(encoder)
+            _kill(encoder)
             if not stack.__exit__(*sys.exc_info()):
                 raise
             return False
@@ -705,8 +721,9 @@ class OverlayWriter:
         self.__exit__(None, None, None)
 
 
-def _abort(encoder) -> None:
-    if encoder is None:
-        return
-    with contextlib.suppress(_Abort, StopIteration, OSError, ValueError):
-        encoder.throw(_Abort())
+def _kill(encoder: subprocess.Popen) -> None:
+    """Stop ffmpeg without letting it finish the file, and reap it."""
+    encoder.kill()
+    encoder.wait()
+    with contextlib.suppress(OSError):
+        cast(IO[bytes], encoder.stdin).close()

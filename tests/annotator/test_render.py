@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
 import cv2
@@ -14,6 +16,7 @@ from annotator.render import (
     OverlayItem,
     OverlayRenderer,
     OverlayWriter,
+    _encoder_environment,
     _text_colour,
     i420_to_rgb,
     items_from_tracks,
@@ -296,28 +299,59 @@ def test_overlay_video_decodes_to_the_same_frames_with_marks_visible(tmp_path):
         assert red_border == (k == 5), k
 
 
+def running_command(pid: int) -> tuple[list[str], list[str]]:
+    """A running process's arguments and environment, once /proc shows them (briefly empty after its start)."""
+    for _ in range(500):
+        command = Path(f"/proc/{pid}/cmdline").read_bytes()
+        if command:
+            return command.decode().split("\0"), Path(f"/proc/{pid}/environ").read_bytes().decode().split("\0")
+        time.sleep(0.01)
+    raise AssertionError(f"process {pid} shows no command line")
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="reads the encoder's command line from /proc")
 def test_writer_launches_the_encoder_with_bounded_memory(tmp_path, monkeypatch):
-    """The overlay's encoder runs beside the tracker for the whole run: ``ultrafast`` on one thread keeps it near
-    100 MiB at 1080p instead of 290 MiB (issue #69). The options given still win."""
-    calls = []
-    real = imageio_ffmpeg.write_frames
-
-    def spy(path, size, **kwargs):
-        calls.append(kwargs["output_params"])
-        formats.append(kwargs["pix_fmt_in"])
-        return real(path, size, **kwargs)
-
-    formats = []
-
-    monkeypatch.setattr(imageio_ffmpeg, "write_frames", spy)
-    for kwargs, preset in (({}, "ultrafast"), ({"preset": "veryfast"}, "veryfast")):
-        with OverlayWriter(tmp_path / "overlay.mp4", fps=10, width=32, height=32, **kwargs) as writer:
+    """The overlay's encoder runs beside the tracker for the whole run (issue #69): ``ultrafast`` on one thread
+    keeps it near 100 MiB at 1080p instead of 290 MiB, and glibc's fixed mmap threshold returns each frame's buffers
+    (70 MiB). Read from the running ffmpeg itself. The options given still win."""
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    for kwargs, preset in (({"fps": 30000 / 1001}, "ultrafast"), ({"fps": 10, "preset": "veryfast"}, "veryfast")):
+        with OverlayWriter(tmp_path / "overlay.mp4", width=32, height=32, **kwargs) as writer:
             writer.write(gray_frame(32, 32))
-        options = calls[-1]
+            options, environment = running_command(writer._encoder.pid)
         assert options[options.index("-preset") + 1] == preset
         assert options[options.index("-threads") + 1] == "1"
         assert options[options.index("-crf") + 1] == "23"
-        assert formats[-1] == "rgb24"  # what is drawn gets ffmpeg's own 4:2:0 conversion
+        assert options[options.index("-pix_fmt") + 1] == "rgb24"  # what is drawn gets ffmpeg's own 4:2:0 conversion
+        assert options[options.index("-r") + 1] == ("30000/1001" if preset == "ultrafast" else "10")
+        assert "GLIBC_TUNABLES=glibc.malloc.mmap_threshold=131072" in environment
+    assert "GLIBC_TUNABLES" not in os.environ  # the tool's own environment is untouched
+
+
+@pytest.mark.parametrize("given, expected", [
+    (None, "glibc.malloc.mmap_threshold=131072"),
+    ("glibc.malloc.arena_max=2", "glibc.malloc.arena_max=2:glibc.malloc.mmap_threshold=131072"),
+    ("glibc.malloc.mmap_threshold=65536", "glibc.malloc.mmap_threshold=65536"),  # the user's own wins
+])
+def test_encoder_malloc_setting_joins_the_users_own(monkeypatch, given, expected):
+    if given is None:
+        monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    else:
+        monkeypatch.setenv("GLIBC_TUNABLES", given)
+    assert _encoder_environment()["GLIBC_TUNABLES"] == expected
+    assert os.environ.get("GLIBC_TUNABLES") == given
+
+
+def test_writer_reports_a_failing_encoder_and_leaves_no_file(tmp_path):
+    """ffmpeg that stops (here: x264 refuses the preset) is an error naming the file, whether it shows while
+    frames are written or at the end; the target keeps its old content."""
+    path = tmp_path / "overlay.mp4"
+    path.write_bytes(b"previous overlay")
+    with pytest.raises(OSError, match=r"overlay\.mp4: ffmpeg (failed|stopped taking frames)"):
+        with OverlayWriter(path, fps=10, width=32, height=32, preset="no-such-preset") as writer:
+            for _ in range(50):
+                writer.write(gray_frame(32, 32))
+    assert path.read_bytes() == b"previous overlay" and leftovers(tmp_path) == []
 
 
 def reference_i420(rgb: np.ndarray) -> np.ndarray:
