@@ -439,12 +439,11 @@ class VideoSource(FrameSource):
             return
         shape = (self.height * 3 // 2, self.width) if self.pipes_yuv else (self.height, self.width, 3)
         frame_bytes = int(np.prod(shape))
-        filtering, head = _selection_filter(wanted, _PIPE_YUV_FILTER if self.pipes_yuv else None)
-        selects = wanted.start != 0 or wanted.step != 1
+        selecting, filtering, head = _selection_filter(wanted, _PIPE_YUV_FILTER if self.pipes_yuv else None)
         reader = imageio_ffmpeg.read_frames(
             str(self.path), pix_fmt="yuv420p" if self.pipes_yuv else "rgb24",
             bits_per_pixel=12 if self.pipes_yuv else 24,
-            input_params=[*_READ_INPUT_OPTIONS, *(_SELECTION_INPUT_OPTIONS if selects else [])],
+            input_params=[*_READ_INPUT_OPTIONS, *selecting],
             output_params=[*_DECODE_OPTIONS, *_READ_OUTPUT_OPTIONS, *filtering],
         )
         delivered = 0  # frames received after ``head`` (the k-th is source frame wanted[k])
@@ -713,9 +712,9 @@ def _rotation_note_silenced() -> Iterator[None]:
 _SELECTION_INPUT_OPTIONS = ["-reinit_filter", "0"]
 
 
-def _selection_filter(wanted: range, then: str | None = None) -> tuple[list[str], int]:
-    """ffmpeg options that deliver only the frames of ``wanted``, and how many frames before them to drop; the
-    filter ``then`` (if any) applied to the frames delivered.
+def _selection_filter(wanted: range, then: str | None = None) -> tuple[list[str], list[str], int]:
+    """ffmpeg's input and output options that deliver only the frames of ``wanted``, and how many frames before
+    them to drop; the filter ``then`` (if any) applied to the frames delivered.
 
     No options for every frame from the first. Frames before ``start``, and between steps, are still decoded (a
     video cannot be cut at an arbitrary frame without decoding from the keyframe before it, and seeking by time is
@@ -727,7 +726,7 @@ def _selection_filter(wanted: range, then: str | None = None) -> tuple[list[str]
     hold back until the end of the file.
     """
     if wanted.start == 0 and wanted.step == 1:
-        return ([] if then is None else ["-vf", then]), 0
+        return [], ([] if then is None else ["-vf", then]), 0
     keep = f"between(n\\,{wanted.start}\\,{wanted[-1]})"
     if wanted.step > 1:
         keep += f"*not(mod(n-{wanted.start}\\,{wanted.step}))"
@@ -735,7 +734,7 @@ def _selection_filter(wanted: range, then: str | None = None) -> tuple[list[str]
     if head:
         keep = f"eq(n\\,0)+{keep}"
     chain = f"select={keep}" if then is None else f"select={keep},{then}"
-    return ["-vf", chain, "-frames:v", str(len(wanted) + head)], head
+    return list(_SELECTION_INPUT_OPTIONS), ["-vf", chain, "-frames:v", str(len(wanted) + head)], head
 
 
 #: ffmpeg codecs that render text as images (its ``tty``, ``bin``, ``xbin`` and ``idf`` demuxers read any text
