@@ -339,8 +339,12 @@ def test_breaking_out_early_then_iterating_again(video):
     assert [index for index, _ in source][:5] == [0, 1, 2, 3, 4]
 
 
-def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_path):
-    """An MP4 with its index first, cut in half: ffmpeg decodes the head, then reports a partial file."""
+@pytest.mark.parametrize("piped_as", ["rgb24", "yuv420p"])
+def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_path, monkeypatch, piped_as):
+    """An MP4 with its index first, cut in half: ffmpeg decodes the head, then reports a partial file. Alike
+    whether the frames come piped as RGB or, as an HD video's do, as YUV 4:2:0 (frames of 1.5 bytes a pixel)."""
+    if piped_as == "yuv420p":
+        monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
     full = tmp_path / "full.mp4"
     write_video(full, n=60, faststart=True)
     data = full.read_bytes()
@@ -348,6 +352,7 @@ def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_p
     cut.write_bytes(data[: len(data) // 2])
 
     source = open_frames(cut)
+    assert source.pipes_yuv == (piped_as == "yuv420p")
     assert 0 < source.frame_count < 60 and source.damage
     assert source.declared_frame_count == 60
     delivered = []
@@ -595,9 +600,13 @@ def test_bad_range_on_folder(folder):
         open_frames(folder, start=12)
 
 
-def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, caplog):
+@pytest.mark.parametrize("piped_as", ["rgb24", "yuv420p"])
+def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, caplog, monkeypatch, piped_as):
     """ffmpeg applies a video's display rotation, so frames come upright, as players show them; imageio-ffmpeg's
-    note that the read size differs from the stored one is noise on every portrait phone video."""
+    note that the read size differs from the stored one is noise on every portrait phone video. Alike whether the
+    frames come piped as RGB or, as an HD video's do, as YUV 4:2:0, whose planes have the upright size."""
+    if piped_as == "yuv420p":
+        monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
     flat = tmp_path / "flat.mp4"
     write_video(flat, 4)
     rotated = tmp_path / "rotated.mp4"
@@ -609,7 +618,9 @@ def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, 
         source = open_frames(rotated)
         frames = list(source)
         later = list(open_frames(rotated, start=1, step=2))  # the selection filter runs after the rotation
+    assert source.pipes_yuv == (piped_as == "yuv420p")
     assert (source.width, source.height) == (HEIGHT, WIDTH) and len(frames) == 4
+    assert [read_index(np.rot90(frame, -1)) for _, frame in frames] == [0, 1, 2, 3]  # shown turned a quarter left
     assert all(frame.shape == (WIDTH, HEIGHT, 3) for _, frame in frames)
     assert [index for index, _ in later] == [1, 3]
     for index, frame in later:
