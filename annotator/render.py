@@ -16,6 +16,7 @@ channel order as long as colours are given as RGB tuples, which they are here.
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import subprocess
@@ -570,12 +571,30 @@ _ENCODER_MALLOC_TUNABLE = "glibc.malloc.mmap_threshold=131072"
 
 def _encoder_environment() -> dict[str, str]:
     """The tool's environment with :data:`_ENCODER_MALLOC_TUNABLE` added to the user's own glibc tunables (a user's
-    mmap threshold wins). Other C libraries ignore the variable."""
+    mmap threshold wins, in either of glibc's spellings). Other C libraries ignore the variable."""
     env = dict(os.environ)
     tunables = env.get("GLIBC_TUNABLES", "")
-    if "glibc.malloc.mmap_threshold=" not in tunables:
+    if "glibc.malloc.mmap_threshold=" not in tunables and "MALLOC_MMAP_THRESHOLD_" not in env:
         env["GLIBC_TUNABLES"] = f"{tunables}:{_ENCODER_MALLOC_TUNABLE}" if tunables else _ENCODER_MALLOC_TUNABLE
     return env
+
+
+def _encoder_process_group() -> dict:
+    """Popen's arguments that put the encoder in a process group of its own, as imageio-ffmpeg puts its ffmpeg
+    processes: a terminal's Ctrl-C then reaches the tool, which stops ffmpeg itself (``OverlayWriter.__exit__``),
+    not ffmpeg, which would finish a partial file. None where imageio-ffmpeg's own switch,
+    ``IMAGEIO_FFMPEG_NO_PREVENT_SIGINT``, is set: batch pool workers keep every ffmpeg in the run's group, so that
+    a signal to the whole run (``kill -9 -PGID``) reaches them too (``annotator.batch.workers``)."""
+    if os.environ.get("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT", "").lower() not in ("", "0", "false", "no"):
+        return {}
+    if sys.platform == "win32":
+        return {"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
+    return {"process_group": 0}
+
+
+def _pipe_closed(err: OSError) -> bool:
+    """Whether writing to ffmpeg failed because ffmpeg is gone (Windows says EINVAL where POSIX says EPIPE)."""
+    return isinstance(err, BrokenPipeError) or err.errno in (errno.EPIPE, errno.EINVAL)
 
 
 class OverlayWriter:
@@ -656,10 +675,9 @@ class OverlayWriter:
             *_ENCODER_OPTIONS, *_COLOUR_TAGS, "-movflags", "+faststart", str(tmp),
         ]
         try:
-            # A process group of its own: Ctrl-C reaches the tool, which stops ffmpeg itself (``__exit__``), not
-            # ffmpeg, which would finish a partial file. ffmpeg's messages go to the tool's stderr.
+            # ffmpeg's messages go to the tool's stderr.
             process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                       env=_encoder_environment(), process_group=0)
+                                       env=_encoder_environment(), **_encoder_process_group())
         except BaseException:
             stack.__exit__(*sys.exc_info())  # removes the temporary file; atomic_path suppresses nothing
             raise
@@ -682,7 +700,9 @@ class OverlayWriter:
             frame = np.pad(frame, pad, mode="edge")
         try:
             cast(IO[bytes], self._encoder.stdin).write(np.ascontiguousarray(frame).data)
-        except BrokenPipeError:
+        except OSError as err:
+            if not _pipe_closed(err):
+                raise
             raise OSError(f"{self.path}: ffmpeg stopped taking frames after {self.frames_written} (see its messages "
                           f"above); expected it to encode the overlay - check disk space") from None
         self.frames_written += 1
@@ -696,23 +716,29 @@ class OverlayWriter:
             return False
         assert encoder is not None and tmp is not None  # set with the stack
         if exc_type is not None:
-            _kill(encoder)
-            stack.__exit__(exc_type, exc, tb)  # removes the temporary file; atomic_path suppresses nothing
+            try:
+                _kill(encoder)
+            finally:  # a second Ctrl-C while ffmpeg is reaped still removes the temporary file
+                stack.__exit__(exc_type, exc, tb)  # atomic_path suppresses nothing
             return False
         try:
             if self.frames_written == 0:
                 raise ValueError(f"{self.path}: no frame was written; an overlay video needs at least one frame")
-            with contextlib.suppress(BrokenPipeError):  # ffmpeg gone: its exit status says why
+            try:
                 cast(IO[bytes], encoder.stdin).close()
+            except OSError as err:
+                if not _pipe_closed(err):  # ffmpeg gone: its exit status says why
+                    raise
             status = encoder.wait()  # ffmpeg flushes the encoder, then rewrites the file for faststart
             if status != 0 or not tmp.is_file() or tmp.stat().st_size == 0:
                 raise OSError(f"{self.path}: ffmpeg failed (exit status {status}, see its messages above); "
                               f"expected it to write an MP4 - check disk space")
         except BaseException:
-            _kill(encoder)
-            if not stack.__exit__(*sys.exc_info()):
-                raise
-            return False
+            try:
+                _kill(encoder)
+            finally:
+                stack.__exit__(*sys.exc_info())  # removes the temporary file; atomic_path suppresses nothing
+            raise
         stack.__exit__(None, None, None)  # renames the temporary file onto the target
         return False
 

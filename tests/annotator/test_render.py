@@ -300,13 +300,14 @@ def test_overlay_video_decodes_to_the_same_frames_with_marks_visible(tmp_path):
 
 
 def running_command(pid: int) -> tuple[list[str], list[str]]:
-    """A running process's arguments and environment, once /proc shows them (briefly empty after its start)."""
+    """A running process's arguments and environment, once /proc shows both (briefly empty after its start)."""
     for _ in range(500):
         command = Path(f"/proc/{pid}/cmdline").read_bytes()
-        if command:
-            return command.decode().split("\0"), Path(f"/proc/{pid}/environ").read_bytes().decode().split("\0")
+        environment = Path(f"/proc/{pid}/environ").read_bytes()
+        if command and environment:
+            return command.decode().split("\0"), environment.decode().split("\0")
         time.sleep(0.01)
-    raise AssertionError(f"process {pid} shows no command line")
+    raise AssertionError(f"process {pid} shows no command line or environment")
 
 
 @pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="reads the encoder's command line from /proc")
@@ -334,22 +335,56 @@ def test_writer_launches_the_encoder_with_bounded_memory(tmp_path, monkeypatch):
     ("glibc.malloc.mmap_threshold=65536", "glibc.malloc.mmap_threshold=65536"),  # the user's own wins
 ])
 def test_encoder_malloc_setting_joins_the_users_own(monkeypatch, given, expected):
+    monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
     if given is None:
         monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
     else:
         monkeypatch.setenv("GLIBC_TUNABLES", given)
     assert _encoder_environment()["GLIBC_TUNABLES"] == expected
     assert os.environ.get("GLIBC_TUNABLES") == given
+    monkeypatch.setenv("MALLOC_MMAP_THRESHOLD_", "65536")  # glibc's older spelling of the same setting
+    assert _encoder_environment().get("GLIBC_TUNABLES") == given
 
 
-def test_writer_reports_a_failing_encoder_and_leaves_no_file(tmp_path):
-    """ffmpeg that stops (here: x264 refuses the preset) is an error naming the file, whether it shows while
-    frames are written or at the end; the target keeps its old content."""
+@pytest.mark.skipif(not hasattr(os, "getpgid"), reason="POSIX process groups")
+@pytest.mark.parametrize("switch, own_group", [(None, True), ("1", False), ("0", True)])
+def test_the_encoder_leaves_the_tools_process_group_unless_imageio_ffmpegs_switch_says_not(
+        tmp_path, monkeypatch, switch, own_group):
+    """Like imageio-ffmpeg's ffmpeg processes: a group of its own spares it a terminal's Ctrl-C, which the tool
+    handles; batch pool workers set IMAGEIO_FFMPEG_NO_PREVENT_SIGINT to keep it in the run's group, which a
+    ``kill -9 -PGID`` of the run must reach."""
+    if switch is None:
+        monkeypatch.delenv("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT", raising=False)
+    else:
+        monkeypatch.setenv("IMAGEIO_FFMPEG_NO_PREVENT_SIGINT", switch)
+    with OverlayWriter(tmp_path / "overlay.mp4", fps=10, width=32, height=32) as writer:
+        writer.write(gray_frame(32, 32))
+        pid, group = writer._encoder.pid, os.getpgid(writer._encoder.pid)
+    assert group == (pid if own_group else os.getpgrp())  # a group of its own is led by ffmpeg itself
+
+
+def test_ctrl_c_inside_the_block_stops_ffmpeg_and_leaves_no_file(tmp_path):
+    path = tmp_path / "overlay.mp4"
+    with pytest.raises(KeyboardInterrupt):
+        with OverlayWriter(path, fps=10, width=32, height=32) as writer:
+            writer.write(gray_frame(32, 32))
+            encoder = writer._encoder
+            raise KeyboardInterrupt
+    assert encoder.returncode is not None  # killed and reaped, not left finishing the file
+    assert not path.exists() and leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("frames, needle", [(1, r"ffmpeg failed \(exit status [1-9]"),
+                                            (50, "ffmpeg stopped taking frames after")])
+def test_writer_reports_a_failing_encoder_and_leaves_no_file(tmp_path, frames, needle):
+    """ffmpeg that stops (here: x264 refuses the preset) is an error naming the file: at the end when its pipe
+    took every frame (one frame fits in it), while frames are written when it did not; the target keeps its old
+    content."""
     path = tmp_path / "overlay.mp4"
     path.write_bytes(b"previous overlay")
-    with pytest.raises(OSError, match=r"overlay\.mp4: ffmpeg (failed|stopped taking frames)"):
+    with pytest.raises(OSError, match=r"overlay\.mp4: " + needle):
         with OverlayWriter(path, fps=10, width=32, height=32, preset="no-such-preset") as writer:
-            for _ in range(50):
+            for _ in range(frames):
                 writer.write(gray_frame(32, 32))
     assert path.read_bytes() == b"previous overlay" and leftovers(tmp_path) == []
 
