@@ -245,6 +245,14 @@ def yuv_from_any_size(monkeypatch):
     monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
 
 
+@pytest.fixture(params=["rgb24", "yuv420p"])
+def piped_as(request):
+    """A test twice: small clips piped as RGB, as they are, and as YUV 4:2:0, as an HD video's frames are."""
+    if request.param == "yuv420p":
+        request.getfixturevalue("yuv_from_any_size")
+    return request.param
+
+
 def test_the_reading_decoder_runs_with_bounded_memory_and_gives_ffmpegs_frames(video, reader_calls,
                                                                                 yuv_from_any_size):
     """The decoder that runs beside the tracker has one thread, queues at most one frame and pipes an HD 4:2:0
@@ -339,12 +347,9 @@ def test_breaking_out_early_then_iterating_again(video):
     assert [index for index, _ in source][:5] == [0, 1, 2, 3, 4]
 
 
-@pytest.mark.parametrize("piped_as", ["rgb24", "yuv420p"])
-def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_path, monkeypatch, piped_as):
+def test_truncated_faststart_mp4_raises_decode_error_after_last_good_frame(tmp_path, piped_as):
     """An MP4 with its index first, cut in half: ffmpeg decodes the head, then reports a partial file. Alike
     whether the frames come piped as RGB or, as an HD video's do, as YUV 4:2:0 (frames of 1.5 bytes a pixel)."""
-    if piped_as == "yuv420p":
-        monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
     full = tmp_path / "full.mp4"
     write_video(full, n=60, faststart=True)
     data = full.read_bytes()
@@ -600,13 +605,10 @@ def test_bad_range_on_folder(folder):
         open_frames(folder, start=12)
 
 
-@pytest.mark.parametrize("piped_as", ["rgb24", "yuv420p"])
-def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, caplog, monkeypatch, piped_as):
+def test_a_rotated_phone_video_is_read_upright_without_a_size_warning(tmp_path, caplog, piped_as):
     """ffmpeg applies a video's display rotation, so frames come upright, as players show them; imageio-ffmpeg's
     note that the read size differs from the stored one is noise on every portrait phone video. Alike whether the
     frames come piped as RGB or, as an HD video's do, as YUV 4:2:0, whose planes have the upright size."""
-    if piped_as == "yuv420p":
-        monkeypatch.setattr(frame_sources, "_PIPE_YUV_MIN_PIXELS", 0)
     flat = tmp_path / "flat.mp4"
     write_video(flat, 4)
     rotated = tmp_path / "rotated.mp4"
