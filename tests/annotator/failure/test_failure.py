@@ -15,6 +15,7 @@ import pytest
 from _paths import ROOT
 from typer.testing import CliRunner
 
+import sptpt.contrast as contrast_module
 from annotator.cli import _with_default_command, app
 from annotator.evaluation.calibration import auroc, expected_calibration_error, reliability
 from annotator.failure import (
@@ -49,7 +50,7 @@ from annotator.failure.fit import (
 from annotator.failure.model import MODEL_FORMAT, MODEL_VERSION, OnlineFailure, PassAgreement, model_from_fit
 from annotator.failure.signals import MOTION_SIGNALS
 from annotator.flagging import REASONS, FlagParams, flag_p_fail
-from sptpt.contrast import colour_contrast
+from sptpt.contrast import CONTRAST_PIXELS, colour_contrast
 from sptpt.params import get_preset
 from sptpt_dev.synthetic import changing_object, make_clip
 
@@ -277,16 +278,24 @@ def test_a_flag_reason_never_names_a_group_the_model_leaves_out():
     assert groups and not set(groups) & set(left_out)
 
 
-def slow_contrast(frame_rgb: np.ndarray, box) -> float:
+def slow_contrast(frame_rgb: np.ndarray, box, contrast_pixels: int = CONTRAST_PIXELS, min_pixels: int = 100) -> float:
     """The contrast signal written out pixel by pixel: HSV histograms (8 x 4 x 4 bins) of the box and of the ring
-    around it (the box scaled by sqrt(2) about its centre, minus the box), then 1 - Bhattacharyya coefficient."""
+    around it (the box scaled by sqrt(2) about its centre, minus the box), then 1 - Bhattacharyya coefficient.
+    A box of ``4 * contrast_pixels`` pixels or more counts only the pixels of every k-th row and column from the
+    ring's top left, k the largest with at least ``contrast_pixels`` of the box's w x h in a k x k block's share."""
     x, y, w, h = box
     height, width = frame_rgb.shape[:2]
     hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV).astype(int)
     cx, cy, s = x + w / 2, y + h / 2, np.sqrt(2.0)
+    k = 1
+    while w * h >= (k + 1) ** 2 * contrast_pixels:
+        k += 1
+    left, top = max(round(cx - w * s / 2), 0), max(round(cy - h * s / 2), 0)
     inside, around = np.zeros(128), np.zeros(128)
     for r in range(height):
         for c in range(width):
+            if (r - top) % k or (c - left) % k:
+                continue
             in_box = round(x) <= c < round(x + w) and round(y) <= r < round(y + h)
             in_ring = (round(cx - w * s / 2) <= c < round(cx + w * s / 2)
                        and round(cy - h * s / 2) <= r < round(cy + h * s / 2))
@@ -295,7 +304,7 @@ def slow_contrast(frame_rgb: np.ndarray, box) -> float:
                 inside[b] += 1
             elif in_ring:
                 around[b] += 1
-    if inside.sum() < 100 or around.sum() < 100:  # too few pixels to compare histograms
+    if inside.sum() < min_pixels or around.sum() < min_pixels:  # too few pixels to compare histograms
         return float("nan")
     return 1.0 - float(np.sqrt(inside / inside.sum() * around / around.sum()).sum())
 
@@ -305,6 +314,55 @@ def slow_contrast(frame_rgb: np.ndarray, box) -> float:
 def test_the_contrast_signal_equals_its_pixel_by_pixel_definition(clip, box):
     frame = clip.frames[5]
     assert colour_contrast(frame, np.array(box)) == pytest.approx(slow_contrast(frame, box), abs=1e-6, nan_ok=True)
+
+
+@pytest.mark.parametrize("contrast_pixels", [150, 120, 60])
+@pytest.mark.parametrize("box", [(60.3, 40.6, 32.0, 28.0), (-8.0, 50.0, 40.0, 30.0), (131.0, 97.0, 30.0, 30.0),
+                                 (20.0, -12.5, 33.0, 41.0), (10.0, 8.0, 140.0, 100.0), (70.0, 10.0, 27.0, 29.0)])
+def test_a_big_box_is_measured_on_every_kth_pixel_as_its_definition_says(clip, box, contrast_pixels, monkeypatch):
+    # The frame is small, so the sampling's threshold (and the fewest pixels compared) are lowered for the test:
+    # steps of 2 to 17, boxes cut by the frame's edges on every side.
+    monkeypatch.setattr(contrast_module, "CONTRAST_PIXELS", contrast_pixels)
+    monkeypatch.setattr(contrast_module, "_MIN_PIXELS", 5)
+    assert contrast_module.sampling_step(box[2], box[3]) > 1
+    frame = clip.frames[5]
+    expected = slow_contrast(frame, box, contrast_pixels, min_pixels=5)
+    assert np.isfinite(expected)
+    assert colour_contrast(frame, np.array(box)) == pytest.approx(expected, abs=1e-6)
+
+
+def test_boxes_of_otb_sizes_are_measured_whole_and_a_big_one_keeps_its_contrast():
+    from sptpt.contrast import sampling_step
+
+    # Every box under 4 x CONTRAST_PIXELS pixels, as every box of OTB's frame sizes is, is measured whole.
+    assert sampling_step(255, 256) == 1 and sampling_step(2000, 32) == 1 and sampling_step(256, 256) == 2
+    assert sampling_step(500, 500) == 3 and sampling_step(1900, 1000) == 10
+    # A 1080p frame of an object in smooth colour (a small picture enlarged) and its sampled measure: within 0.01
+    # of the whole box's, for boxes on the object, half on it and on the background.
+    rng = np.random.default_rng(4)
+    small = rng.integers(0, 256, (27, 48, 3), dtype=np.uint8)
+    small[8:20, 15:30] = (200, 40, 40)
+    frame = cv2.resize(small, (1920, 1080), interpolation=cv2.INTER_LINEAR)
+    for box in ([600.0, 320.0, 600.0, 480.0], [900.0, 320.0, 600.0, 480.0], [40.0, 40.0, 300.0, 250.0]):
+        sampled = colour_contrast(frame, np.array(box))
+        assert sampling_step(box[2], box[3]) >= 2
+        assert sampled == pytest.approx(slow_contrast_whole(frame, box), abs=0.01)
+
+
+def slow_contrast_whole(frame_rgb: np.ndarray, box) -> float:
+    """:func:`colour_contrast` on every pixel of the box and its ring, however big (OpenCV's histograms)."""
+    x, y, w, h = box
+    s = np.sqrt(2.0)
+    cx, cy = x + w / 2, y + h / 2
+    rows = np.arange(frame_rgb.shape[0])[:, None]
+    cols = np.arange(frame_rgb.shape[1])[None, :]
+    in_box = (round(x) <= cols) & (cols < round(x + w)) & (round(y) <= rows) & (rows < round(y + h))
+    in_ring = ((round(cx - w * s / 2) <= cols) & (cols < round(cx + w * s / 2))
+               & (round(cy - h * s / 2) <= rows) & (rows < round(cy + h * s / 2)) & ~in_box)
+    hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV)
+    inside, around = (cv2.calcHist([hsv], [0, 1, 2], mask.astype(np.uint8), [8, 4, 4], [0, 180, 0, 256, 0, 256]).ravel()
+                      for mask in (in_box, in_ring))
+    return 1.0 - float(np.sqrt(inside / inside.sum() * around / around.sum()).sum())
 
 
 def test_the_contrast_of_a_box_off_the_image_is_not_measured(clip):
