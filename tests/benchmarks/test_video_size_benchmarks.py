@@ -1,4 +1,5 @@
-"""The frame-size and long-video benchmarks' own parts: the resized sequence's ground truth, the memory probe."""
+"""The frame-size, long-video and contrast-cost benchmarks' own parts: the resized sequence's ground truth, the memory
+probe, the contrast table."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from _benchmark_scripts import load_script, run_benchmark
+from _paths import ROOT
 
 
 def test_a_resized_sequence_keeps_its_ground_truth_on_the_object(tmp_path, monkeypatch):
@@ -88,3 +90,21 @@ def test_the_memory_probe_tells_the_decoder_from_the_encoder():
         "decoder", "encoder", "other", "other", "other"]
     mine = long_video._rss_by_process(os.getpid())
     assert set(mine) == set(long_video.ROLES) and mine["tool"] > 10
+
+
+def test_the_contrast_cost_benchmark_times_every_box_size():
+    done = run_benchmark("contrast_cost", "--calls", "1", "--rounds", "1")
+    assert done.returncode == 0, done.stderr
+    rows = [line.split("|") for line in done.stdout.splitlines() if line.startswith("| ") and "x" in line[:12]]
+    boxes = [cells[1].strip() for cells in rows if cells[1].strip() != "box"]
+    assert boxes == [f"{w}x{h}" for w, h in load_script("contrast_cost").BOXES]
+    assert all(float(cells[3]) > 0 for cells in rows if cells[1].strip() != "box")
+
+
+def test_the_contrast_cost_benchmark_counts_the_calls_of_a_run_of_the_tool():
+    box = (ROOT / "samples" / "clip_box.txt").read_text().strip()
+    done = run_benchmark("contrast_cost", "--video", str(ROOT / "samples" / "clip.mp4"), "--box", box, "--stop", "4",
+                         timeout=300)
+    assert done.returncode == 0, done.stderr
+    calls = int(done.stdout.split(" calls in 4 frames")[0].split()[-1])
+    assert calls >= 3  # the failure signal's at least, on frames 1-3, and the tracker's own
