@@ -18,6 +18,7 @@ from the tracker and from the failure signals, is counted and timed by its threa
 from __future__ import annotations
 
 import argparse
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -63,14 +64,15 @@ def calls_in_a_run(video: Path, box: str, stop: int) -> dict[str, float]:
     # The tracker reaches it through sptpt.contrast's own name, the signals through the name they imported.
     contrast.colour_contrast, signals.colour_contrast = counted, counted
     started = time.process_time()
-    try:
-        tool([str(video), "--box", box, "--stop", str(stop), "--no-render", "--formats", "otb,flags",
-              "--out", "/tmp/contrast_cost_run", "--force", "-q"])
-    except SystemExit as done:
-        if done.code:
-            raise
-    finally:
-        contrast.colour_contrast, signals.colour_contrast = measure, measure
+    with tempfile.TemporaryDirectory(prefix="contrast_cost_") as out:
+        try:
+            tool([str(video), "--box", box, "--stop", str(stop), "--no-render", "--formats", "otb,flags",
+                  "--out", out, "--force", "-q"])
+        except SystemExit as done:
+            if done.code:
+                raise
+        finally:
+            contrast.colour_contrast, signals.colour_contrast = measure, measure
     return {**measured, "process_cpu_s": time.process_time() - started}
 
 

@@ -33,7 +33,8 @@ _MIN_PIXELS = 100
 # pixels (128 per bin): the histograms of a regular sample are those of the whole box up to a small sampling error,
 # and a call costs at most what a box of 4 x this many pixels costs, however big the box (issue #69: a 500x500 box
 # on a 1080p frame took 9 ms a call, and a frame makes some 16 calls). Sampling starts at 65536 pixels (256x256),
-# 1.6x the largest box any call saw on OTB's frames (FaceOcc1, 41,000), so runs at OTB's sizes keep every box.
+# 1.6x the largest box any call saw on OTB's frames (FaceOcc1, 41,000, seeds 0-2), so runs at OTB's sizes keep
+# their boxes.
 CONTRAST_PIXELS = 16384
 
 
@@ -51,13 +52,13 @@ def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
     -------
     float
         0: the box and its ring hold the same colours; 1: no colour in common. NaN where the box or its ring
-        has fewer than 100 pixels in the frame (too few to compare histograms) or the box is not finite.
+        has fewer than 100 pixels read in the frame (too few to compare histograms) or the box is not finite.
 
     Notes
     -----
-    A box of 4 x :data:`CONTRAST_PIXELS` pixels or more is read on every k-th pixel of every k-th row from the
-    ring's top left corner (k = :func:`sampling_step`), so that a call on an HD frame costs what a call on a box
-    of that many pixels costs.
+    A box with 4 x :data:`CONTRAST_PIXELS` pixels or more inside the frame is read on every k-th pixel of every
+    k-th row from the ring's top left corner (k = :func:`sampling_step` of its part inside the frame), so that a
+    call on an HD frame costs about what a call on a box of that many pixels costs.
     """
     height, width = frame_rgb.shape[:2]
     x, y, w, h = (float(v) for v in box)
@@ -68,7 +69,9 @@ def colour_contrast(frame_rgb: np.ndarray, box: np.ndarray) -> float:
     rx1, ry1 = min(int(round(cx + w * _RING_SCALE / 2)), width), min(int(round(cy + h * _RING_SCALE / 2)), height)
     if rx1 - rx0 < 2 or ry1 - ry0 < 2:
         return math.nan
-    step = sampling_step(w, h)
+    # The step follows the part of the box inside the frame: a big box mostly off the frame keeps enough pixels,
+    # and a huge one (w * h overflowing) is no error.
+    step = sampling_step(max(min(x + w, width) - max(x, 0.0), 0.0), max(min(y + h, height) - max(y, 0.0), 0.0))
     crop = np.ascontiguousarray(frame_rgb[ry0:ry1:step, rx0:rx1:step])
     rows, cols = crop.shape[:2]
     x0, y0, x1, y1 = xywh_to_xyxy((x, y, w, h)).tolist()

@@ -281,14 +281,16 @@ def test_a_flag_reason_never_names_a_group_the_model_leaves_out():
 def slow_contrast(frame_rgb: np.ndarray, box, contrast_pixels: int = CONTRAST_PIXELS, min_pixels: int = 100) -> float:
     """The contrast signal written out pixel by pixel: HSV histograms (8 x 4 x 4 bins) of the box and of the ring
     around it (the box scaled by sqrt(2) about its centre, minus the box), then 1 - Bhattacharyya coefficient.
-    A box of ``4 * contrast_pixels`` pixels or more counts only the pixels of every k-th row and column from the
-    ring's top left, k the largest with at least ``contrast_pixels`` of the box's w x h in a k x k block's share."""
+    A box with ``4 * contrast_pixels`` pixels or more inside the frame counts only the pixels of every k-th row and
+    column from the ring's top left, k the largest that leaves ``contrast_pixels`` of the box's area inside the
+    frame to each k x k block."""
     x, y, w, h = box
     height, width = frame_rgb.shape[:2]
     hsv = cv2.cvtColor(np.ascontiguousarray(frame_rgb), cv2.COLOR_RGB2HSV).astype(int)
     cx, cy, s = x + w / 2, y + h / 2, np.sqrt(2.0)
+    inside_frame = max(min(x + w, width) - max(x, 0), 0) * max(min(y + h, height) - max(y, 0), 0)
     k = 1
-    while w * h >= (k + 1) ** 2 * contrast_pixels:
+    while inside_frame >= (k + 1) ** 2 * contrast_pixels:
         k += 1
     left, top = max(round(cx - w * s / 2), 0), max(round(cy - h * s / 2), 0)
     inside, around = np.zeros(128), np.zeros(128)
@@ -321,11 +323,12 @@ def test_the_contrast_signal_equals_its_pixel_by_pixel_definition(clip, box):
                                  (20.0, -12.5, 33.0, 41.0), (10.0, 8.0, 140.0, 100.0), (70.0, 10.0, 27.0, 29.0)])
 def test_a_big_box_is_measured_on_every_kth_pixel_as_its_definition_says(clip, box, contrast_pixels, monkeypatch):
     # The frame is small, so the sampling's threshold (and the fewest pixels compared) are lowered for the test:
-    # steps of 2 to 17, boxes cut by the frame's edges on every side.
+    # steps of 2 to 15, boxes cut by the frame's edges on every side.
     monkeypatch.setattr(contrast_module, "CONTRAST_PIXELS", contrast_pixels)
     monkeypatch.setattr(contrast_module, "_MIN_PIXELS", 5)
-    assert contrast_module.sampling_step(box[2], box[3]) > 1
     frame = clip.frames[5]
+    x, y, w, h = box
+    assert contrast_module.sampling_step(min(x + w, 160) - max(x, 0), min(y + h, 120) - max(y, 0)) > 1
     expected = slow_contrast(frame, box, contrast_pixels, min_pixels=5)
     assert np.isfinite(expected)
     assert colour_contrast(frame, np.array(box)) == pytest.approx(expected, abs=1e-6)
@@ -347,6 +350,15 @@ def test_boxes_of_otb_sizes_are_measured_whole_and_a_big_one_keeps_its_contrast(
         sampled = colour_contrast(frame, np.array(box))
         assert sampling_step(box[2], box[3]) >= 2
         assert sampled == pytest.approx(slow_contrast_whole(frame, box), abs=0.01)
+
+
+def test_the_sampling_step_follows_the_part_of_the_box_inside_the_frame():
+    frame = cv2.resize(np.random.default_rng(5).integers(0, 256, (27, 48, 3), dtype=np.uint8), (1920, 1080))
+    # 800x800 nominal, 40x80 inside the frame: read whole, as its visible part is small, not NaN for too few pixels.
+    corner = [1880.0, 1000.0, 800.0, 800.0]
+    assert colour_contrast(frame, np.array(corner)) == pytest.approx(slow_contrast_whole(frame, corner), abs=1e-9)
+    # A box too big for w * h to be a number: no error; it covers the frame, so no ring is left to compare with.
+    assert np.isnan(colour_contrast(frame, np.array([-10.0, -10.0, 1e200, 1e200])))
 
 
 def slow_contrast_whole(frame_rgb: np.ndarray, box) -> float:
